@@ -19,7 +19,7 @@ use crate::interp::{normalised_coord, weight_grads, weights, MAX_VERTICES};
 use crate::preprocess::Cam;
 use crate::preprocess_backward::{gaussian_backward, SplatGradSum};
 use crate::real::Real;
-use crate::splat::{eval_row, hit_from_row, intersect_backward, row_offsets, RowEval, SplatGrad};
+use crate::splat::{eval_row, hit_from_row, intersect_backward, row_offsets, row_setup, RowEval, SplatGrad};
 use crate::tiles::{TileBins, TileRec};
 use crate::{
     BackgroundOf, ColorSourceOf, ForwardStateOf, GaussianParams, GradsOf, OutputGradsOf, RasterConfig, RenderInputOf,
@@ -238,6 +238,7 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
     let mut ext = vec![F::ZERO; ce];
     let mut ev = Box::<RowEval<F>>::default();
     let offs = row_offsets::<F>();
+    let mut row_ncon = vec![0u32; tile];
     // Whether any feature is interpolated (else no gradient flows through u~, v~).
     let interp = cf.vertices > 1 || (ce > 0 && ef.vertices > 1);
     for tx in 0..bins.tiles_x {
@@ -247,6 +248,7 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
         let (tx0, ty0) = (tr[0] as usize, tr[2] as usize);
         // Load per-pixel state and upstream gradients.
         let mut max_n = 0u32;
+        row_ncon.fill(0);
         for y in tr[2] as usize..tr[3] as usize {
             for x in tr[0] as usize..tr[1] as usize {
                 let li = (y - ty0) * tile + (x - tx0);
@@ -255,6 +257,7 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
                 s.t[li] = tn;
                 s.ncon[li] = st.n_contrib[p];
                 max_n = max_n.max(st.n_contrib[p]);
+                row_ncon[y - ty0] = row_ncon[y - ty0].max(st.n_contrib[p]);
                 s.a[li] = F::ONE - tn;
                 s.m1[li] = st.moment1[p];
                 s.m2[li] = st.moment2[p];
@@ -276,16 +279,23 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
             let sp = &ctx.recs[e];
             let gid = sp.id as usize;
             let (x0, x1) = (sp.rect[0].max(tr[0]) as usize, sp.rect[1].min(tr[1]) as usize);
+            let c32 = [sp.center[0].to_f32(), sp.center[1].to_f32()];
             let (y0, y1) = (sp.rect[2].max(tr[2]) as usize, sp.rect[3].min(tr[3]) as usize);
             let slot = &mut eg[(e - e_band0) * dim..(e - e_band0 + 1) * dim];
             let mut sg = SplatGrad::<F>::default();
             let mut v_n = [F::ZERO; 3];
             for y in y0..y1 {
+                // No pixel of this row composited this entry.
+                if local >= row_ncon[y - ty0] {
+                    continue;
+                }
                 let yf = F::c(y as f64) + half;
                 let row = (y - ty0) * tile;
-                let rs = eval_row(&sp.h, sp.center, sp.opacity, yf, x0, x1.saturating_sub(x0), near, &offs, &mut ev);
-                for x in x0..x1 {
-                    let i = x - x0;
+                let rs = row_setup(&sp.h, yf);
+                let (xa, xb) = sp.conic.span(c32, yf.to_f32(), x0, x1);
+                eval_row(&sp.h, sp.center, sp.opacity, &rs, yf, xa, xb - xa, near, &offs, &mut ev);
+                for x in xa..xb {
+                    let i = x - xa;
                     let li = row + (x - tx0);
                     if local >= s.ncon[li] || ev.alpha[i] == F::ZERO {
                         continue;

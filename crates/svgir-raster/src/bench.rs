@@ -42,8 +42,12 @@ impl Problem {
     }
 
     pub fn with_surfels(surfels: Surfels, res: u32) -> Self {
-        let npx = (res * res) as usize;
-        Self { surfels, camera: bench_camera(res, res), g3: vec![1e-3; npx * 3], g1: vec![1e-3; npx] }
+        Self::with_camera(surfels, bench_camera(res, res))
+    }
+
+    pub fn with_camera(surfels: Surfels, camera: Camera) -> Self {
+        let npx = camera.intrinsics.width as usize * camera.intrinsics.height as usize;
+        Self { surfels, camera, g3: vec![1e-3; npx * 3], g1: vec![1e-3; npx] }
     }
 
     pub fn input(&self) -> RenderInput<'_> {
@@ -102,16 +106,35 @@ fn median_ms(mut f: impl FnMut(), reps: usize) -> f64 {
     t[t.len() / 2]
 }
 
-/// Forward and forward+backward timings at 256^2, 400^2, 800^2 with 10k, 100k, 300k Gaussians.
-pub fn bench_table(threads: usize) -> String {
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads.max(1)).build().expect("rayon pool");
-    let mut s = String::new();
-    let _ = writeln!(s, "svgir-raster bench ({} threads): SH degree 3, colour + all aux outputs", threads.max(1));
+fn thread_counts(threads: usize) -> Vec<usize> {
+    let mut t = vec![1, threads.max(1)];
+    t.dedup();
+    t
+}
+
+fn header(s: &mut String) {
     let _ = writeln!(
         s,
-        "{:>9} {:>8} {:>10} {:>12} {:>9} {:>12} {:>12}",
-        "size", "gauss", "pairs", "box evals", "fwd ms", "fwd+bwd ms", "Mevals/s f+b"
+        "{:>9} {:>8} {:>7} {:>10} {:>12} {:>9} {:>12} {:>12}",
+        "size", "gauss", "threads", "pairs", "box evals", "fwd ms", "fwd+bwd ms", "Mevals/s f+b"
     );
+}
+
+/// Forward and forward+backward timings at 256^2, 400^2, 800^2 with 10k, 100k, 300k random
+/// Gaussians, on 1 and `threads` threads.
+pub fn bench_table(threads: usize) -> String {
+    let mut s = String::new();
+    let _ = writeln!(s, "svgir-raster bench, random object scene: SH degree 3, colour + all aux outputs");
+    header(&mut s);
+    for t in thread_counts(threads) {
+        bench_random(&mut s, t);
+    }
+    let _ = writeln!(s, "box evals: Gaussian-pixel pairs inside each Gaussian's box (upper bound, before early stop).");
+    s
+}
+
+fn bench_random(s: &mut String, threads: usize) {
+    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("rayon pool");
     let cfg = RasterConfig::default();
     for &n in &[10_000usize, 100_000, 300_000] {
         let mut surfels = Some(random_scene(n, 7));
@@ -133,20 +156,73 @@ pub fn bench_table(threads: usize) -> String {
                     reps,
                 )
             });
-            let _ = writeln!(
-                s,
-                "{:>9} {:>8} {:>10} {:>12} {:>9.1} {:>12.1} {:>12.1}",
-                format!("{res}x{res}"),
-                n,
-                pairs,
-                evals,
-                fwd,
-                fb,
-                2.0 * evals as f64 / fb / 1e3
-            );
+            row(s, &format!("{res}x{res}"), n, threads, pairs as u64, evals, fwd, fb);
             surfels = Some(problem.surfels);
         }
     }
-    let _ = writeln!(s, "box evals: Gaussian-pixel pairs inside each Gaussian's box (upper bound, before early stop).");
+}
+
+#[allow(clippy::too_many_arguments)]
+fn row(s: &mut String, size: &str, n: usize, threads: usize, pairs: u64, evals: u64, fwd: f64, fb: f64) {
+    let _ = writeln!(
+        s,
+        "{:>9} {:>8} {:>7} {:>10} {:>12} {:>9.1} {:>12.1} {:>12.1}",
+        size,
+        n,
+        threads,
+        pairs,
+        evals,
+        fwd,
+        fb,
+        2.0 * evals as f64 / fb / 1e3
+    );
+}
+
+/// Forward and forward+backward timings of a given (trained) scene seen from `cameras`, on 1
+/// and `threads` threads: each call renders the next camera; the median over `reps` calls per
+/// camera is reported, with pair counts averaged over the cameras.
+pub fn bench_scene(surfels: Surfels, cameras: &[Camera], background: [f32; 3], threads: usize, reps: usize) -> String {
+    assert!(!cameras.is_empty(), "bench_scene needs at least one camera");
+    let mut s = String::new();
+    let n = surfels.len();
+    header(&mut s);
+    let mut problems: Vec<Problem> = Vec::new();
+    let mut surfels = Some(surfels);
+    for cam in cameras {
+        // Every problem needs the surfels; cloning keeps the bench simple (this is not timed).
+        let sf = surfels.take().unwrap_or_else(|| problems[0].surfels.clone());
+        problems.push(Problem::with_camera(sf, *cam));
+    }
+    let cfg = RasterConfig::default();
+    let (w, h) = (cameras[0].intrinsics.width, cameras[0].intrinsics.height);
+    for t in thread_counts(threads) {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().expect("rayon pool");
+        let (mut pairs, mut evals) = (0usize, 0u64);
+        let (mut fwd, mut fb) = (Vec::new(), Vec::new());
+        for p in &problems {
+            let mut input = p.input();
+            input.background = Background::Color(background);
+            let grads = p.grads();
+            pool.install(|| {
+                let (_, st) = render(&input, &cfg);
+                pairs += st.num_tile_entries();
+                evals += st.box_evaluations();
+                fwd.push(median_ms(|| drop(render(&input, &cfg)), reps));
+                fb.push(median_ms(
+                    || {
+                        let (out, st) = render(&input, &cfg);
+                        drop(crate::backward(&input, &cfg, &st, &out, &grads));
+                    },
+                    reps,
+                ));
+            });
+        }
+        let k = problems.len();
+        let med = |v: &mut Vec<f64>| {
+            v.sort_by(|a, b| a.total_cmp(b));
+            v[v.len() / 2]
+        };
+        row(&mut s, &format!("{w}x{h}"), n, t, (pairs / k) as u64, evals / k as u64, med(&mut fwd), med(&mut fb));
+    }
     s
 }

@@ -17,7 +17,7 @@
 use crate::interp::{normalised_coord, weights, MAX_VERTICES};
 use crate::preprocess::{preprocess, Cam};
 use crate::real::Real;
-use crate::splat::{eval_row, row_offsets, RowEval};
+use crate::splat::{eval_row, row_offsets, row_setup, RowEval};
 use crate::tiles::{bin, gather_records, TileBins, TileRec};
 use crate::{BackgroundOf, ColorSourceOf, ForwardStateOf, GaussianParams, RasterConfig, RenderInputOf, RenderOutputOf};
 use rayon::prelude::*;
@@ -258,6 +258,7 @@ fn render_band<F: Real>(
     let y_band0 = (b.ty * bins.tile) as usize;
     let mut acc = vec![PixAcc::<F>::default(); tile * tile];
     let mut acc_extra = vec![F::ZERO; tile * tile * ce];
+    let mut row_left = vec![0usize; tile];
     let mut wc = [F::ZERO; MAX_VERTICES];
     let mut we = [F::ZERO; MAX_VERTICES];
     let mut col = [F::ZERO; 3];
@@ -279,6 +280,8 @@ fn render_band<F: Real>(
         acc.fill(PixAcc { t: F::ONE, ..Default::default() });
         acc_extra.fill(F::ZERO);
         let mut remaining = (tr[1] - tr[0]) as usize * (tr[3] - tr[2]) as usize;
+        // Pixels not yet done, per row of the tile (a saturated row is skipped whole).
+        row_left.fill((tr[1] - tr[0]) as usize);
         for e in r0 as usize..r1 as usize {
             if remaining == 0 {
                 break;
@@ -286,15 +289,21 @@ fn render_band<F: Real>(
             let s = &recs[e];
             let g = s.id as usize;
             let (x0, x1) = (s.rect[0].max(tr[0]) as usize, s.rect[1].min(tr[1]) as usize);
+            let c32 = [s.center[0].to_f32(), s.center[1].to_f32()];
             let (y0, y1) = (s.rect[2].max(tr[2]) as usize, s.rect[3].min(tr[3]) as usize);
             let local = (e - r0 as usize + 1) as u32;
             let mut ws = F::ZERO;
             for y in y0..y1 {
+                if row_left[y - ty0] == 0 {
+                    continue;
+                }
                 let yf = F::c(y as f64) + half;
                 let row = (y - ty0) * tile;
-                eval_row(&s.h, s.center, s.opacity, yf, x0, x1.saturating_sub(x0), near, &offs, &mut ev);
-                for x in x0..x1 {
-                    let i = x - x0;
+                let rs = row_setup(&s.h, yf);
+                let (xa, xb) = s.conic.span(c32, yf.to_f32(), x0, x1);
+                eval_row(&s.h, s.center, s.opacity, &rs, yf, xa, xb - xa, near, &offs, &mut ev);
+                for x in xa..xb {
+                    let i = x - xa;
                     let li = row + (x - tx0);
                     let a = &mut acc[li];
                     if a.done || ev.alpha[i] == F::ZERO {
@@ -306,6 +315,7 @@ fn render_band<F: Real>(
                     if test < t_stop {
                         a.done = true;
                         remaining -= 1;
+                        row_left[y - ty0] -= 1;
                         continue;
                     }
                     let wgt = hit.alpha * tcur;

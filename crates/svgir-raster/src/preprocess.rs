@@ -8,13 +8,15 @@
 //! Culling: a Gaussian is skipped when its centre is closer than `near` (2DGS's frustum test),
 //! when its quaternion or H is degenerate, or when its plane contains the camera centre (edge-on).
 //!
-//! Screen box: the pixels whose centres can pass the per-pixel cut `rho <= 9` (see
-//! [`crate::splat`]) are those inside the projected 3-sigma ellipse `u^2 + v^2 <= 9` (when the
-//! filter is inactive) or within `3/sqrt(2)` px of the projected centre (when it is). The ellipse's
-//! box comes from its dual conic (2DGS's `compute_aabb`), computed in f64 so it is exact for the
-//! H the kernels evaluate; the disk's box uses 2DGS's `3 * 0.707` floor. The union, plus a 0.01 px
-//! margin, is the Gaussian's box; if the 3-sigma ellipse crosses the camera plane its projection
-//! is unbounded and the box is the whole image. `max_radius` is 2DGS's `ceil(max(extent, 3*0.707))`.
+//! Screen box: the pixels whose centres can pass the per-pixel cuts (see [`crate::splat`]) have
+//! `rho <= R`, with `R = min(9, 2 ln(255 o))` the opacity-aware limit ([`crate::splat::rho_limit`]:
+//! beyond it alpha is under 1/255 anyway, so a faint Gaussian gets a smaller box and fewer tiles
+//! without changing a single pixel). They lie inside the projected ellipse `u^2 + v^2 <= R` (when
+//! the filter is inactive) or within `sqrt(R/2)` px of the projected centre (when it is). The
+//! ellipse's box comes from its dual conic (2DGS's `compute_aabb`), computed in f64 so it is exact
+//! for the H the kernels evaluate. The union, plus a 0.01 px margin, is the Gaussian's box; if
+//! the ellipse crosses the camera plane its projection is unbounded and the box is the whole
+//! image. `max_radius` keeps 2DGS's 3-sigma `ceil(max(extent, 3*0.707))` (densification reads it).
 
 // Negated comparisons are deliberate: they also reject NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
@@ -87,6 +89,8 @@ pub struct Splat<F> {
     pub flip: F,
     /// Pixel box `[x0, x1, y0, y1]`, ends exclusive; empty (x0 == x1) when culled.
     pub rect: [u32; 4],
+    /// Per-row chords of the pixels that can pass the cut ([`crate::splat::RowConic`]).
+    pub conic: crate::splat::RowConic,
     pub radius: f32,
     /// Bit c set when SH colour channel c was clamped at 0.
     pub clamped: u8,
@@ -200,45 +204,54 @@ pub fn project_one<F: Real, P: GaussianParams<F> + ?Sized>(
         return None;
     }
     let flip = if cosv > F::ZERO { F::ONE } else { -F::ONE };
-    let (rect, radius) = screen_box(&h, center, cam.width, cam.height)?;
     let o = F::ONE / (F::ONE + (-params.opacity_logit(i)).exp());
-    Some(Splat { h, center, opacity: o, depth: a0[2], normal: nrm.map(|v| v * flip), flip, rect, radius, clamped: 0 })
+    let rho_max = crate::splat::rho_limit(o.to_f64());
+    let (rect, radius) = screen_box(&h, center, rho_max, cam.width, cam.height)?;
+    let conic = crate::splat::RowConic::new(&h.map(|v| v.to_f64()), center.map(|v| v.to_f64()), rho_max);
+    Some(Splat {
+        h,
+        center,
+        opacity: o,
+        depth: a0[2],
+        normal: nrm.map(|v| v * flip),
+        flip,
+        rect,
+        conic,
+        radius,
+        clamped: 0,
+    })
 }
 
 /// Pixel box and radius (see the module docs).
-fn screen_box<F: Real>(h: &[F; 9], center: [F; 2], w: u32, hh: u32) -> Option<([u32; 4], f32)> {
+fn screen_box<F: Real>(h: &[F; 9], center: [F; 2], rho_max: f64, w: u32, hh: u32) -> Option<([u32; 4], f32)> {
     let t: [f64; 9] = h.map(|v| v.to_f64());
     let c = [center[0].to_f64(), center[1].to_f64()];
     if !t.iter().chain(c.iter()).all(|v| v.is_finite()) {
         return None;
     }
-    let cut2 = CUTOFF * CUTOFF;
-    let (tu, tv, tw) = ([t[0], t[1], t[2]], [t[3], t[4], t[5]], [t[6], t[7], t[8]]);
-    let q = |a: [f64; 3], b: [f64; 3]| cut2 * (a[0] * b[0] + a[1] * b[1]) - a[2] * b[2];
-    let d = q(tw, tw);
-    let rf = CUTOFF * FILTER_SIZE + 1e-4;
-    let (xmin, xmax, ymin, ymax, radius);
-    if d < 0.0 {
-        // Dual conic of the 3-sigma ellipse (2DGS compute_aabb): x extremes are the roots of
-        // C*_22 x^2 - 2 C*_02 x + C*_00 = 0.
-        let px = q(tu, tw) / d;
-        let py = q(tv, tw) / d;
-        let ex = (px * px - q(tu, tu) / d).max(1e-4).sqrt();
-        let ey = (py * py - q(tv, tv) / d).max(1e-4).sqrt();
-        let m = 0.01;
-        xmin = (px - ex).min(c[0] - rf) - m;
-        xmax = (px + ex).max(c[0] + rf) + m;
-        ymin = (py - ey).min(c[1] - rf) - m;
-        ymax = (py + ey).max(c[1] + rf) + m;
-        radius = ex.max(ey).max(CUTOFF * FILTER_SIZE).ceil() as f32;
-    } else {
-        // The ellipse reaches behind the camera: unbounded projection.
-        xmin = f64::NEG_INFINITY;
-        ymin = f64::NEG_INFINITY;
-        xmax = f64::INFINITY;
-        ymax = f64::INFINITY;
-        radius = w.max(hh) as f32;
+    if !(rho_max > 0.0) {
+        return None;
     }
+    // Filter disk: 2 d^2 <= R.
+    let rf = (0.5 * rho_max).sqrt() + 1e-4;
+    let (xmin, xmax, ymin, ymax) = match conic_extent(&t, rho_max) {
+        Some([px, ex, py, ey]) => {
+            let m = 0.01;
+            (
+                (px - ex).min(c[0] - rf) - m,
+                (px + ex).max(c[0] + rf) + m,
+                (py - ey).min(c[1] - rf) - m,
+                (py + ey).max(c[1] + rf) + m,
+            )
+        }
+        // The ellipse reaches behind the camera: unbounded projection.
+        None => (f64::NEG_INFINITY, f64::INFINITY, f64::NEG_INFINITY, f64::INFINITY),
+    };
+    // 3-sigma extent for densification, whatever the opacity.
+    let radius = match conic_extent(&t, CUTOFF * CUTOFF) {
+        Some([_, ex, _, ey]) => ex.max(ey).max(CUTOFF * FILTER_SIZE).ceil() as f32,
+        None => w.max(hh) as f32,
+    };
     // Pixel i is inside when its centre i + 0.5 is in [min, max].
     let lo = |v: f64, n: u32| (v - 0.5).ceil().clamp(0.0, n as f64) as u32;
     let hi = |v: f64, n: u32| ((v - 0.5).floor() + 1.0).clamp(0.0, n as f64) as u32;
@@ -247,6 +260,23 @@ fn screen_box<F: Real>(h: &[F; 9], center: [F; 2], w: u32, hh: u32) -> Option<([
         return None;
     }
     Some((rect, radius))
+}
+
+/// Centre and half extents `[px, ex, py, ey]` of the projected ellipse `u^2 + v^2 <= cut2` of
+/// the splat matrix `t`, or `None` when it crosses the camera plane (unbounded). Dual conic as in
+/// 2DGS's `compute_aabb`: the x extremes are the roots of `C*_22 x^2 - 2 C*_02 x + C*_00 = 0`.
+fn conic_extent(t: &[f64; 9], cut2: f64) -> Option<[f64; 4]> {
+    let (tu, tv, tw) = ([t[0], t[1], t[2]], [t[3], t[4], t[5]], [t[6], t[7], t[8]]);
+    let q = |a: [f64; 3], b: [f64; 3]| cut2 * (a[0] * b[0] + a[1] * b[1]) - a[2] * b[2];
+    let d = q(tw, tw);
+    if !(d < 0.0) {
+        return None;
+    }
+    let px = q(tu, tw) / d;
+    let py = q(tv, tw) / d;
+    let ex = (px * px - q(tu, tu) / d).max(1e-4).sqrt();
+    let ey = (py * py - q(tv, tv) / d).max(1e-4).sqrt();
+    Some([px, ex, py, ey])
 }
 
 /// SH colour `max(0, 0.5 + SH(normalize(p - cam)))` (3DGS) and the clamp bits.

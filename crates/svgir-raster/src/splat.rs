@@ -45,6 +45,101 @@ pub fn max_rho<F: Real>() -> F {
     F::c(9.0)
 }
 
+/// The largest rho at which a splat of opacity `o` can pass both cuts: `rho <= 9` and
+/// `o exp(-rho / 2) >= 1/255`, i.e. `rho <= 2 ln(255 o)`. A bound for culling only (the kernels
+/// still apply the exact tests), so it carries a margin for `exp_fast` and rounding; `<= 0` means
+/// no pixel can pass.
+pub fn rho_limit(o: f64) -> f64 {
+    const MARGIN: f64 = 0.02;
+    (2.0 * (255.0 * o).ln() + MARGIN).min(9.0)
+}
+
+/// Where on each pixel row a splat can pass the cut `rho <= R` ([`rho_limit`]): the chord of
+/// the projected ellipse `u^2 + v^2 <= R`, joined with the chord of the filter disk
+/// `2 |c - x|^2 <= R`. A culling bound only -- the kernels still test every pixel exactly -- so
+/// it skips the empty corners of a tilted splat's box for a few flops per row.
+///
+/// With `T_u, T_v, T_w` the rows of H, the hit plane cross product at pixel `(x, y)` is
+/// `p = x (T_v x T_w) + y (T_w x T_u) + (T_u x T_v)`; around the centre, `x = cx + s`,
+/// `y = cy + t`, `p = s alpha + t beta + gamma` and the ellipse is
+/// `s^2 A + 2 s B(t) + C(t) <= 0` with `<a, b> = a0 b0 + a1 b1 - R a2 b2`, `A = <alpha, alpha>`,
+/// `B = t <alpha, beta> + <alpha, gamma>`, `C = t^2 <beta, beta> + 2 t <beta, gamma> +
+/// <gamma, gamma>`. The coefficients (divided by A) are computed once per splat in f64 and kept
+/// in f32; the chord is widened by a pixel on each side against rounding.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct RowConic {
+    /// `[B0, B1, C0, C1, C2] / A`: `B/A = B0 + t B1`, `C/A = C0 + t (C1 + t C2)`.
+    k: [f32; 5],
+    /// `R / 2`: the filter disk's squared radius.
+    disk_r2: f32,
+    /// `A > 0`: the ellipse does not cross the camera plane, so its chords are bounded.
+    bounded: bool,
+}
+
+impl RowConic {
+    pub fn new(h: &[f64; 9], c: [f64; 2], rho_max: f64) -> Self {
+        let (tu, tv, tw) = ([h[0], h[1], h[2]], [h[3], h[4], h[5]], [h[6], h[7], h[8]]);
+        let alpha = cross3(tv, tw);
+        let beta = cross3(tw, tu);
+        let g0 = cross3(tu, tv);
+        let gamma: [f64; 3] = std::array::from_fn(|j| c[0] * alpha[j] + c[1] * beta[j] + g0[j]);
+        let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] - rho_max * a[2] * b[2];
+        let a = dot(alpha, alpha);
+        let k = [
+            dot(alpha, gamma) / a,
+            dot(alpha, beta) / a,
+            dot(gamma, gamma) / a,
+            2.0 * dot(beta, gamma) / a,
+            dot(beta, beta) / a,
+        ];
+        let bounded = a > 0.0 && k.iter().all(|v| v.is_finite() && v.abs() < 1e30);
+        Self { k: k.map(|v| v as f32), disk_r2: (0.5 * rho_max) as f32, bounded }
+    }
+
+    /// The pixels `[lo, hi)` of `[x0, x1)` on the row with centre `y` that can pass the cut, for
+    /// a splat with projected centre `c` (a superset; empty as `lo == hi`).
+    #[inline(always)]
+    pub fn span(&self, c: [f32; 2], y: f32, x0: usize, x1: usize) -> (usize, usize) {
+        if !self.bounded {
+            return (x0, x1);
+        }
+        let t = y - c[1];
+        let k = &self.k;
+        let bh = k[0] + t * k[1];
+        let ch = k[2] + t * (k[3] + t * k[4]);
+        let disc = bh * bh - ch;
+        let e2 = self.disk_r2 - t * t;
+        let (mut lo, mut hi) = (f32::INFINITY, f32::NEG_INFINITY);
+        if disc >= 0.0 {
+            let sq = disc.sqrt();
+            lo = c[0] - bh - sq;
+            hi = c[0] - bh + sq;
+        }
+        if e2 >= 0.0 {
+            let e = e2.sqrt();
+            lo = lo.min(c[0] - e);
+            hi = hi.max(c[0] + e);
+        }
+        if !(lo <= hi) {
+            return (x0, x0);
+        }
+        // Pixel i (centre i + 0.5) with a one-pixel margin: i in [lo - 1.5, hi + 0.5].
+        let (fx0, fx1) = (x0 as f32, x1 as f32);
+        let lo_px = floor_clamped(lo - 1.5, fx0, fx1);
+        let lo_px = if (lo_px as f32) < lo - 1.5 { lo_px + 1 } else { lo_px }.min(x1);
+        let hi_px = (floor_clamped(hi + 0.5, fx0, fx1) + 1).min(x1);
+        (lo_px, hi_px.max(lo_px))
+    }
+}
+
+/// `floor(v)` clamped to `[lo, hi]` (both non-negative) as an index, without a libm call
+/// (baseline x86-64 has no SSE4.1 `round`).
+#[inline(always)]
+fn floor_clamped(v: f32, lo: f32, hi: f32) -> usize {
+    // Clamping first makes the value non-negative, where truncation is floor.
+    v.max(lo).min(hi) as usize
+}
+
 /// Per (splat, pixel row) constants: `l = y T_w - T_v` is the same for the whole row, so
 /// `p = k x l = x (T_w x l) - (T_u x l) = x a - b`.
 #[derive(Clone, Copy, Debug)]
@@ -111,26 +206,26 @@ pub fn row_offsets<F: Real>() -> [F; MAX_ROW] {
     std::array::from_fn(|i| F::c(i as f64))
 }
 
-/// Evaluates pixels `x0 + 0.5 + offsets[i]`, `i < n`, of row centre `y` (a loop the compiler
-/// can vectorise: no branches); `offsets` is [`row_offsets`].
+/// Evaluates pixels `x0 + 0.5 + offsets[i]`, `i < n`, of row centre `y` set up by [`row_setup`]
+/// (a loop the compiler can vectorise: no branches); `offsets` is [`row_offsets`].
 #[inline(always)]
 pub fn eval_row<F: Real>(
     h: &[F; 9],
     c: [F; 2],
     o: F,
+    rs: &RowSetup<F>,
     y: F,
     x0: usize,
     n: usize,
     near: F,
     offsets: &[F; MAX_ROW],
     out: &mut RowEval<F>,
-) -> RowSetup<F> {
-    let rs = row_setup(h, y);
+) {
     let xs = F::c(x0 as f64 + 0.5);
     let n = n.min(MAX_ROW);
     for i in 0..n {
         let x = xs + offsets[i];
-        let (alpha, u, v, z, g, inv_pz) = eval_px(h, c, o, &rs, x, y, near);
+        let (alpha, u, v, z, g, inv_pz) = eval_px(h, c, o, rs, x, y, near);
         out.alpha[i] = alpha;
         out.u[i] = u;
         out.v[i] = v;
@@ -138,7 +233,6 @@ pub fn eval_row<F: Real>(
         out.g[i] = g;
         out.inv_pz[i] = inv_pz;
     }
-    rs
 }
 
 /// The full hit record of pixel `i` of a row evaluated by [`eval_row`] (for backward).

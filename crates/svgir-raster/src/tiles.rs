@@ -30,6 +30,8 @@ pub struct TileRec<F> {
     /// The colour when the colour source has one vertex (SH or constant features).
     pub color: [F; 3],
     pub rect: [u32; 4],
+    /// The splat's per-row chords (culling bound, [`crate::splat::RowConic`]).
+    pub conic: crate::splat::RowConic,
     pub id: u32,
 }
 
@@ -44,7 +46,16 @@ pub fn gather_records<F: Real>(bins: &TileBins, splats: &[Splat<F>], colors: Opt
                 let i = g as usize * 3;
                 [c[i], c[i + 1], c[i + 2]]
             });
-            TileRec { h: s.h, center: s.center, opacity: s.opacity, normal: s.normal, color, rect: s.rect, id: g }
+            TileRec {
+                h: s.h,
+                center: s.center,
+                opacity: s.opacity,
+                normal: s.normal,
+                color,
+                rect: s.rect,
+                conic: s.conic,
+                id: g,
+            }
         })
         .collect()
 }

@@ -2,6 +2,7 @@
 
 use anyhow::{Context, Result};
 use clap::{Args, ValueEnum};
+use std::path::{Path, PathBuf};
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub enum Kernel {
@@ -19,6 +20,40 @@ pub enum Kernel {
 pub struct BenchArgs {
     #[arg(value_enum)]
     pub kernel: Kernel,
+    /// raster: time a trained scene instead of random ones (a 3DGS/2DGS/svgir PLY, e.g. a run's
+    /// point_cloud.ply), seen from the test cameras of --data.
+    #[arg(long, requires = "data")]
+    pub ply: Option<PathBuf>,
+    /// raster: the dataset whose test cameras view --ply.
+    #[arg(long, requires = "ply")]
+    pub data: Option<PathBuf>,
+    /// raster: how many test cameras (spread over the test set) to time with --ply.
+    #[arg(long, default_value_t = 5)]
+    pub views: usize,
+    /// raster: background colour r,g,b for --ply.
+    #[arg(long, default_value = "1,1,1", value_parser = super::eval::parse_rgb)]
+    pub background: [f32; 3],
+}
+
+/// `svgir bench raster --ply --data`: the scene's timing table.
+fn raster_scene(ply: &Path, data: &Path, views: usize, background: [f32; 3], threads: usize) -> Result<String> {
+    let (surfels, _) = svgir_io::read_gaussians_ply(ply)?;
+    let opts = svgir_io::LoadOptions { resolution: None, downscale: None, load_test: true, max_views: None };
+    let ds = svgir_io::load_dataset(data, &opts)?;
+    let pool = if ds.test.is_empty() { &ds.train } else { &ds.test };
+    anyhow::ensure!(!pool.is_empty(), "{}: no views to take cameras from", data.display());
+    let k = views.clamp(1, pool.len());
+    let cams: Vec<_> = (0..k).map(|i| pool[i * pool.len() / k].camera).collect();
+    let mut s = format!(
+        "svgir-raster bench, trained scene {} ({} Gaussians, SH degree {}), {} cameras of {}\n",
+        ply.display(),
+        surfels.len(),
+        surfels.sh_degree,
+        k,
+        data.display()
+    );
+    s += &svgir_raster::bench::bench_scene(surfels, &cams, background, threads, 5);
+    Ok(s)
 }
 
 fn machine() -> String {
@@ -37,7 +72,10 @@ pub fn run(args: BenchArgs) -> Result<()> {
     println!("machine: {}", machine());
     let threads = rayon::current_num_threads();
     let table = match args.kernel {
-        Kernel::Raster => svgir_raster::bench_table(threads),
+        Kernel::Raster => match (&args.ply, &args.data) {
+            (Some(ply), Some(data)) => raster_scene(ply, data, args.views, args.background, threads)?,
+            _ => svgir_raster::bench_table(threads),
+        },
         Kernel::Trace => svgir_trace::bench::bench_table(threads),
         Kernel::Pbr => svgir_pbr::bench::bench_table(threads),
         Kernel::Lpips => {

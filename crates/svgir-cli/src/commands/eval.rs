@@ -52,7 +52,7 @@ pub struct EvalArgs {
     pub json: Option<PathBuf>,
 }
 
-fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
+pub fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
     let v: Vec<f32> =
         s.split(',').map(|x| x.trim().parse::<f32>()).collect::<Result<_, _>>().map_err(|e| e.to_string())?;
     v.try_into().map_err(|_| "expected r,g,b".to_string())
