@@ -14,7 +14,7 @@
 //! tile) pair, owned by that tile), then each Gaussian sums its entries in a fixed order. No
 //! atomics, no racy `+=`, bit-reproducible for a given input (SPEC 9.4, 9.9).
 
-use crate::forward::{background_at, distortion_depth, split_lens, FeatView};
+use crate::forward::{background_at, split_lens, FeatView};
 use crate::interp::{normalised_coord, weight_grads, weights, MAX_VERTICES};
 use crate::preprocess::Cam;
 use crate::preprocess_backward::{gaussian_backward, SplatGradSum};
@@ -212,6 +212,9 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
     let far = F::from_f32(ctx.cfg.far);
     let half = F::c(0.5);
     let two = F::c(2.0);
+    // 2DGS's distortion depth m = far / (far - near) (1 - near / z) (as [`distortion_depth`]).
+    let m_scale = far / (far - near);
+    let has_dist = ctx.grads.distortion.is_some();
     let wu = ctx.w as usize;
     let tile = bins.tile as usize;
     let e_band0 = bins.row_range(ty)[0] as usize;
@@ -324,7 +327,13 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
                     }
                     let gc = s.gc[li];
                     let gn = s.gn[li];
-                    let m = distortion_depth(hit.z, near, far);
+                    // Distortion depth m(z) and dm/dz, only when the distortion has a gradient.
+                    let (m, dm_dz) = if has_dist {
+                        let inv_z = F::ONE / hit.z;
+                        (m_scale * (F::ONE - near * inv_z), m_scale * near * inv_z * inv_z)
+                    } else {
+                        (F::ZERO, F::ZERO)
+                    };
                     let mut gw = gc[0] * col[0]
                         + gc[1] * col[1]
                         + gc[2] * col[2]
@@ -385,7 +394,6 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
                         v_n[ch] += wgt * gn[ch];
                     }
                     // Depth: D = sum w z; distortion: dDist/dm_i = 2 w_i (m_i A - M1).
-                    let dm_dz = far * near / ((far - near) * hit.z * hit.z);
                     let v_z = wgt * s.gd[li] + s.gdist[li] * two * wgt * (m * s.a[li] - s.m1[li]) * dm_dz;
                     let (v_u, v_v) = if interp { (wgt * gut * dut, wgt * gvt * dvt) } else { (F::ZERO, F::ZERO) };
                     intersect_backward(&hit, &sp.h, sp.center, sp.opacity, xf, yf, v_alpha, v_z, v_u, v_v, &mut sg);

@@ -120,7 +120,7 @@ impl RowConic {
             lo = lo.min(c[0] - e);
             hi = hi.max(c[0] + e);
         }
-        if !(lo <= hi) {
+        if lo.partial_cmp(&hi).is_none_or(|o| o.is_gt()) {
             return (x0, x0);
         }
         // Pixel i (centre i + 0.5) with a one-pixel margin: i in [lo - 1.5, hi + 0.5].
