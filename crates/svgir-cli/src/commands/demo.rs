@@ -49,6 +49,9 @@ pub fn run(args: DemoArgs) -> Result<()> {
         eval_views: 8,
         log_every: 25,
         no_mask: false,
+        densify_every: None,
+        densify_until: None,
+        opacity_reset_every: None,
     })?;
     eprintln!("svgir demo: stage 2 ({iterations2} iterations)");
     inverse::run(inverse::InverseArgs {

@@ -68,6 +68,15 @@ pub struct TrainArgs {
     /// Disable the mask and entropy losses (photos without a meaningful alpha channel).
     #[arg(long)]
     pub no_mask: bool,
+    /// Override the scaled schedule: densify every N iterations (3DGS: 100).
+    #[arg(long)]
+    pub densify_every: Option<u64>,
+    /// Override the scaled schedule: stop densifying at this iteration (3DGS: 15000 of 30000).
+    #[arg(long)]
+    pub densify_until: Option<u64>,
+    /// Override the scaled schedule: reset opacities every N iterations while densifying (3DGS: 3000).
+    #[arg(long)]
+    pub opacity_reset_every: Option<u64>,
 }
 
 pub fn run(args: TrainArgs) -> Result<()> {
@@ -122,6 +131,17 @@ fn make_config(args: &TrainArgs, dataset: &Dataset) -> Stage1Config {
     c.init_points = args.init_points;
     if let Some(m) = args.max_gaussians {
         c.densify.max_gaussians = m;
+    }
+    // A schedule scaled down to a short run densifies and resets very often (every 10 and
+    // 300 iterations at 3000); these let a short run keep 3DGS's cadence instead.
+    if let Some(n) = args.densify_every {
+        c.densify.interval = n.max(1);
+    }
+    if let Some(n) = args.densify_until {
+        c.densify.until_iter = n;
+    }
+    if let Some(n) = args.opacity_reset_every {
+        c.densify.opacity_reset_interval = n.max(1);
     }
     let has_alpha = dataset.train.iter().any(|v| v.image.channels == 4 && v.image.data.chunks(4).any(|p| p[3] < 0.5));
     c.use_mask = !args.no_mask && has_alpha;
