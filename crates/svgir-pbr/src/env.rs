@@ -50,6 +50,15 @@ impl EnvLight {
         Ok(Self { width, height, param })
     }
 
+    /// Every parameter at the mean of SPEC 4's init, `ENV_INIT / 2` (a grey light): the
+    /// per-texel noise of the random init needs thousands of iterations to wash out, which a
+    /// short schedule does not have (see `Stage2Config::env_init`).
+    pub fn uniform(height: u32) -> Result<Self, PbrError> {
+        let mut e = Self::new(height, 0)?;
+        e.param.iter_mut().for_each(|p| *p = [0.5 * ENV_INIT; 3]);
+        Ok(e)
+    }
+
     /// Parameters reproducing `map` (radiance floored at 1e-6, where softplus is invertible).
     pub fn from_radiance(map: &EnvMap) -> Result<Self, PbrError> {
         if map.width < 2 || map.height < 2 {

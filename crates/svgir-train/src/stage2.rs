@@ -101,6 +101,19 @@ pub struct Stage2Config {
     /// L_rc is a mean over visible Gaussians; estimate it on at most this many, drawn at random
     /// each iteration (unbiased for the mean, and it keeps the loss cheap on the CPU).
     pub consistency_samples: usize,
+    /// How the learned light starts (SPEC 4: random).
+    #[serde(default)]
+    pub env_init: EnvInit,
+}
+
+/// The learned environment map's initial parameters.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub enum EnvInit {
+    /// SPEC 4: `3 U(0, 1)` per texel and channel, from the run's seed.
+    #[default]
+    Random,
+    /// Every texel at the mean of that distribution (grey, no texel noise to wash out).
+    Uniform,
 }
 
 impl Default for Stage2Config {
@@ -120,6 +133,7 @@ impl Default for Stage2Config {
             trace_eps: 0.05,
             trace_t_max: None,
             consistency_samples: 8192,
+            env_init: EnvInit::Random,
         }
     }
 }
@@ -151,6 +165,16 @@ pub struct PbrRender {
     pub albedo: Vec<f32>,
     pub roughness: Vec<f32>,
     pub normal: Vec<f32>,
+}
+
+/// What a PBR render shades with: micro-buffers (and their direction cache), the light, the
+/// indirect term and the shading parameters.
+pub struct Shading<'a> {
+    pub mb: &'a MicroBuffer,
+    pub cache: Option<&'a DirectionCache>,
+    pub env: &'a svgir_core::EnvMap,
+    pub indirect: Indirect<'a, f32>,
+    pub params: ShadeParams,
 }
 
 pub struct Stage2 {
@@ -214,7 +238,10 @@ impl Stage2 {
         let normals: Vec<Vec3> = (0..n).map(|i| surfels.normal(i)).collect();
         let m = config.vertices;
         let materials = SvgMaterials::new(n, m)?;
-        let env = EnvLight::new(config.env_height, Rng::new(config.seed).fork(2).next_u64())?;
+        let env = match config.env_init {
+            EnvInit::Random => EnvLight::new(config.env_height, Rng::new(config.seed).fork(2).next_u64())?,
+            EnvInit::Uniform => EnvLight::uniform(config.env_height)?,
+        };
         let dir_cache = DirectionCache::new(&mb, &env.radiance())?;
         let lr = &config.lr;
         let groups = [
@@ -505,13 +532,36 @@ impl Stage2 {
 
     /// Render the PBR image and material buffers for `camera` over `bg`. `indirect` overrides
     /// the indirect term (relighting: one-bounce light under `env`, rho = 1); `albedo_scale`
-    /// multiplies every vertex albedo (SPEC 8 evaluation).
+    /// multiplies every vertex albedo (SPEC 8 evaluation). Shades with the training
+    /// micro-buffers and the training clamp of the radiance (SPEC 4); relighting at SPEC 7's K
+    /// goes through [`crate::relight::Relighter`].
     pub fn render_pbr(
         &self,
         camera: &Camera,
         bg: [f32; 3],
         env: &svgir_core::EnvMap,
         indirect: Option<&[[f32; 3]]>,
+        albedo_scale: [f32; 3],
+    ) -> Result<PbrRender, PbrError> {
+        let shading = Shading {
+            mb: &self.mb,
+            cache: Some(&self.dir_cache),
+            env,
+            indirect: match indirect {
+                Some(l) => Indirect::Given(l),
+                None => self.indirect(),
+            },
+            params: self.shade_params(),
+        };
+        self.render_shaded(camera, bg, &shading, albedo_scale)
+    }
+
+    /// Render with the given micro-buffers, light and shading parameters.
+    pub fn render_shaded(
+        &self,
+        camera: &Camera,
+        bg: [f32; 3],
+        shading: &Shading,
         albedo_scale: [f32; 3],
     ) -> Result<PbrRender, PbrError> {
         let (w, h) = (camera.width() as usize, camera.height() as usize);
@@ -524,20 +574,17 @@ impl Stage2 {
         let visible = vec![true; self.surfels.len()];
         let mut shaded = ShadeOutput::new();
         let inputs = ShadeInputs {
-            mb: &self.mb,
+            mb: shading.mb,
             positions: &self.surfels.positions,
             camera_center: camera.center(),
             visible: &visible,
             mats: act.view(),
-            env_geom: env,
-            env: &env.data,
-            indirect: match indirect {
-                Some(l) => Indirect::Given(l),
-                None => self.indirect(),
-            },
-            params: self.shade_params(),
+            env_geom: shading.env,
+            env: &shading.env.data,
+            indirect: shading.indirect,
+            params: shading.params,
         };
-        shade_into_cached(&inputs, Some(&self.dir_cache), &mut shaded)?;
+        shade_into_cached(&inputs, shading.cache, &mut shaded)?;
         let extra = Self::extra_features(&act, &self.facing(camera));
         let input = RenderInput {
             surfels: &self.surfels,

@@ -70,6 +70,9 @@ pub fn run(args: DemoArgs) -> Result<()> {
         resume: false,
         checkpoint_every: 500,
         out: None,
+        // The quick demo (a CI test) keeps its 16 training directions.
+        env_init: inverse::EnvInitArg::Random,
+        relight_directions: if args.quick { 16 } else { svgir_train::relight::RELIGHT_DIRECTIONS },
     })?;
     let report = args.out.join("report.html");
     super::report::write_report(&args.out, &report)?;

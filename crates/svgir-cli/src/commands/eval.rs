@@ -58,7 +58,7 @@ pub fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
     v.try_into().map_err(|_| "expected r,g,b".to_string())
 }
 
-fn rgb(img: &Image, bg: [f32; 3]) -> Image {
+pub fn rgb(img: &Image, bg: [f32; 3]) -> Image {
     match img.channels {
         4 => img.composite_over(bg),
         3 => img.clone(),

@@ -13,6 +13,8 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use svgir_core::{Dataset, Image, LightInfo};
 use svgir_metrics::{evaluate_pair, ImageMetrics, Lpips, SsimVariant};
+use svgir_train::relight::Relighter;
+use svgir_train::stage2::EnvInit;
 use svgir_train::{checkpoint, Stage2, Stage2Config};
 
 #[derive(Args)]
@@ -60,6 +62,19 @@ pub struct InverseArgs {
     /// Output folder (default RUN/stage2).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Directions per Gaussian when relighting for the evaluation (SPEC 7: 384; memory is
+    /// Gaussians x K x 16 bytes).
+    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_DIRECTIONS)]
+    pub relight_directions: usize,
+    /// Initial learned light: SPEC 4's per-texel random init, or a uniform grey at its mean.
+    #[arg(long, value_enum, default_value_t = EnvInitArg::Random)]
+    pub env_init: EnvInitArg,
+}
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum EnvInitArg {
+    Random,
+    Uniform,
 }
 
 pub fn run(args: InverseArgs) -> Result<()> {
@@ -94,6 +109,10 @@ pub fn run(args: InverseArgs) -> Result<()> {
         visibility: !args.no_visibility,
         indirect: !args.no_indirect,
         consistency: !args.no_consistency,
+        env_init: match args.env_init {
+            EnvInitArg::Random => EnvInit::Random,
+            EnvInitArg::Uniform => EnvInit::Uniform,
+        },
         ..Stage2Config::default()
     };
     let ckpt = out.join("checkpoint.bin");
@@ -140,7 +159,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
     pb.finish();
     checkpoint::save_stage2(&s2, &ckpt)?;
     let lpips = load_lpips(args.lpips)?;
-    let eval = evaluate(&s2, &dataset, &out, lpips.as_ref(), args.turntable)?;
+    let eval = evaluate(&s2, &dataset, &out, lpips.as_ref(), args.turntable, args.relight_directions)?;
     let its = s2.iteration.max(1) as f64;
     let t = &s2.times;
     let mut eval_out = eval;
@@ -215,6 +234,18 @@ pub fn turntable_cameras(ds: &Dataset, like: &svgir_core::Camera, frames: usize)
         .collect()
 }
 
+/// Colour over black divided by its opacity: the render's straight colour (0 where nothing was hit).
+pub fn straight_colour(over_black: &[f32], alpha: &[f32]) -> Vec<f32> {
+    over_black
+        .chunks(3)
+        .zip(alpha)
+        .flat_map(|(c, a)| {
+            let inv = if *a > 1e-5 { 1.0 / a } else { 0.0 };
+            c.iter().map(move |x| (x * inv).clamp(0.0, 1.0))
+        })
+        .collect()
+}
+
 fn alpha_of(img: &Image) -> Vec<f32> {
     img.data.chunks(img.channels as usize).map(|p| if img.channels == 4 { p[3] } else { 1.0 }).collect()
 }
@@ -236,6 +267,7 @@ fn evaluate(
     out: &Path,
     lpips: Option<&Lpips>,
     turntable: usize,
+    relight_directions: usize,
 ) -> Result<serde_json::Value> {
     let dir = out.join("test");
     std::fs::create_dir_all(&dir)?;
@@ -252,7 +284,8 @@ fn evaluate(
         let (w, h) = (r.width, r.height);
         let mask = alpha_of(&v.image);
         let pred = Image::from_data(w, h, 3, r.image.clone());
-        nvs.push(evaluate_pair(&pred, &v.image, None, variant, lpips)?);
+        // SPEC 8: both over black (the photo is straight-alpha RGBA; the render already is).
+        nvs.push(evaluate_pair(&pred, &super::eval::rgb(&v.image, black), None, variant, lpips)?);
         png(&dir.join(format!("{}_pbr.png", v.name)), w, h, r.image.iter().map(|x| x.clamp(0.0, 1.0)).collect())?;
         png(&dir.join(format!("{}_gt_rgb.png", v.name)), w, h, v.image.composite_over(black).data)?;
         png(&dir.join(format!("{}_normal.png", v.name)), w, h, r.normal.iter().map(|n| 0.5 + 0.5 * n).collect())?;
@@ -311,19 +344,30 @@ fn evaluate(
         result["albedo"] = mean_json(&albedo);
         result["albedo_scale"] = json!(scale);
     }
-    // Relighting: one-bounce indirect under each light from the training micro-buffers.
+    // Relighting (SPEC 7): K = relight_directions micro-buffers, one-bounce indirect per light.
     let mut per_light = serde_json::Map::new();
     let mut all = Vec::new();
-    let act = s2.materials.activated(&s2.normals)?;
+    let relighter = if ds.relight_lights.iter().any(|l| l.envmap_path.is_some()) {
+        let r = Relighter::new(s2, relight_directions)?;
+        eprintln!("relighting: traced K = {relight_directions} directions in {:.1} s", r.trace_seconds);
+        result["relight_directions"] = json!(relight_directions);
+        Some(r)
+    } else {
+        None
+    };
     for light in &ds.relight_lights {
-        let Some(path) = &light.envmap_path else { continue };
-        let env_l = svgir_io::read_envmap(path, light.strength, s2.config.env_height)?;
-        let l1b = svgir_trace::gather_all(&s2.mb, &act.view(), &env_l, &svgir_trace::GatherParams::default())?;
+        let (Some(path), Some(relighter)) = (&light.envmap_path, &relighter) else { continue };
+        let t0 = std::time::Instant::now();
+        let lit = relighter.prepare(s2, svgir_io::read_envmap(path, light.strength, s2.config.env_height)?)?;
+        eprintln!("relighting: one-bounce light under {} in {:.1} s", light.name, t0.elapsed().as_secs_f64());
         let mut ms = Vec::new();
         for (v, (_, mask)) in ds.test.iter().zip(&renders) {
             let Some(gt) = v.relit.get(&light.name) else { continue };
-            let r = s2.render_pbr(&v.camera, black, &env_l, Some(&l1b), scale)?;
-            let pred = Image::from_data(r.width, r.height, 3, r.image);
+            let r = relighter.render(s2, &v.camera, black, &lit, scale)?;
+            // SPEC 8: the predicted colour and the photo are both composited with the GT mask on
+            // black, so the prediction enters as straight colour (not already multiplied by its
+            // own opacity, which would count the coverage twice at edges).
+            let pred = Image::from_data(r.width, r.height, 3, straight_colour(&r.image, &r.alpha));
             ms.push(evaluate_pair(&pred, gt, Some(mask), variant, lpips)?);
             let masked: Vec<f32> = pred
                 .data
@@ -343,7 +387,7 @@ fn evaluate(
             let tdir = out.join("turntable");
             std::fs::create_dir_all(&tdir)?;
             for (f, cam) in turntable_cameras(ds, &first.camera, turntable).iter().enumerate() {
-                let r = s2.render_pbr(cam, black, &env_l, Some(&l1b), scale)?;
+                let r = relighter.render(s2, cam, black, &lit, scale)?;
                 png(
                     &tdir.join(format!("{}_{f:03}.png", light.name)),
                     r.width,

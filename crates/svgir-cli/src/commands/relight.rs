@@ -1,7 +1,8 @@
 //! `svgir relight --run RUN --envmap X.hdr`: render a stage-2 model under a new environment map
-//! (SPEC 7): the map is resampled to the model's light resolution with the area filter, the
-//! one-bounce indirect light is re-gathered from the micro-buffers under it (rho = 1), and the
-//! dataset's test cameras (and optionally a turntable) are rendered to PNG.
+//! (SPEC 7): the map is resampled to the model's light resolution with the area filter, K = 384
+//! directions are traced per Gaussian, the one-bounce indirect light is gathered under the map
+//! (rho = 1, radiance not clamped), and the dataset's test cameras (and optionally a turntable)
+//! are rendered to PNG.
 
 use super::inverse::turntable_cameras;
 use anyhow::{Context, Result};
@@ -9,6 +10,7 @@ use clap::Args;
 use std::path::PathBuf;
 use svgir_core::{Camera, Image};
 use svgir_train::checkpoint;
+use svgir_train::relight::Relighter;
 
 #[derive(Args)]
 pub struct RelightArgs {
@@ -27,6 +29,9 @@ pub struct RelightArgs {
     /// Output folder (default RUN/stage2/relit_<map name>).
     #[arg(long)]
     pub out: Option<PathBuf>,
+    /// Directions per Gaussian (SPEC 7: 384; memory is Gaussians x K x 16 bytes).
+    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_DIRECTIONS)]
+    pub directions: usize,
 }
 
 pub fn run(args: RelightArgs) -> Result<()> {
@@ -40,8 +45,8 @@ pub fn run(args: RelightArgs) -> Result<()> {
     let data = PathBuf::from(cfg["data"].as_str().with_context(|| format!("{}: no data path", cfg_path.display()))?);
     let s2 = checkpoint::load_stage2(&stage2_dir.join("checkpoint.bin"))?;
     let env = svgir_io::read_envmap(&args.envmap, args.strength, s2.config.env_height)?;
-    let act = s2.materials.activated(&s2.normals)?;
-    let l1b = svgir_trace::gather_all(&s2.mb, &act.view(), &env, &svgir_trace::GatherParams::default())?;
+    let relighter = Relighter::new(&s2, args.directions)?;
+    let lit = relighter.prepare(&s2, env)?;
     let name = args.envmap.file_stem().map_or("env".into(), |s| s.to_string_lossy().into_owned());
     let out = args.out.clone().unwrap_or_else(|| stage2_dir.join(format!("relit_{name}")));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
@@ -54,7 +59,7 @@ pub fn run(args: RelightArgs) -> Result<()> {
         }
     }
     for (name, cam) in &cams {
-        let r = s2.render_pbr(cam, [0.0; 3], &env, Some(&l1b), [1.0; 3])?;
+        let r = relighter.render(&s2, cam, [0.0; 3], &lit, [1.0; 3])?;
         let img = Image::from_data(r.width, r.height, 3, r.image.iter().map(|c| c.clamp(0.0, 1.0)).collect());
         svgir_io::write_png(out.join(format!("{name}.png")), &img, 8)?;
     }
