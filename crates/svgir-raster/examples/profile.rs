@@ -1,19 +1,33 @@
-//! Repeats one forward+backward (100k Gaussians, 400x400) for profiling with perf/callgrind.
+//! Repeats one forward+backward for profiling with perf/callgrind.
+//!
+//! `profile [REPS] [PLY DATASET]`: the benchmark's random scene (100k Gaussians, 400x400), or a
+//! trained scene (a 3DGS-layout PLY) seen from the first test camera of DATASET.
 use svgir_raster::bench::Problem;
 use svgir_raster::{backward, render, ColorSource, RasterConfig};
 
 fn main() {
-    let reps: usize = std::env::args().nth(1).and_then(|s| s.parse().ok()).unwrap_or(5);
-    let problem = Problem::new(100_000, 400);
+    let args: Vec<String> = std::env::args().collect();
+    let reps: usize = args.get(1).and_then(|s| s.parse().ok()).unwrap_or(5);
+    let problem = match (args.get(2), args.get(3)) {
+        (Some(ply), Some(data)) => {
+            let (surfels, _) = svgir_io::read_gaussians_ply(ply).expect("PLY");
+            let opts = svgir_io::LoadOptions { resolution: None, downscale: None, load_test: true, max_views: Some(1) };
+            let ds = svgir_io::load_dataset(data, &opts).expect("dataset");
+            let cam = ds.test.first().or(ds.train.first()).expect("a view").camera;
+            Problem::with_camera(surfels, cam)
+        }
+        _ => Problem::new(100_000, 400),
+    };
     let (surfels, cam) = (&problem.surfels, &problem.camera);
     let (input, grads) = (problem.input(), problem.grads());
     let cfg = RasterConfig::default();
     let cam_f = svgir_raster::preprocess::Cam::<f32>::new(cam);
-    for _ in 0..3 {
+    let (w, h) = (cam.intrinsics.width, cam.intrinsics.height);
+    for _ in 0..2 {
         let t0 = std::time::Instant::now();
         let (splats, _) = svgir_raster::preprocess::preprocess(surfels, &cam_f, &ColorSource::Sh, &cfg);
         let t1 = t0.elapsed();
-        let bins = svgir_raster::tiles::bin(&splats, 400, 400, 16);
+        let bins = svgir_raster::tiles::bin(&splats, w, h, 16);
         eprintln!(
             "preprocess {:.1} ms, bin {:.1} ms ({} pairs)",
             t1.as_secs_f64() * 1e3,

@@ -72,6 +72,8 @@ pub fn run(args: DemoArgs) -> Result<()> {
         out: None,
         // The quick demo (a CI test) keeps its 16 training directions.
         env_init: inverse::EnvInitArg::Random,
+        rho_lr: 0.01,
+        albedo_lr: 0.01,
         relight_directions: if args.quick { 16 } else { svgir_train::relight::RELIGHT_DIRECTIONS },
     })?;
     let report = args.out.join("report.html");

@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use svgir_core::{Dataset, Image, LightInfo};
 use svgir_metrics::{evaluate_pair, ImageMetrics, Lpips, SsimVariant};
 use svgir_train::relight::Relighter;
-use svgir_train::stage2::EnvInit;
+use svgir_train::stage2::{EnvInit, Stage2Rates};
 use svgir_train::{checkpoint, Stage2, Stage2Config};
 
 #[derive(Args)]
@@ -69,6 +69,12 @@ pub struct InverseArgs {
     /// Initial learned light: SPEC 4's per-texel random init, or a uniform grey at its mean.
     #[arg(long, value_enum, default_value_t = EnvInitArg::Random)]
     pub env_init: EnvInitArg,
+    /// Learning rate of the indirect scale rho (SPEC 6: 0.01; 0 keeps rho = 1).
+    #[arg(long, default_value_t = 0.01)]
+    pub rho_lr: f32,
+    /// Learning rate of the albedo (SPEC 6: 0.01).
+    #[arg(long, default_value_t = 0.01)]
+    pub albedo_lr: f32,
 }
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -113,6 +119,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
             EnvInitArg::Random => EnvInit::Random,
             EnvInitArg::Uniform => EnvInit::Uniform,
         },
+        lr: Stage2Rates { rho: args.rho_lr, albedo: args.albedo_lr, ..Stage2Rates::default() },
         ..Stage2Config::default()
     };
     let ckpt = out.join("checkpoint.bin");
