@@ -297,13 +297,14 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
                 let rs = row_setup(&sp.h, yf);
                 let (xa, xb) = sp.conic.span(c32, yf.to_f32(), x0, x1);
                 eval_row(&sp.h, sp.center, sp.opacity, &rs, yf, xa, xb - xa, near, &offs, &mut ev);
+                let xa_f = F::c(xa as f64) + half;
                 for x in xa..xb {
                     let i = x - xa;
                     let li = row + (x - tx0);
                     if local >= s.ncon[li] || ev.alpha[i] == F::ZERO {
                         continue;
                     }
-                    let xf = F::c(x as f64) + half;
+                    let xf = xa_f + offs[i];
                     let hit = hit_from_row(&sp.h, sp.center, sp.opacity, &rs, &ev, i, xf, yf);
                     // One reciprocal for both divisions by (1 - alpha_i).
                     let inv_one_m = F::ONE / (F::ONE - hit.alpha);

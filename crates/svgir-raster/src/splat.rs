@@ -132,12 +132,16 @@ impl RowConic {
     }
 }
 
-/// `floor(v)` clamped to `[lo, hi]` (both non-negative) as an index, without a libm call
-/// (baseline x86-64 has no SSE4.1 `round`).
+/// `floor(v)` clamped to `[lo, hi]` (both non-negative and below 2^24) as an index, without a
+/// libm call (baseline x86-64 has no SSE4.1 `round`) or the fix-ups of a saturating cast.
 #[inline(always)]
 fn floor_clamped(v: f32, lo: f32, hi: f32) -> usize {
-    // Clamping first makes the value non-negative, where truncation is floor.
-    v.max(lo).min(hi) as usize
+    // Clamping first makes the value non-negative, where truncation is floor; a NaN `v` clamps
+    // to `lo` (f32::max returns the non-NaN operand).
+    let c = v.max(lo).min(hi);
+    debug_assert!((0.0..16_777_216.0).contains(&c));
+    // SAFETY: `c` is finite and in [0, 2^24) (see above), so it fits an i32.
+    (unsafe { c.to_int_unchecked::<i32>() }) as usize
 }
 
 /// Per (splat, pixel row) constants: `l = y T_w - T_v` is the same for the whole row, so
