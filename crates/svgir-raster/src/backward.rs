@@ -214,7 +214,7 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
     let two = F::c(2.0);
     // 2DGS's distortion depth m = far / (far - near) (1 - near / z) (as [`distortion_depth`]).
     let m_scale = far / (far - near);
-    let has_dist = ctx.grads.distortion.is_some();
+    let has_dist = ctx.cfg.distortion && ctx.grads.distortion.is_some();
     let wu = ctx.w as usize;
     let tile = bins.tile as usize;
     let e_band0 = bins.row_range(ty)[0] as usize;
@@ -268,7 +268,7 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
                 s.gn[li] = g.normal.map_or([F::ZERO; 3], |v| [v[p * 3], v[p * 3 + 1], v[p * 3 + 2]]);
                 s.go[li] = g.alpha.map_or(F::ZERO, |v| v[p]);
                 s.gd[li] = g.depth.map_or(F::ZERO, |v| v[p]);
-                s.gdist[li] = g.distortion.map_or(F::ZERO, |v| v[p]);
+                s.gdist[li] = if has_dist { g.distortion.map_or(F::ZERO, |v| v[p]) } else { F::ZERO };
                 for ch in 0..ce {
                     s.ge[li * ce + ch] = g.extra.map_or(F::ZERO, |v| v[p * ce + ch]);
                 }

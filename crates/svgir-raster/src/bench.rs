@@ -193,36 +193,45 @@ pub fn bench_scene(surfels: Surfels, cameras: &[Camera], background: [f32; 3], t
         let sf = surfels.take().unwrap_or_else(|| problems[0].surfels.clone());
         problems.push(Problem::with_camera(sf, *cam));
     }
-    let cfg = RasterConfig::default();
     let (w, h) = (cameras[0].intrinsics.width, cameras[0].intrinsics.height);
-    for t in thread_counts(threads) {
-        let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().expect("rayon pool");
-        let (mut pairs, mut evals) = (0usize, 0u64);
-        let (mut fwd, mut fb) = (Vec::new(), Vec::new());
-        for p in &problems {
-            let mut input = p.input();
-            input.background = Background::Color(background);
-            let grads = p.grads();
-            pool.install(|| {
-                let (_, st) = render(&input, &cfg);
-                pairs += st.num_tile_entries();
-                evals += st.box_evaluations();
-                fwd.push(median_ms(|| drop(render(&input, &cfg)), reps));
-                fb.push(median_ms(
-                    || {
-                        let (out, st) = render(&input, &cfg);
-                        drop(crate::backward(&input, &cfg, &st, &out, &grads));
-                    },
-                    reps,
-                ));
-            });
+    // "all": a gradient on every output (as the random table); "stage 1": the outputs stage-1
+    // training differentiates (colour, opacity, depth, normal; distortion off, as its weight).
+    let variants =
+        [("all", RasterConfig::default()), ("stage 1", RasterConfig { distortion: false, ..Default::default() })];
+    for (label, cfg) in variants {
+        let _ = writeln!(s, "gradients on: {label} outputs");
+        for t in thread_counts(threads) {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().expect("rayon pool");
+            let (mut pairs, mut evals) = (0usize, 0u64);
+            let (mut fwd, mut fb) = (Vec::new(), Vec::new());
+            for p in &problems {
+                let mut input = p.input();
+                input.background = Background::Color(background);
+                let mut grads = p.grads();
+                if !cfg.distortion {
+                    grads.distortion = None;
+                }
+                pool.install(|| {
+                    let (_, st) = render(&input, &cfg);
+                    pairs += st.num_tile_entries();
+                    evals += st.box_evaluations();
+                    fwd.push(median_ms(|| drop(render(&input, &cfg)), reps));
+                    fb.push(median_ms(
+                        || {
+                            let (out, st) = render(&input, &cfg);
+                            drop(crate::backward(&input, &cfg, &st, &out, &grads));
+                        },
+                        reps,
+                    ));
+                });
+            }
+            let k = problems.len();
+            let med = |v: &mut Vec<f64>| {
+                v.sort_by(|a, b| a.total_cmp(b));
+                v[v.len() / 2]
+            };
+            row(&mut s, &format!("{w}x{h}"), n, t, (pairs / k) as u64, evals / k as u64, med(&mut fwd), med(&mut fb));
         }
-        let k = problems.len();
-        let med = |v: &mut Vec<f64>| {
-            v.sort_by(|a, b| a.total_cmp(b));
-            v[v.len() / 2]
-        };
-        row(&mut s, &format!("{w}x{h}"), n, t, (pairs / k) as u64, evals / k as u64, med(&mut fwd), med(&mut fb));
     }
     s
 }

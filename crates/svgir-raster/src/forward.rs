@@ -249,6 +249,7 @@ fn render_band<F: Real>(
     let far = F::from_f32(cfg.far);
     let m_scale = far / (far - near);
     let t_stop = F::from_f32(cfg.t_stop);
+    let with_dist = cfg.distortion;
     let half = F::c(0.5);
     let two = F::c(2.0);
     let wu = w as usize;
@@ -330,11 +331,13 @@ fn render_band<F: Real>(
                         a.normal[ch] += wgt * s.normal[ch];
                     }
                     a.depth += wgt * hit.z;
-                    // 2DGS running-sum distortion: w_i (m_i^2 A_i + M2 - 2 m_i M1), A_i = 1 - T_i.
-                    let m = m_scale * (F::ONE - near / hit.z);
-                    a.dist += (m * m * (F::ONE - tcur) + a.m2 - two * m * a.m1) * wgt;
-                    a.m1 += m * wgt;
-                    a.m2 += m * m * wgt;
+                    if with_dist {
+                        // 2DGS running-sum distortion: w_i (m_i^2 A_i + M2 - 2 m_i M1), A_i = 1 - T_i.
+                        let m = m_scale * (F::ONE - near / hit.z);
+                        a.dist += (m * m * (F::ONE - tcur) + a.m2 - two * m * a.m1) * wgt;
+                        a.m1 += m * wgt;
+                        a.m2 += m * m * wgt;
+                    }
                     if tcur > half {
                         a.median = hit.z;
                     }

@@ -41,11 +41,15 @@ pub struct RasterConfig {
     pub t_stop: f32,
     /// Tile side in pixels.
     pub tile: u32,
+    /// Compute the depth-distortion output (2DGS). When false it is left at 0 and a gradient
+    /// given for it is ignored, which saves a division and the moments per composited pixel
+    /// (training with a zero distortion weight, as 2DGS on object scenes).
+    pub distortion: bool,
 }
 
 impl Default for RasterConfig {
     fn default() -> Self {
-        Self { near: 0.2, far: 1e4, t_stop: 1e-4, tile: 16 }
+        Self { near: 0.2, far: 1e4, t_stop: 1e-4, tile: 16, distortion: true }
     }
 }
 

@@ -235,3 +235,42 @@ fn f32_backward_agrees_with_f64() {
     assert!(rel(&m32, &g64.v_mean2d_norm) < 1e-2);
     assert!(g64.v_mean2d_norm.iter().any(|&v| v > 0.0));
 }
+
+/// With the distortion switched off, every other output and the gradients of a loss without a
+/// distortion term are exactly those of the full render; the distortion output is 0.
+#[test]
+fn distortion_off_changes_nothing_else() {
+    let (w, h) = (40u32, 36u32);
+    let npx = (w * h) as usize;
+    let cam = test_camera(w, h);
+    let surfels = small_scene(4, 16);
+    let lw = LossWeights::new(4, npx, 0);
+    let p = P64::from_surfels(&surfels);
+    let input = RenderInputOf {
+        surfels: &p,
+        camera: &cam,
+        colors: ColorSourceOf::Sh,
+        extra: None,
+        background: BackgroundOf::Color([0.3, 0.6, 0.1]),
+    };
+    let on = RasterConfig::default();
+    let off = RasterConfig { distortion: false, ..on };
+    let (out_on, st_on) = render_generic(&input, &on);
+    let (out_off, st_off) = render_generic(&input, &off);
+    assert_eq!(out_on.color, out_off.color);
+    assert_eq!(out_on.depth, out_off.depth);
+    assert_eq!(out_on.normal, out_off.normal);
+    assert_eq!(out_on.alpha, out_off.alpha);
+    assert!(out_on.distortion.iter().any(|&d| d > 0.0));
+    assert!(out_off.distortion.iter().all(|&d| d == 0.0));
+    // No distortion gradient on one side; a (to be ignored) one on the other.
+    let mut g_none = lw.grads();
+    g_none.distortion = None;
+    let a = backward_generic(&input, &on, &st_on, &out_on, &g_none);
+    let b = backward_generic(&input, &off, &st_off, &out_off, &lw.grads());
+    assert_eq!(a.v_positions, b.v_positions);
+    assert_eq!(a.v_rotations, b.v_rotations);
+    assert_eq!(a.v_log_scales, b.v_log_scales);
+    assert_eq!(a.v_opacity_logits, b.v_opacity_logits);
+    assert_eq!(a.v_sh, b.v_sh);
+}

@@ -108,6 +108,8 @@ impl Stage1 {
                 Target { alpha, dilated }
             })
             .collect();
+        // The distortion output costs a division per composited pixel; only pay when it is in the loss.
+        let raster = RasterConfig { distortion: config.loss.distortion > 0.0, ..RasterConfig::default() };
         Self {
             config,
             surfels,
@@ -117,7 +119,7 @@ impl Stage1 {
             rng,
             extent,
             times: PhaseTimes::default(),
-            raster: RasterConfig::default(),
+            raster,
             targets,
         }
     }

@@ -266,7 +266,8 @@ impl Stage2 {
             groups,
             iteration: 0,
             rng,
-            raster: RasterConfig::default(),
+            // Stage 2 has no distortion term (Eqn 15).
+            raster: RasterConfig { distortion: false, ..RasterConfig::default() },
             times: PhaseTimes::default(),
             trace_seconds,
         })
