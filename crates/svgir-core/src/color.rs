@@ -1,5 +1,7 @@
 //! sRGB transfer functions (IEC 61966-2-1), applied per channel.
 
+use crate::float::Float;
+
 #[inline]
 pub fn srgb_to_linear(c: f32) -> f32 {
     if c <= 0.04045 {
@@ -9,25 +11,26 @@ pub fn srgb_to_linear(c: f32) -> f32 {
     }
 }
 
+/// Linear to sRGB (generic so the f64 finite-difference oracles share it).
 #[inline]
-pub fn linear_to_srgb(c: f32) -> f32 {
-    let c = c.max(0.0);
-    if c <= 0.0031308 {
-        12.92 * c
+pub fn linear_to_srgb<F: Float>(c: F) -> F {
+    let c = c.maxf(F::ZERO);
+    if c <= F::from_f64(0.0031308) {
+        F::from_f64(12.92) * c
     } else {
-        1.055 * c.powf(1.0 / 2.4) - 0.055
+        F::from_f64(1.055) * c.powf(F::from_f64(1.0 / 2.4)) - F::from_f64(0.055)
     }
 }
 
 /// d linear_to_srgb / dc, for backpropagating through the PBR image's tone curve (SPEC 3).
 #[inline]
-pub fn linear_to_srgb_grad(c: f32) -> f32 {
-    if c <= 0.0 {
-        0.0
-    } else if c <= 0.0031308 {
-        12.92
+pub fn linear_to_srgb_grad<F: Float>(c: F) -> F {
+    if c <= F::ZERO {
+        F::ZERO
+    } else if c <= F::from_f64(0.0031308) {
+        F::from_f64(12.92)
     } else {
-        1.055 / 2.4 * c.powf(1.0 / 2.4 - 1.0)
+        F::from_f64(1.055 / 2.4) * c.powf(F::from_f64(1.0 / 2.4 - 1.0))
     }
 }
 

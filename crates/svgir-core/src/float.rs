@@ -30,6 +30,7 @@ pub trait Float:
     fn exp(self) -> Self;
     fn exp2(self) -> Self;
     fn abs(self) -> Self;
+    fn powf(self, e: Self) -> Self;
 
     /// Larger of the two (plain comparison; callers never pass NaN).
     #[inline]
@@ -92,6 +93,10 @@ macro_rules! impl_float {
             #[inline]
             fn abs(self) -> Self {
                 <$t>::abs(self)
+            }
+            #[inline]
+            fn powf(self, e: Self) -> Self {
+                <$t>::powf(self, e)
             }
         }
     };

@@ -9,24 +9,7 @@
 /// Opacity floor of the division (SPEC 3).
 pub const MIN_OPACITY: f64 = 1e-5;
 
-fn srgb(x: f64) -> f64 {
-    let x = x.max(0.0);
-    if x <= 0.0031308 {
-        12.92 * x
-    } else {
-        1.055 * x.powf(1.0 / 2.4) - 0.055
-    }
-}
-
-fn srgb_grad(x: f64) -> f64 {
-    if x <= 0.0 {
-        0.0
-    } else if x <= 0.0031308 {
-        12.92
-    } else {
-        1.055 / 2.4 * x.powf(1.0 / 2.4 - 1.0)
-    }
-}
+use svgir_core::color::{linear_to_srgb as srgb, linear_to_srgb_grad as srgb_grad};
 
 /// One pixel's image value.
 pub fn composite_px(c: [f64; 3], o: f64, bg: [f32; 3]) -> [f64; 3] {
