@@ -34,20 +34,24 @@ const OFF_OP: usize = 11;
 const OFF_N: usize = 12;
 const OFF_COL: usize = 15;
 
-/// Per-pixel upstream gradients and saved state of one tile.
-struct PixelScratch<F> {
-    t: Vec<F>,
-    acc: Vec<F>,
-    gc: Vec<[F; 3]>,
-    gn: Vec<[F; 3]>,
-    go: Vec<F>,
-    gd: Vec<F>,
-    gdist: Vec<F>,
-    ge: Vec<F>,
-    a: Vec<F>,
-    m1: Vec<F>,
-    m2: Vec<F>,
-    ncon: Vec<u32>,
+/// Per-pixel upstream gradients and saved state of one tile (one record per pixel, as the
+/// forward's accumulator: one cache line per pixel visit).
+#[derive(Clone, Copy, Debug, Default)]
+struct PixB<F> {
+    /// Transmittance before the current entry (walked back from the final T).
+    t: F,
+    /// Running suffix sum `sum_{j>i} g_j w_j + T_N gC.bg`.
+    acc: F,
+    gc: [F; 3],
+    gn: [F; 3],
+    go: F,
+    gd: F,
+    gdist: F,
+    /// Final `A = 1 - T_N` and distortion moments.
+    a: F,
+    m1: F,
+    m2: F,
+    ncon: u32,
 }
 
 /// Backward in scalar type `F` (see [`crate::backward`] for the f32 entry point).
@@ -202,8 +206,28 @@ struct Ctx<'a, F: Real> {
     off_ext: usize,
 }
 
-#[inline(never)]
+/// Dispatches to the kernel specialised for which optional paths are live (each is a branch
+/// per composited pixel otherwise).
 fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
+    let ci = ctx.cf.vertices > 1;
+    let ex = ctx.ef.channels > 0;
+    let dist = ctx.cfg.distortion && ctx.grads.distortion.is_some();
+    match (ci, ex, dist) {
+        (false, false, false) => backward_band_k::<F, false, false, false>(ctx, ty, eg),
+        (false, false, true) => backward_band_k::<F, false, false, true>(ctx, ty, eg),
+        (false, true, false) => backward_band_k::<F, false, true, false>(ctx, ty, eg),
+        (false, true, true) => backward_band_k::<F, false, true, true>(ctx, ty, eg),
+        (true, false, false) => backward_band_k::<F, true, false, false>(ctx, ty, eg),
+        (true, false, true) => backward_band_k::<F, true, false, true>(ctx, ty, eg),
+        (true, true, false) => backward_band_k::<F, true, true, false>(ctx, ty, eg),
+        (true, true, true) => backward_band_k::<F, true, true, true>(ctx, ty, eg),
+    }
+}
+
+/// One row of tiles. `CI`: colours interpolated from several vertices; `EX`: extra feature
+/// channels; `DIST`: the distortion output has a gradient.
+#[inline(never)]
+fn backward_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
     let bins = ctx.bins;
     let (cf, ef) = (ctx.cf, ctx.ef);
     let ce = ef.channels;
@@ -214,25 +238,12 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
     let two = F::c(2.0);
     // 2DGS's distortion depth m = far / (far - near) (1 - near / z) (as [`distortion_depth`]).
     let m_scale = far / (far - near);
-    let has_dist = ctx.cfg.distortion && ctx.grads.distortion.is_some();
     let wu = ctx.w as usize;
     let tile = bins.tile as usize;
     let e_band0 = bins.row_range(ty)[0] as usize;
     let tp = tile * tile;
-    let mut s = PixelScratch {
-        t: vec![F::ZERO; tp],
-        acc: vec![F::ZERO; tp],
-        gc: vec![[F::ZERO; 3]; tp],
-        gn: vec![[F::ZERO; 3]; tp],
-        go: vec![F::ZERO; tp],
-        gd: vec![F::ZERO; tp],
-        gdist: vec![F::ZERO; tp],
-        ge: vec![F::ZERO; tp * ce],
-        a: vec![F::ZERO; tp],
-        m1: vec![F::ZERO; tp],
-        m2: vec![F::ZERO; tp],
-        ncon: vec![0; tp],
-    };
+    let mut px = vec![PixB::<F>::default(); tp];
+    let mut ge_px = vec![F::ZERO; tp * ce];
     let g = ctx.grads;
     let st = ctx.state;
     let (mut wc, mut wcu, mut wcv) = ([F::ZERO; MAX_VERTICES], [F::ZERO; MAX_VERTICES], [F::ZERO; MAX_VERTICES]);
@@ -243,7 +254,7 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
     let offs = row_offsets::<F>();
     let mut row_ncon = vec![0u32; tile];
     // Whether any feature is interpolated (else no gradient flows through u~, v~).
-    let interp = cf.vertices > 1 || (ce > 0 && ef.vertices > 1);
+    let interp = CI || (EX && ef.vertices > 1);
     for tx in 0..bins.tiles_x {
         let t = (ty * bins.tiles_x + tx) as usize;
         let tr = bins.tile_rect(t, ctx.w, ctx.h);
@@ -257,24 +268,27 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
                 let li = (y - ty0) * tile + (x - tx0);
                 let p = y * wu + x;
                 let tn = st.final_t[p];
-                s.t[li] = tn;
-                s.ncon[li] = st.n_contrib[p];
-                max_n = max_n.max(st.n_contrib[p]);
-                row_ncon[y - ty0] = row_ncon[y - ty0].max(st.n_contrib[p]);
-                s.a[li] = F::ONE - tn;
-                s.m1[li] = st.moment1[p];
-                s.m2[li] = st.moment2[p];
-                s.gc[li] = g.color.map_or([F::ZERO; 3], |v| [v[p * 3], v[p * 3 + 1], v[p * 3 + 2]]);
-                s.gn[li] = g.normal.map_or([F::ZERO; 3], |v| [v[p * 3], v[p * 3 + 1], v[p * 3 + 2]]);
-                s.go[li] = g.alpha.map_or(F::ZERO, |v| v[p]);
-                s.gd[li] = g.depth.map_or(F::ZERO, |v| v[p]);
-                s.gdist[li] = if has_dist { g.distortion.map_or(F::ZERO, |v| v[p]) } else { F::ZERO };
-                for ch in 0..ce {
-                    s.ge[li * ce + ch] = g.extra.map_or(F::ZERO, |v| v[p * ce + ch]);
-                }
+                let nc = st.n_contrib[p];
+                max_n = max_n.max(nc);
+                row_ncon[y - ty0] = row_ncon[y - ty0].max(nc);
+                let gc = g.color.map_or([F::ZERO; 3], |v| [v[p * 3], v[p * 3 + 1], v[p * 3 + 2]]);
                 let b = background_at(ctx.bg, p);
-                let gc = s.gc[li];
-                s.acc[li] = tn * (gc[0] * b[0] + gc[1] * b[1] + gc[2] * b[2]);
+                px[li] = PixB {
+                    t: tn,
+                    acc: tn * (gc[0] * b[0] + gc[1] * b[1] + gc[2] * b[2]),
+                    gc,
+                    gn: g.normal.map_or([F::ZERO; 3], |v| [v[p * 3], v[p * 3 + 1], v[p * 3 + 2]]),
+                    go: g.alpha.map_or(F::ZERO, |v| v[p]),
+                    gd: g.depth.map_or(F::ZERO, |v| v[p]),
+                    gdist: if DIST { g.distortion.map_or(F::ZERO, |v| v[p]) } else { F::ZERO },
+                    a: F::ONE - tn,
+                    m1: st.moment1[p],
+                    m2: st.moment2[p],
+                    ncon: nc,
+                };
+                for ch in 0..ce {
+                    ge_px[li * ce + ch] = g.extra.map_or(F::ZERO, |v| v[p * ce + ch]);
+                }
             }
         }
         for e in (r0 as usize..r0 as usize + max_n as usize).rev() {
@@ -287,6 +301,8 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
             let slot = &mut eg[(e - e_band0) * dim..(e - e_band0 + 1) * dim];
             let mut sg = SplatGrad::<F>::default();
             let mut v_n = [F::ZERO; 3];
+            // Colour gradient of a one-vertex colour, summed here rather than in the slot.
+            let mut v_col = [F::ZERO; 3];
             for y in y0..y1 {
                 // No pixel of this row composited this entry.
                 if local >= row_ncon[y - ty0] {
@@ -301,15 +317,16 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
                 for x in xa..xb {
                     let i = x - xa;
                     let li = row + (x - tx0);
-                    if local >= s.ncon[li] || ev.alpha[i] == F::ZERO {
+                    let p = &mut px[li];
+                    if local >= p.ncon || ev.alpha[i] == F::ZERO {
                         continue;
                     }
                     let xf = xa_f + offs[i];
-                    let hit = hit_from_row(&sp.h, sp.center, sp.opacity, &rs, &ev, i, xf, yf);
+                    let hit = hit_from_row(sp.center, sp.opacity, &ev, i, xf, yf);
                     // One reciprocal for both divisions by (1 - alpha_i).
                     let inv_one_m = F::ONE / (F::ONE - hit.alpha);
-                    let ti = s.t[li] * inv_one_m;
-                    s.t[li] = ti;
+                    let ti = p.t * inv_one_m;
+                    p.t = ti;
                     let wgt = hit.alpha * ti;
                     let (ut, dut, vt, dvt) = if interp {
                         let (ut, dut) = normalised_coord(hit.u);
@@ -318,18 +335,17 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
                     } else {
                         (F::ZERO, F::ZERO, F::ZERO, F::ZERO)
                     };
-                    if cf.vertices > 1 {
+                    let gc = p.gc;
+                    let gn = p.gn;
+                    if CI {
                         weights(cf.vertices, ut, vt, &mut wc);
                         weight_grads(cf.vertices, ut, vt, &mut wcu, &mut wcv);
                         cf.eval(gid, &wc, &mut col);
                     } else {
-                        wc[0] = F::ONE;
                         col = sp.color;
                     }
-                    let gc = s.gc[li];
-                    let gn = s.gn[li];
                     // Distortion depth m(z) and dm/dz, only when the distortion has a gradient.
-                    let (m, dm_dz) = if has_dist {
+                    let (m, dm_dz) = if DIST {
                         let inv_z = F::ONE / hit.z;
                         (m_scale * (F::ONE - near * inv_z), m_scale * near * inv_z * inv_z)
                     } else {
@@ -338,19 +354,17 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
                     let mut gw = gc[0] * col[0]
                         + gc[1] * col[1]
                         + gc[2] * col[2]
-                        + s.go[li]
-                        + s.gd[li] * hit.z
+                        + p.go
+                        + p.gd * hit.z
                         + gn[0] * sp.normal[0]
                         + gn[1] * sp.normal[1]
-                        + gn[2] * sp.normal[2]
-                        + s.gdist[li] * (s.a[li] * m * m - two * m * s.m1[li] + s.m2[li]);
+                        + gn[2] * sp.normal[2];
+                    if DIST {
+                        gw += p.gdist * (p.a * m * m - two * m * p.m1 + p.m2);
+                    }
                     // d/du~, d/dv~ of sum_ch g_ch f_ch(u~, v~), times w.
                     let (mut gut, mut gvt) = (F::ZERO, F::ZERO);
-                    if cf.vertices == 1 {
-                        for ch in 0..3 {
-                            slot[OFF_COL + ch] += wgt * gc[ch];
-                        }
-                    } else {
+                    if CI {
                         for vtx in 0..cf.vertices {
                             let row = &cf.data[(gid * cf.vertices + vtx) * 3..(gid * cf.vertices + vtx + 1) * 3];
                             let dot = gc[0] * row[0] + gc[1] * row[1] + gc[2] * row[2];
@@ -361,8 +375,12 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
                             gut += wcu[vtx] * dot;
                             gvt += wcv[vtx] * dot;
                         }
+                    } else {
+                        for ch in 0..3 {
+                            v_col[ch] += wgt * gc[ch];
+                        }
                     }
-                    if ce > 0 {
+                    if EX {
                         if ef.vertices > 1 {
                             weights(ef.vertices, ut, vt, &mut we);
                             weight_grads(ef.vertices, ut, vt, &mut weu, &mut wev);
@@ -370,7 +388,7 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
                             we[0] = F::ONE;
                         }
                         ef.eval(gid, &we, &mut ext);
-                        let ge = &s.ge[li * ce..(li + 1) * ce];
+                        let ge = &ge_px[li * ce..(li + 1) * ce];
                         for ch in 0..ce {
                             gw += ge[ch] * ext[ch];
                         }
@@ -389,19 +407,28 @@ fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
                             }
                         }
                     }
-                    let v_alpha = ti * gw - s.acc[li] * inv_one_m;
-                    s.acc[li] += gw * wgt;
+                    let v_alpha = ti * gw - p.acc * inv_one_m;
+                    p.acc += gw * wgt;
                     for ch in 0..3 {
                         v_n[ch] += wgt * gn[ch];
                     }
                     // Depth: D = sum w z; distortion: dDist/dm_i = 2 w_i (m_i A - M1).
-                    let v_z = wgt * s.gd[li] + s.gdist[li] * two * wgt * (m * s.a[li] - s.m1[li]) * dm_dz;
+                    let mut v_z = wgt * p.gd;
+                    if DIST {
+                        v_z += p.gdist * two * wgt * (m * p.a - p.m1) * dm_dz;
+                    }
                     let (v_u, v_v) = if interp { (wgt * gut * dut, wgt * gvt * dvt) } else { (F::ZERO, F::ZERO) };
                     intersect_backward(&hit, &sp.h, sp.center, sp.opacity, xf, yf, v_alpha, v_z, v_u, v_v, &mut sg);
                 }
             }
+            if !CI {
+                for ch in 0..3 {
+                    slot[OFF_COL + ch] += v_col[ch];
+                }
+            }
+            let v_h = sg.h_grad(&sp.h);
             for j in 0..9 {
-                slot[OFF_H + j] += sg.h[j];
+                slot[OFF_H + j] += v_h[j];
             }
             slot[OFF_C] += sg.center[0];
             slot[OFF_C + 1] += sg.center[1];

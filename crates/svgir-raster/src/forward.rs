@@ -232,9 +232,43 @@ struct PixAcc<F> {
     done: bool,
 }
 
+/// Dispatches to the kernel specialised for which optional paths are live (each is a branch per
+/// composited pixel otherwise): interpolated colours, extra channels, distortion.
+#[allow(clippy::too_many_arguments)]
+fn render_band<F: Real>(
+    b: &mut Band<F>,
+    bins: &TileBins,
+    recs: &[TileRec<F>],
+    cf: &FeatView<F>,
+    ef: &FeatView<F>,
+    bg: &BackgroundOf<F>,
+    cfg: &RasterConfig,
+    w: u32,
+    h: u32,
+) {
+    let ci = cf.vertices > 1;
+    let ex = ef.channels > 0;
+    macro_rules! go {
+        ($ci:literal, $ex:literal, $d:literal) => {
+            render_band_k::<F, $ci, $ex, $d>(b, bins, recs, cf, ef, bg, cfg, w, h)
+        };
+    }
+    match (ci, ex, cfg.distortion) {
+        (false, false, false) => go!(false, false, false),
+        (false, false, true) => go!(false, false, true),
+        (false, true, false) => go!(false, true, false),
+        (false, true, true) => go!(false, true, true),
+        (true, false, false) => go!(true, false, false),
+        (true, false, true) => go!(true, false, true),
+        (true, true, false) => go!(true, true, false),
+        (true, true, true) => go!(true, true, true),
+    }
+}
+
+/// One row of tiles; see [`render_band`] for the const parameters.
 #[allow(clippy::too_many_arguments)]
 #[inline(never)]
-fn render_band<F: Real>(
+fn render_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
     b: &mut Band<F>,
     bins: &TileBins,
     recs: &[TileRec<F>],
@@ -249,7 +283,6 @@ fn render_band<F: Real>(
     let far = F::from_f32(cfg.far);
     let m_scale = far / (far - near);
     let t_stop = F::from_f32(cfg.t_stop);
-    let with_dist = cfg.distortion;
     let half = F::c(0.5);
     let two = F::c(2.0);
     let wu = w as usize;
@@ -320,18 +353,18 @@ fn render_band<F: Real>(
                         continue;
                     }
                     let wgt = hit.alpha * tcur;
-                    if cf.vertices == 1 {
-                        col = s.color;
-                    } else {
+                    if CI {
                         hit_weights(cf.vertices, hit.u, hit.v, &mut wc);
                         cf.eval(g, &wc, &mut col);
+                    } else {
+                        col = s.color;
                     }
                     for ch in 0..3 {
                         a.color[ch] += wgt * col[ch];
                         a.normal[ch] += wgt * s.normal[ch];
                     }
                     a.depth += wgt * hit.z;
-                    if with_dist {
+                    if DIST {
                         // 2DGS running-sum distortion: w_i (m_i^2 A_i + M2 - 2 m_i M1), A_i = 1 - T_i.
                         let m = m_scale * (F::ONE - near / hit.z);
                         a.dist += (m * m * (F::ONE - tcur) + a.m2 - two * m * a.m1) * wgt;
@@ -344,7 +377,7 @@ fn render_band<F: Real>(
                     a.t = test;
                     a.ncon = local;
                     ws += wgt;
-                    if ce > 0 {
+                    if EX {
                         hit_weights(ef.vertices, hit.u, hit.v, &mut we);
                         ef.eval(g, &we, &mut ext);
                         let dst = &mut acc_extra[li * ce..(li + 1) * ce];

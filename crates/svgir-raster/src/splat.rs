@@ -33,8 +33,6 @@ pub struct Hit<F> {
     pub clamped: bool,
     /// `rho3d <= rho2d`: the Gaussian (not the filter) decided rho.
     pub use3d: bool,
-    pub k: [F; 3],
-    pub l: [F; 3],
     /// `1 / p.z` (saved by the evaluation, so backward divides once less).
     pub inv_pz: F,
 }
@@ -241,28 +239,18 @@ pub fn eval_row<F: Real>(
 
 /// The full hit record of pixel `i` of a row evaluated by [`eval_row`] (for backward).
 #[inline(always)]
-pub fn hit_from_row<F: Real>(
-    h: &[F; 9],
-    c: [F; 2],
-    o: F,
-    rs: &RowSetup<F>,
-    e: &RowEval<F>,
-    i: usize,
-    x: F,
-    y: F,
-) -> Hit<F> {
-    hit_from_parts(h, c, o, rs, [e.alpha[i], e.u[i], e.v[i], e.z[i], e.g[i], e.inv_pz[i]], x, y)
+pub fn hit_from_row<F: Real>(c: [F; 2], o: F, e: &RowEval<F>, i: usize, x: F, y: F) -> Hit<F> {
+    hit_from_parts(c, o, [e.alpha[i], e.u[i], e.v[i], e.z[i], e.g[i], e.inv_pz[i]], x, y)
 }
 
 #[inline(always)]
-fn hit_from_parts<F: Real>(h: &[F; 9], c: [F; 2], o: F, rs: &RowSetup<F>, parts: [F; 6], x: F, y: F) -> Hit<F> {
+fn hit_from_parts<F: Real>(c: [F; 2], o: F, parts: [F; 6], x: F, y: F) -> Hit<F> {
     let [alpha, u, v, z, g, inv_pz] = parts;
     let dx = c[0] - x;
     let dy = c[1] - y;
     let rho3 = u * u + v * v;
     let rho2 = F::c(2.0) * (dx * dx + dy * dy);
-    let k = [x * h[6] - h[0], x * h[7] - h[1], x * h[8] - h[2]];
-    Hit { u, v, z, g, alpha, clamped: o * g > F::c(0.99), use3d: rho3 <= rho2, k, l: rs.l, inv_pz }
+    Hit { u, v, z, g, alpha, clamped: o * g > F::c(0.99), use3d: rho3 <= rho2, inv_pz }
 }
 
 /// Evaluates the splat with matrix `h`, projected centre `c` and opacity `o` at pixel centre
@@ -274,15 +262,49 @@ pub fn intersect<F: Real>(h: &[F; 9], c: [F; 2], o: F, x: F, y: F, near: F) -> O
     if alpha == F::ZERO {
         return None;
     }
-    Some(hit_from_parts(h, c, o, &rs, [alpha, u, v, z, g, inv_pz], x, y))
+    Some(hit_from_parts(c, o, [alpha, u, v, z, g, inv_pz], x, y))
 }
 
-/// Gradients of one evaluation w.r.t. the splat record.
+/// Gradients w.r.t. one splat record, accumulated over the pixels it was evaluated at.
+///
+/// The matrix part is kept as three sums of `dL/dp` (p = k x l, the un-normalised hit): since
+/// `k = x T_w - T_u` and `l = y T_w - T_v` are linear in the pixel centre, the per-pixel chain
+/// `dL/dk = l x gp`, `dL/dl = gp x k` sums to cross products of `sum gp`, `sum x gp` and `sum y gp`
+/// with the rows of H ([`SplatGrad::h_grad`]). Per pixel that is 9 multiply-adds instead of two
+/// cross products and 9 scattered updates; the `x y` terms cancel exactly in the sum.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct SplatGrad<F> {
-    pub h: [F; 9],
+    /// dL/dH[6..9] through the explicit depth term `z = u T_w.x + v T_w.y + T_w.z`.
+    pub h_depth: [F; 3],
     pub center: [F; 2],
     pub opacity: F,
+    /// `sum gp`, `sum x gp`, `sum y gp` over the evaluated pixels.
+    gp: [F; 3],
+    gp_x: [F; 3],
+    gp_y: [F; 3],
+}
+
+impl<F: Real> SplatGrad<F> {
+    /// dL/dH from the accumulated sums.
+    pub fn h_grad(&self, h: &[F; 9]) -> [F; 9] {
+        let (tu, tv, tw) = ([h[0], h[1], h[2]], [h[3], h[4], h[5]], [h[6], h[7], h[8]]);
+        // dL/dT_u = -sum l x gp = -(T_w x sum y gp - T_v x sum gp).
+        let a = cross3(tw, self.gp_y);
+        let b = cross3(tv, self.gp);
+        // dL/dT_v = -sum gp x k = -(sum x gp x T_w - sum gp x T_u).
+        let c = cross3(self.gp_x, tw);
+        let d = cross3(self.gp, tu);
+        // dL/dT_w = sum x (l x gp) + y (gp x k) = T_u x sum y gp - T_v x sum x gp, plus depth.
+        let e = cross3(tu, self.gp_y);
+        let f = cross3(tv, self.gp_x);
+        let mut out = [F::ZERO; 9];
+        for j in 0..3 {
+            out[j] = b[j] - a[j];
+            out[3 + j] = d[j] - c[j];
+            out[6 + j] = e[j] - f[j] + self.h_depth[j];
+        }
+        out
+    }
 }
 
 /// Adds to `out` the gradient given `dL/dalpha`, `dL/dz` and `dL/du`, `dL/dv` (the latter from
@@ -301,12 +323,10 @@ pub fn intersect_backward<F: Real>(
     v_v: F,
     out: &mut SplatGrad<F>,
 ) {
-    let tw = [h[6], h[7], h[8]];
-    let (mut gu, mut gv) = (v_u + v_z * tw[0], v_v + v_z * tw[1]);
-    // z = u T_w.x + v T_w.y + T_w.z (explicit part).
-    out.h[6] += v_z * hit.u;
-    out.h[7] += v_z * hit.v;
-    out.h[8] += v_z;
+    let (mut gu, mut gv) = (v_u + v_z * h[6], v_v + v_z * h[7]);
+    out.h_depth[0] += v_z * hit.u;
+    out.h_depth[1] += v_z * hit.v;
+    out.h_depth[2] += v_z;
     if !hit.clamped {
         out.opacity += v_alpha * hit.g;
         let v_rho = F::c(-0.5) * v_alpha * o * hit.g;
@@ -321,12 +341,9 @@ pub fn intersect_backward<F: Real>(
     // (u, v) = (p.x, p.y) / p.z.
     let inv = hit.inv_pz;
     let gp = [gu * inv, gv * inv, -(gu * hit.u + gv * hit.v) * inv];
-    // p = k x l.
-    let gk = cross3(hit.l, gp);
-    let gl = cross3(gp, hit.k);
     for j in 0..3 {
-        out.h[j] -= gk[j];
-        out.h[3 + j] -= gl[j];
-        out.h[6 + j] += x * gk[j] + y * gl[j];
+        out.gp[j] += gp[j];
+        out.gp_x[j] += x * gp[j];
+        out.gp_y[j] += y * gp[j];
     }
 }

@@ -179,6 +179,8 @@ fn gradients_colour_features_m1_m2() {
 fn gradients_colour_features_m4_m6() {
     report(&Case { seed: 5, color_m: 4, extra: Some((1, 3)), bg_image: false });
     report(&Case { seed: 6, color_m: 6, extra: Some((2, 2)), bg_image: true });
+    // Interpolated colour without extra channels (its own specialised kernel).
+    report(&Case { seed: 7, color_m: 4, extra: None, bg_image: false });
 }
 
 /// The f32 instantiation (what training runs) agrees with the f64 one.
