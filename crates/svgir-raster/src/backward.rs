@@ -20,7 +20,7 @@ use crate::preprocess::Cam;
 use crate::preprocess_backward::{gaussian_backward, SplatGradSum};
 use crate::real::Real;
 use crate::splat::{eval_row, hit_from_row, intersect_backward, row_offsets, row_setup, RowEval, SplatGrad};
-use crate::tiles::{TileBins, TileRec};
+use crate::tiles::{live_span, TileBins, TileRec};
 use crate::{
     BackgroundOf, ColorSourceOf, ForwardStateOf, GaussianParams, GradsOf, OutputGradsOf, RasterConfig, RenderInputOf,
     RenderOutputOf,
@@ -252,7 +252,10 @@ fn backward_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(ct
     let mut ext = vec![F::ZERO; ce];
     let mut ev = Box::<RowEval<F>>::default();
     let offs = row_offsets::<F>();
-    let mut row_ncon = vec![0u32; tile];
+    // Pixels by decreasing number of composited entries, and per tile row the columns that
+    // composited the current entry (they only join as the walk goes back to front).
+    let mut by_ncon: Vec<(u32, u32)> = Vec::with_capacity(tp);
+    let mut row_act = vec![0u64; tile];
     // Whether any feature is interpolated (else no gradient flows through u~, v~).
     let interp = CI || (EX && ef.vertices > 1);
     for tx in 0..bins.tiles_x {
@@ -262,7 +265,8 @@ fn backward_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(ct
         let (tx0, ty0) = (tr[0] as usize, tr[2] as usize);
         // Load per-pixel state and upstream gradients.
         let mut max_n = 0u32;
-        row_ncon.fill(0);
+        by_ncon.clear();
+        row_act.fill(0);
         for y in tr[2] as usize..tr[3] as usize {
             for x in tr[0] as usize..tr[1] as usize {
                 let li = (y - ty0) * tile + (x - tx0);
@@ -270,7 +274,9 @@ fn backward_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(ct
                 let tn = st.final_t[p];
                 let nc = st.n_contrib[p];
                 max_n = max_n.max(nc);
-                row_ncon[y - ty0] = row_ncon[y - ty0].max(nc);
+                if nc > 0 {
+                    by_ncon.push((nc, ((y - ty0) * 64 + (x - tx0)) as u32));
+                }
                 let gc = g.color.map_or([F::ZERO; 3], |v| [v[p * 3], v[p * 3 + 1], v[p * 3 + 2]]);
                 let b = background_at(ctx.bg, p);
                 px[li] = PixB {
@@ -291,8 +297,17 @@ fn backward_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(ct
                 }
             }
         }
+        by_ncon.sort_unstable_by(|a, b| b.0.cmp(&a.0));
+        let mut next_act = 0;
         for e in (r0 as usize..r0 as usize + max_n as usize).rev() {
             let local = (e - r0 as usize) as u32;
+            while let Some(&(nc, rc)) = by_ncon.get(next_act) {
+                if nc <= local {
+                    break;
+                }
+                row_act[rc as usize / 64] |= 1u64 << (rc % 64);
+                next_act += 1;
+            }
             let sp = &ctx.recs[e];
             let gid = sp.id as usize;
             let (x0, x1) = (sp.rect[0].max(tr[0]) as usize, sp.rect[1].min(tr[1]) as usize);
@@ -304,14 +319,16 @@ fn backward_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(ct
             // Colour gradient of a one-vertex colour, summed here rather than in the slot.
             let mut v_col = [F::ZERO; 3];
             for y in y0..y1 {
-                // No pixel of this row composited this entry.
-                if local >= row_ncon[y - ty0] {
+                // Only pixels that composited this entry.
+                let act = row_act[y - ty0];
+                if act == 0 {
                     continue;
                 }
                 let yf = F::c(y as f64) + half;
+                let (xa, xb) = sp.conic.span(c32, yf.to_f32(), x0, x1);
+                let Some((xa, xb)) = live_span(act, tx0, xa, xb) else { continue };
                 let row = (y - ty0) * tile;
                 let rs = row_setup(&sp.h, yf);
-                let (xa, xb) = sp.conic.span(c32, yf.to_f32(), x0, x1);
                 eval_row(&sp.h, sp.center, sp.opacity, &rs, yf, xa, xb - xa, near, &offs, &mut ev);
                 let xa_f = F::c(xa as f64) + half;
                 for x in xa..xb {

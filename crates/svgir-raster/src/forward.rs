@@ -18,7 +18,7 @@ use crate::interp::{normalised_coord, weights, MAX_VERTICES};
 use crate::preprocess::{preprocess, Cam};
 use crate::real::Real;
 use crate::splat::{eval_row, row_offsets, row_setup, RowEval};
-use crate::tiles::{bin, gather_records, TileBins, TileRec};
+use crate::tiles::{bin, columns_mask, gather_records, live_span, TileBins, TileRec};
 use crate::{BackgroundOf, ColorSourceOf, ForwardStateOf, GaussianParams, RasterConfig, RenderInputOf, RenderOutputOf};
 use rayon::prelude::*;
 
@@ -292,7 +292,7 @@ fn render_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
     let y_band0 = (b.ty * bins.tile) as usize;
     let mut acc = vec![PixAcc::<F>::default(); tile * tile];
     let mut acc_extra = vec![F::ZERO; tile * tile * ce];
-    let mut row_left = vec![0usize; tile];
+    let mut row_live = vec![0u64; tile];
     let mut wc = [F::ZERO; MAX_VERTICES];
     let mut we = [F::ZERO; MAX_VERTICES];
     let mut col = [F::ZERO; 3];
@@ -314,8 +314,9 @@ fn render_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
         acc.fill(PixAcc { t: F::ONE, ..Default::default() });
         acc_extra.fill(F::ZERO);
         let mut remaining = (tr[1] - tr[0]) as usize * (tr[3] - tr[2]) as usize;
-        // Pixels not yet done, per row of the tile (a saturated row is skipped whole).
-        row_left.fill((tr[1] - tr[0]) as usize);
+        // Pixels not yet done, one bit per column per row of the tile: each row's evaluation is
+        // narrowed to its live pixels (a saturated row is skipped whole).
+        row_live.fill(columns_mask(0, (tr[1] - tr[0]) as usize));
         for e in r0 as usize..r1 as usize {
             if remaining == 0 {
                 break;
@@ -328,13 +329,15 @@ fn render_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
             let local = (e - r0 as usize + 1) as u32;
             let mut ws = F::ZERO;
             for y in y0..y1 {
-                if row_left[y - ty0] == 0 {
+                let live = row_live[y - ty0];
+                if live == 0 {
                     continue;
                 }
                 let yf = F::c(y as f64) + half;
+                let (xa, xb) = s.conic.span(c32, yf.to_f32(), x0, x1);
+                let Some((xa, xb)) = live_span(live, tx0, xa, xb) else { continue };
                 let row = (y - ty0) * tile;
                 let rs = row_setup(&s.h, yf);
-                let (xa, xb) = s.conic.span(c32, yf.to_f32(), x0, x1);
                 eval_row(&s.h, s.center, s.opacity, &rs, yf, xa, xb - xa, near, &offs, &mut ev);
                 for x in xa..xb {
                     let i = x - xa;
@@ -349,7 +352,7 @@ fn render_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
                     if test < t_stop {
                         a.done = true;
                         remaining -= 1;
-                        row_left[y - ty0] -= 1;
+                        row_live[y - ty0] &= !(1u64 << (x - tx0));
                         continue;
                     }
                     let wgt = hit.alpha * tcur;

@@ -151,3 +151,36 @@ pub fn bin<F: Real>(splats: &[Splat<F>], width: u32, height: u32, tile: u32) -> 
     }
     TileBins { tile, tiles_x, tiles_y, ranges, ids, entry_offsets, entries }
 }
+
+/// Bit mask of tile columns `[lo, hi)` (`lo <= hi <= 64`), for per-row sets of live pixels.
+#[inline(always)]
+pub(crate) fn columns_mask(lo: usize, hi: usize) -> u64 {
+    debug_assert!(lo <= hi && hi <= 64);
+    let below = |n: usize| if n >= 64 { u64::MAX } else { (1u64 << n) - 1 };
+    below(hi) & !below(lo)
+}
+
+/// Narrows the row segment `[xa, xb)` (absolute columns; the tile starts at `x0`) to the span of
+/// the pixels set in `live`; `None` when none is.
+#[inline(always)]
+pub(crate) fn live_span(live: u64, x0: usize, xa: usize, xb: usize) -> Option<(usize, usize)> {
+    let m = live & columns_mask(xa - x0, xb - x0);
+    (m != 0).then(|| (x0 + m.trailing_zeros() as usize, x0 + 64 - m.leading_zeros() as usize))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn live_span_trims_to_set_bits() {
+        assert_eq!(columns_mask(0, 64), u64::MAX);
+        assert_eq!(columns_mask(3, 3), 0);
+        assert_eq!(columns_mask(2, 5), 0b11100);
+        let live = 0b0110_0100u64;
+        assert_eq!(live_span(live, 16, 16, 32), Some((18, 23)));
+        assert_eq!(live_span(live, 16, 19, 21), None);
+        assert_eq!(live_span(live, 16, 22, 24), Some((22, 23)));
+        assert_eq!(live_span(u64::MAX, 0, 60, 64), Some((60, 64)));
+    }
+}
