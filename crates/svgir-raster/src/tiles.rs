@@ -156,7 +156,8 @@ pub fn bin<F: Real>(splats: &[Splat<F>], width: u32, height: u32, tile: u32) -> 
 #[inline(always)]
 pub(crate) fn columns_mask(lo: usize, hi: usize) -> u64 {
     debug_assert!(lo <= hi && hi <= 64);
-    let below = |n: usize| if n >= 64 { u64::MAX } else { (1u64 << n) - 1 };
+    // Through u128 so that n = 64 needs no branch.
+    let below = |n: usize| ((1u128 << n) - 1) as u64;
     below(hi) & !below(lo)
 }
 
