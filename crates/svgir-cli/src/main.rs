@@ -3,6 +3,7 @@
 //! Each subcommand lives in `commands/`; this file only parses arguments and dispatches.
 
 mod commands;
+mod malloc_tuning;
 mod progress;
 
 use clap::{Parser, Subcommand};
@@ -41,6 +42,7 @@ enum Command {
 }
 
 fn main() {
+    malloc_tuning::keep_freed_memory();
     let cli = Cli::parse();
     if let Some(t) = cli.threads {
         if let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(t).build_global() {

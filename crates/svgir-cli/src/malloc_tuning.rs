@@ -1,0 +1,28 @@
+//! Keeps freed memory in the process instead of returning it to the kernel.
+//!
+//! Every training iteration allocates and frees the same large buffers (per-pixel outputs, tile
+//! records, per-entry gradients: tens of MB at 400x400). With glibc's defaults, buffers this size
+//! are `mmap`ed and unmapped on free, or trimmed off the heap top, so each iteration page-faults
+//! them in again: on the 2-core development VM that was 0.7-0.9 s of system time per 8
+//! rasterizer forward+backward calls on lego (75.9k Gaussians, 400x400), and 15-25% of the wall
+//! time. Raising the mmap threshold to its maximum (32 MiB) and disabling trimming drops it to
+//! 0.15 s. Buffers above 32 MiB are still mapped per call.
+
+/// Applies the tuning (glibc on Linux only; elsewhere a no-op).
+pub fn keep_freed_memory() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    {
+        // From glibc's <malloc.h>.
+        const M_TRIM_THRESHOLD: i32 = -1;
+        const M_MMAP_THRESHOLD: i32 = -3;
+        extern "C" {
+            fn mallopt(param: i32, value: i32) -> i32;
+        }
+        // SAFETY: mallopt only changes allocator parameters; it is called before any thread is
+        // started, and invalid values are rejected by glibc (returning 0), not undefined.
+        unsafe {
+            mallopt(M_MMAP_THRESHOLD, 32 * 1024 * 1024);
+            mallopt(M_TRIM_THRESHOLD, i32::MAX);
+        }
+    }
+}
