@@ -160,6 +160,22 @@ fn albedo_of<F: Real>(x: F) -> F {
     F::from_f64(ALBEDO_SCALE) * sigmoid(x) + F::from_f64(ALBEDO_BIAS)
 }
 
+/// Raw parameter whose activated albedo is `a` (clamped into the activation's open range), for
+/// setting materials from outside (diagnostics that load ground truth).
+pub fn albedo_raw_for(a: f32) -> f32 {
+    logit_clamped((a as f64 - ALBEDO_BIAS) / ALBEDO_SCALE)
+}
+
+/// Raw parameter whose activated roughness is `r` (clamped as [`albedo_raw_for`]).
+pub fn roughness_raw_for(r: f32) -> f32 {
+    logit_clamped((r as f64 - ROUGHNESS_BIAS) / ROUGHNESS_SCALE)
+}
+
+fn logit_clamped(s: f64) -> f32 {
+    let s = s.clamp(1e-4, 1.0 - 1e-4);
+    (s / (1.0 - s)).ln() as f32
+}
+
 #[inline]
 fn roughness_of<F: Real>(x: F) -> F {
     F::from_f64(ROUGHNESS_SCALE) * sigmoid(x) + F::from_f64(ROUGHNESS_BIAS)
@@ -316,5 +332,17 @@ mod tests {
                 close((p - q) / (2.0 * h), g.v_normal_offset[i], "offset");
             }
         }
+    }
+
+    #[test]
+    fn raw_for_inverts_the_activations() {
+        for &a in &[0.05f32, 0.3, 0.79] {
+            assert!((albedo_of(albedo_raw_for(a) as f64) as f32 - a).abs() < 1e-5);
+        }
+        for &r in &[0.1f32, 0.5, 0.98] {
+            assert!((roughness_of(roughness_raw_for(r) as f64) as f32 - r).abs() < 1e-5);
+        }
+        // Outside the activation's range: the nearest reachable value.
+        assert!(albedo_of(albedo_raw_for(1.0) as f64) > 0.79);
     }
 }

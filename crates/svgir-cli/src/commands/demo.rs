@@ -58,6 +58,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         run: args.out.clone(),
         data: None,
         iterations: iterations2,
+        oracle_materials: false,
         seed: args.seed,
         vertices: 4,
         directions: if args.quick { 16 } else { 64 },

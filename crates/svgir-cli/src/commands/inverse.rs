@@ -27,6 +27,11 @@ pub struct InverseArgs {
     pub data: Option<PathBuf>,
     #[arg(long, default_value_t = 20_000)]
     pub iterations: u64,
+    /// Diagnostic: before the evaluation, replace the learned albedo and roughness by the
+    /// ground truth of the training views projected onto each Gaussian (the relighting ceiling
+    /// of this geometry and shading with perfect materials). Not a result: it reads ground truth.
+    #[arg(long)]
+    pub oracle_materials: bool,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Gaussian vertices per surfel: 1 (constant material), 2, 4 or 6.
@@ -165,6 +170,14 @@ pub fn run(args: InverseArgs) -> Result<()> {
     }
     pb.finish();
     checkpoint::save_stage2(&s2, &ckpt)?;
+    if args.oracle_materials {
+        let st = super::oracle_materials::apply(&mut s2, &dataset)?;
+        eprintln!(
+            "oracle materials: ground truth from {} training views on {} of {} Gaussians",
+            st.views, st.assigned, st.total
+        );
+        anyhow::ensure!(st.views > 0, "--oracle-materials: the training views have no albedo/roughness maps");
+    }
     let lpips = load_lpips(args.lpips)?;
     let eval = evaluate(&s2, &dataset, &out, lpips.as_ref(), args.turntable, args.relight_directions)?;
     let its = s2.iteration.max(1) as f64;

@@ -5,6 +5,7 @@ pub mod demo;
 pub mod eval;
 pub mod info;
 pub mod inverse;
+pub mod oracle_materials;
 pub mod relight;
 pub mod report;
 pub mod train;
