@@ -8,6 +8,7 @@ pub mod config;
 pub mod densify;
 pub mod init;
 pub mod losses;
+pub mod orient;
 pub mod relight;
 pub mod stage1;
 pub mod stage2;

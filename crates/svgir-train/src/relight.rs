@@ -46,8 +46,12 @@ impl Relighter {
         Ok(Self { mb, cache, trace_seconds: t0.elapsed().as_secs_f64() })
     }
 
-    /// Eqn 13 under `env` (unclamped) with the model's current materials.
+    /// Eqn 13 under `env` (unclamped) with the model's current materials; nothing for a model
+    /// trained without indirect light (the ablation relights as it was trained).
     pub fn prepare(&self, s2: &Stage2, env: EnvMap) -> Result<PreparedLight, PbrError> {
+        if !s2.config.indirect {
+            return Ok(PreparedLight { env, one_bounce: Vec::new() });
+        }
         let act = s2.materials.activated(&s2.normals)?;
         let one_bounce =
             svgir_trace::gather_all(&self.mb, &act.view(), &env, &GatherParams { env_max: f32::INFINITY })?;
@@ -67,7 +71,7 @@ impl Relighter {
             mb: &self.mb,
             cache: Some(&self.cache),
             env: &light.env,
-            indirect: Indirect::Given(&light.one_bounce),
+            indirect: if s2.config.indirect { Indirect::Given(&light.one_bounce) } else { Indirect::Off },
             params: ShadeParams { visibility: s2.config.visibility, env_max: f32::INFINITY },
         };
         s2.render_shaded(camera, bg, &shading, albedo_scale)

@@ -16,8 +16,9 @@ use crate::adam::AdamGroup;
 use crate::composite::{pbr_composite, pbr_composite_backward};
 use crate::config::BackgroundMode;
 use crate::losses::{depth_normal::depth_normal_loss, l1::l1_loss, smoothness::edge_aware_smoothness};
+use crate::orient::orient_normals;
 use crate::stage1::{psnr_of_mse, target_rgb, PhaseTimes};
-use glam::{Quat, Vec3};
+use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 use svgir_core::{Camera, Dataset, Rng, Surfels};
@@ -198,20 +199,6 @@ pub struct Stage2 {
     pub trace_seconds: f64,
 }
 
-/// Flip each surfel so its normal faces the majority of the training cameras that see its
-/// front or back (a rotation by pi about t_u: n -> -n, t_v -> -t_v; the disk is unchanged).
-pub fn orient_normals(s: &mut Surfels, cameras: &[Camera]) {
-    let centers: Vec<Vec3> = cameras.iter().map(|c| c.center()).collect();
-    for i in 0..s.len() {
-        let n = s.normal(i);
-        let p = s.positions[i];
-        let votes: i64 = centers.iter().map(|c| if n.dot(*c - p) >= 0.0 { 1 } else { -1 }).sum();
-        if votes < 0 {
-            s.rotations[i] *= Quat::from_rotation_x(std::f32::consts::PI);
-        }
-    }
-}
-
 fn visible_of(max_radius: &[f32]) -> Vec<bool> {
     max_radius.iter().map(|r| *r > 0.0).collect()
 }
@@ -219,7 +206,7 @@ fn visible_of(max_radius: &[f32]) -> Vec<bool> {
 impl Stage2 {
     pub fn new(config: Stage2Config, mut surfels: Surfels, dataset: &Dataset) -> Result<Self, PbrError> {
         let cams: Vec<Camera> = dataset.train.iter().map(|v| v.camera).collect();
-        orient_normals(&mut surfels, &cams);
+        orient_normals(&mut surfels, &cams, &RasterConfig { distortion: false, ..RasterConfig::default() });
         let t0 = Instant::now();
         let bvh = Bvh::build(&surfels);
         let mb = MicroBuffer::trace(&bvh, &surfels, config.directions, config.seed, &config.trace_params())?;

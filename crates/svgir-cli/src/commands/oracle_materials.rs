@@ -4,14 +4,13 @@
 //! ceiling of the relighting pipeline on that scene, to compare with the learned materials.
 //!
 //! Each Gaussian takes the mean ground-truth albedo and roughness at its centre's pixel over the
-//! training views where the centre is visible (its depth within 1% of the rendered median depth
-//! at that pixel, opacity > 0.5). Every vertex of a Gaussian gets that value; normal offsets and
+//! training views that see it ([`visible_from`]). Every vertex of a Gaussian gets that value; normal offsets and
 //! opacities stay as learned. Gaussians seen in no view keep their learned materials.
 
 use anyhow::Result;
 use svgir_core::Dataset;
 use svgir_pbr::material::{albedo_raw_for, roughness_raw_for};
-use svgir_raster::{render, Background, ColorSource, RenderInput};
+use svgir_train::orient::visible_from;
 use svgir_train::Stage2;
 
 /// How many Gaussians got ground-truth materials, and from how many views.
@@ -29,25 +28,14 @@ pub fn apply(s2: &mut Stage2, ds: &Dataset) -> Result<OracleStats> {
     for v in &ds.train {
         let (Some(alb), Some(rough)) = (&v.albedo, &v.roughness) else { continue };
         views += 1;
-        let input = RenderInput {
-            surfels: &s2.surfels,
-            camera: &v.camera,
-            colors: ColorSource::Sh,
-            extra: None,
-            background: Background::Color([0.0; 3]),
-        };
-        let (out, _) = render(&input, &s2.raster);
-        let (w, h) = (out.width, out.height);
+        let seen = visible_from(&s2.surfels, &v.camera, &s2.raster);
         for (i, a) in acc.iter_mut().enumerate() {
-            let Some((x, y, z)) = v.camera.project(s2.surfels.positions[i]) else { continue };
-            if !(x >= 0.0 && y >= 0.0 && x < w as f32 && y < h as f32) {
+            if !seen[i] {
                 continue;
             }
+            // Visible implies in front of the camera and inside the image.
+            let Some((x, y, _)) = v.camera.project(s2.surfels.positions[i]) else { continue };
             let (xi, yi) = (x as u32, y as u32);
-            let p = (yi * w + xi) as usize;
-            if out.alpha[p] < 0.5 || (out.median_depth[p] - z).abs() > 0.01 * z {
-                continue;
-            }
             let c = alb.pixel(xi, yi);
             for ch in 0..3 {
                 a[ch] += c[ch] as f64;
