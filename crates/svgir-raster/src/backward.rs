@@ -297,7 +297,7 @@ fn backward_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(ct
                 }
             }
         }
-        by_ncon.sort_unstable_by(|a, b| b.0.cmp(&a.0));
+        by_ncon.sort_unstable_by_key(|a| std::cmp::Reverse(a.0));
         let mut next_act = 0;
         for e in (r0 as usize..r0 as usize + max_n as usize).rev() {
             let local = (e - r0 as usize) as u32;
