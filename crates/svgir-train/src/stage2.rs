@@ -1,8 +1,8 @@
 //! Stage 2 (SPEC 6): spatially-varying materials and environment light on frozen stage-1
 //! geometry.
 //!
-//! Set-up: orient every surfel's normal towards the training cameras (the hemisphere of its
-//! micro-buffer must be the visible side), build the BVH, trace the K-direction micro-buffers
+//! Set-up: orient every surfel's normal towards the training cameras that see it (the hemisphere
+//! of its micro-buffer must be the visible side; [`crate::orient`]), build the BVH, trace the K-direction micro-buffers
 //! once, attach M Gaussian vertices of raw materials (SPEC 3) and create the learnable env map.
 //! One iteration on a random view:
 //! 1. SH pass: rasterise the SH colours (the SH image keeps training, SPEC 6 Eqn 15).
