@@ -55,7 +55,8 @@ pub struct InverseArgs {
     /// Append training statistics to OUT/metrics.jsonl every this many iterations.
     #[arg(long, default_value_t = 25)]
     pub log_every: u64,
-    /// Continue the stage-2 run in the output folder from its checkpoint.
+    /// Continue the stage-2 run in the output folder from its checkpoint (up to --iterations,
+    /// which may extend a finished run).
     #[arg(long)]
     pub resume: bool,
     /// Write OUT/checkpoint.bin every this many iterations (atomically; Ctrl-C also saves).
@@ -130,7 +131,14 @@ pub fn run(args: InverseArgs) -> Result<()> {
     let ckpt = out.join("checkpoint.bin");
     let mut s2 = if args.resume {
         eprintln!("stage 2: resuming {}", ckpt.display());
-        checkpoint::load_stage2(&ckpt)?
+        let mut s2 = checkpoint::load_stage2(&ckpt)?;
+        // Every other setting comes from the checkpoint; --iterations may extend a finished run
+        // (stage 2's learning rates are constant, so this is the same as a longer run).
+        if args.iterations != s2.config.iterations {
+            eprintln!("stage 2: iterations {} -> {}", s2.config.iterations, args.iterations);
+            s2.config.iterations = args.iterations;
+        }
+        s2
     } else {
         let meta = json!({"stage2": config, "data": data, "stage1_run": args.run, "command": std::env::args().collect::<Vec<_>>()});
         std::fs::write(out.join("config.json"), serde_json::to_string_pretty(&meta)?)?;
