@@ -146,7 +146,6 @@ fn floor_clamped(v: f32, lo: f32, hi: f32) -> usize {
 /// `p = k x l = x (T_w x l) - (T_u x l) = x a - b`.
 #[derive(Clone, Copy, Debug)]
 pub struct RowSetup<F> {
-    pub l: [F; 3],
     pub a: [F; 3],
     pub b: [F; 3],
 }
@@ -156,7 +155,7 @@ pub fn row_setup<F: Real>(h: &[F; 9], y: F) -> RowSetup<F> {
     let tw = [h[6], h[7], h[8]];
     let tu = [h[0], h[1], h[2]];
     let l = [y * tw[0] - h[3], y * tw[1] - h[4], y * tw[2] - h[5]];
-    RowSetup { l, a: cross3(tw, l), b: cross3(tu, l) }
+    RowSetup { a: cross3(tw, l), b: cross3(tu, l) }
 }
 
 /// Largest row segment [`eval_row`] handles (the largest tile side).

@@ -42,13 +42,16 @@ pub fn orient_normals(s: &mut Surfels, cameras: &[Camera], raster: &RasterConfig
     for i in 0..s.len() {
         let n = s.normal(i);
         let p = s.positions[i];
-        let vote = |c: &Vec3| if n.dot(*c - p) >= 0.0 { 1i64 } else { -1 };
-        let seen_by: Vec<usize> = (0..cameras.len()).filter(|&c| seen[c][i]).collect();
-        let votes: i64 = if seen_by.is_empty() {
-            centers.iter().map(vote).sum()
-        } else {
-            seen_by.iter().map(|&c| vote(&centers[c])).sum()
-        };
+        let (mut all, mut by_seeing, mut seen_by_any) = (0i64, 0i64, false);
+        for (c, centre) in centers.iter().enumerate() {
+            let vote = if n.dot(*centre - p) >= 0.0 { 1 } else { -1 };
+            all += vote;
+            if seen[c][i] {
+                by_seeing += vote;
+                seen_by_any = true;
+            }
+        }
+        let votes = if seen_by_any { by_seeing } else { all };
         if votes < 0 {
             s.rotations[i] *= Quat::from_rotation_x(std::f32::consts::PI);
             flipped += 1;

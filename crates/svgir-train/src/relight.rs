@@ -26,10 +26,11 @@ pub struct Relighter {
     pub trace_seconds: f64,
 }
 
-/// One light prepared for rendering: the map and its one-bounce indirect per (Gaussian, direction).
+/// One light prepared for rendering: the map and its one-bounce indirect per (Gaussian, direction)
+/// (`None` for a model trained without indirect light).
 pub struct PreparedLight {
     pub env: EnvMap,
-    pub one_bounce: Vec<[f32; 3]>,
+    pub one_bounce: Option<Vec<[f32; 3]>>,
 }
 
 impl Relighter {
@@ -50,12 +51,12 @@ impl Relighter {
     /// trained without indirect light (the ablation relights as it was trained).
     pub fn prepare(&self, s2: &Stage2, env: EnvMap) -> Result<PreparedLight, PbrError> {
         if !s2.config.indirect {
-            return Ok(PreparedLight { env, one_bounce: Vec::new() });
+            return Ok(PreparedLight { env, one_bounce: None });
         }
         let act = s2.materials.activated(&s2.normals)?;
         let one_bounce =
             svgir_trace::gather_all(&self.mb, &act.view(), &env, &GatherParams { env_max: f32::INFINITY })?;
-        Ok(PreparedLight { env, one_bounce })
+        Ok(PreparedLight { env, one_bounce: Some(one_bounce) })
     }
 
     /// The PBR render of `camera` under a prepared light (`albedo_scale` as in SPEC 8).
@@ -71,7 +72,7 @@ impl Relighter {
             mb: &self.mb,
             cache: Some(&self.cache),
             env: &light.env,
-            indirect: if s2.config.indirect { Indirect::Given(&light.one_bounce) } else { Indirect::Off },
+            indirect: light.one_bounce.as_deref().map_or(Indirect::Off, Indirect::Given),
             params: ShadeParams { visibility: s2.config.visibility, env_max: f32::INFINITY },
         };
         s2.render_shaded(camera, bg, &shading, albedo_scale)

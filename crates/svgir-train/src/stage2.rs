@@ -2,8 +2,9 @@
 //! geometry.
 //!
 //! Set-up: orient every surfel's normal towards the training cameras that see it (the hemisphere
-//! of its micro-buffer must be the visible side; [`crate::orient`]), build the BVH, trace the K-direction micro-buffers
-//! once, attach M Gaussian vertices of raw materials (SPEC 3) and create the learnable env map.
+//! of its micro-buffer must be the visible side; [`crate::orient`]), build the BVH, trace the
+//! K-direction micro-buffers once, attach M Gaussian vertices of raw materials (SPEC 3) and
+//! create the learnable env map.
 //! One iteration on a random view:
 //! 1. SH pass: rasterise the SH colours (the SH image keeps training, SPEC 6 Eqn 15).
 //! 2. PBR pass: shade every visible Gaussian's vertices (SPEC 4), rasterise the vertex colours
@@ -199,6 +200,11 @@ pub struct Stage2 {
     pub trace_seconds: f64,
 }
 
+/// Stage 2's rasteriser settings: no distortion output (no loss uses it).
+fn raster_config() -> RasterConfig {
+    RasterConfig { distortion: false, ..RasterConfig::default() }
+}
+
 fn visible_of(max_radius: &[f32]) -> Vec<bool> {
     max_radius.iter().map(|r| *r > 0.0).collect()
 }
@@ -206,7 +212,7 @@ fn visible_of(max_radius: &[f32]) -> Vec<bool> {
 impl Stage2 {
     pub fn new(config: Stage2Config, mut surfels: Surfels, dataset: &Dataset) -> Result<Self, PbrError> {
         let cams: Vec<Camera> = dataset.train.iter().map(|v| v.camera).collect();
-        orient_normals(&mut surfels, &cams, &RasterConfig { distortion: false, ..RasterConfig::default() });
+        orient_normals(&mut surfels, &cams, &raster_config());
         let t0 = Instant::now();
         let bvh = Bvh::build(&surfels);
         let mb = MicroBuffer::trace(&bvh, &surfels, config.directions, config.seed, &config.trace_params())?;
@@ -254,7 +260,7 @@ impl Stage2 {
             iteration: 0,
             rng,
             // Stage 2 has no distortion term (Eqn 15).
-            raster: RasterConfig { distortion: false, ..RasterConfig::default() },
+            raster: raster_config(),
             times: PhaseTimes::default(),
             trace_seconds,
         })

@@ -4,8 +4,8 @@
 //! ceiling of the relighting pipeline on that scene, to compare with the learned materials.
 //!
 //! Each Gaussian takes the mean ground-truth albedo and roughness at its centre's pixel over the
-//! training views that see it ([`visible_from`]). Every vertex of a Gaussian gets that value; normal offsets and
-//! opacities stay as learned. Gaussians seen in no view keep their learned materials.
+//! training views that see it ([`visible_from`]). Every vertex of a Gaussian gets that value;
+//! normal offsets and opacities stay as learned. Gaussians seen in no view keep their learned materials.
 
 use anyhow::Result;
 use svgir_core::Dataset;
