@@ -71,6 +71,24 @@ impl EnvMap {
         Vec3::new(phi.sin() * theta.cos(), phi.sin() * theta.sin(), phi.cos())
     }
 
+    /// Solid angle "owned" by texel (row, col): the sphere integral of its bilinear hat function,
+    /// so that `sum_t L_t * texel_solid_angle(t)` is exactly the power of the bilinear map over
+    /// the sphere (the weights sum to 4 pi). With `dphi = pi/(H-1)`, a row's share is
+    /// `sin(phi_r) 2(1 - cos dphi)/dphi` (poles: `1 - sin(dphi)/dphi`), a column's `2pi/(W-1)`
+    /// (the two seam columns half each). Used where a texel acts as a directional light.
+    pub fn texel_solid_angle(&self, row: u32, col: u32) -> f32 {
+        let (w, h) = (self.width.max(2) as f64, self.height.max(2) as f64);
+        let dphi = std::f64::consts::PI / (h - 1.0);
+        let rows = if row == 0 || row + 1 >= self.height {
+            1.0 - dphi.sin() / dphi
+        } else {
+            (row as f64 * dphi).sin() * 2.0 * (1.0 - dphi.cos()) / dphi
+        };
+        let dtheta = std::f64::consts::TAU / (w - 1.0);
+        let cols = if col == 0 || col + 1 >= self.width { 0.5 * dtheta } else { dtheta };
+        (rows * cols) as f32
+    }
+
     /// The four texels and weights of a bilinear lookup (SPEC 4); shared by forward and backward.
     pub fn taps(&self, d: Vec3) -> Taps {
         let [fx, fy] = grid_coords(self.width, self.height, d);
@@ -198,6 +216,33 @@ mod tests {
         assert!(m.texel_dir(0, 3).z > 0.999);
         let d = m.texel_dir(4, 0);
         assert!(d.x < -0.9, "seam faces -x: {d}");
+    }
+
+    #[test]
+    fn texel_solid_angles_are_the_power_of_each_bilinear_hat() {
+        let mut m = EnvMap::constant(16, 8, [0.0; 3]);
+        let total: f64 =
+            (0..8).flat_map(|r| (0..16).map(move |c| (r, c))).map(|(r, c)| m.texel_solid_angle(r, c) as f64).sum();
+        assert!((total - 4.0 * std::f64::consts::PI).abs() < 1e-4, "{total}");
+        // Brute-force sphere integral of a one-hot map's bilinear lookup (midpoint rule in
+        // (phi, theta)), for a pole, an interior and a seam texel.
+        for (r, c) in [(0u32, 5u32), (3, 7), (5, 0), (7, 15)] {
+            m.data.iter_mut().for_each(|t| *t = [0.0; 3]);
+            m.data[(r * 16 + c) as usize] = [1.0; 3];
+            let (nphi, nth) = (800, 1600);
+            let mut acc = 0.0f64;
+            for i in 0..nphi {
+                let phi = (i as f64 + 0.5) / nphi as f64 * std::f64::consts::PI;
+                for j in 0..nth {
+                    let th = (j as f64 + 0.5) / nth as f64 * std::f64::consts::TAU - std::f64::consts::PI;
+                    let d = Vec3::new((phi.sin() * th.cos()) as f32, (phi.sin() * th.sin()) as f32, phi.cos() as f32);
+                    acc += m.lookup(d)[0] as f64 * phi.sin();
+                }
+            }
+            acc *= std::f64::consts::PI / nphi as f64 * std::f64::consts::TAU / nth as f64;
+            let want = m.texel_solid_angle(r, c) as f64;
+            assert!((acc - want).abs() < 2e-3 * want.max(1e-3), "texel ({r},{c}): {acc} vs {want}");
+        }
     }
 
     #[test]

@@ -119,6 +119,7 @@ impl Problem {
             env: &self.env.data,
             indirect: Indirect::Traced { rho: 1.0 },
             params: ShadeParams::default(),
+            lights: None,
         }
     }
 }

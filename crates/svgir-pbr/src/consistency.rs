@@ -36,7 +36,7 @@ pub struct ConsistencyInputs<'a> {
     /// Environment radiance (clamped to `params.env_max` inside the gather).
     pub env: &'a EnvMap,
     pub rho: f32,
-    pub params: GatherParams,
+    pub params: GatherParams<'a>,
 }
 
 /// Forward results, saved for [`radiance_consistency_backward`].

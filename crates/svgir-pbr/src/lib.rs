@@ -39,7 +39,7 @@ pub use consistency::{
     ConsistencyInputs,
 };
 pub use direction_cache::DirectionCache;
-pub use env::{env_radiance, env_radiance_backward, EnvLight, ENV_HEIGHT};
+pub use env::{env_radiance, env_radiance_backward, EnvActivation, EnvLight, ENV_HEIGHT};
 pub use grads::PbrGrads;
 pub use material::{activate, activate_backward, ActivatedMaterials, MaterialGrads, SvgMaterials};
 pub use shade::{shade, shade_into, shade_into_cached, Indirect, ShadeInputs, ShadeOutput, ShadeParams, ENV_MAX};

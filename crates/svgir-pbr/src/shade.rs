@@ -37,7 +37,7 @@ use svgir_core::envmap::Taps;
 use svgir_core::EnvMap;
 use svgir_shading::float::{dot, to_f};
 use svgir_shading::{tangent_frame, Float, MAX_VERTICES, MIN_ELEVATION_SIN};
-use svgir_trace::{MicroBuffer, VertexMaterials};
+use svgir_trace::{BrightLights, MicroBuffer, VertexMaterials};
 
 /// Upper clamp of the environment radiance in the rendering equation (SPEC 4).
 pub const ENV_MAX: f32 = 64.0;
@@ -86,6 +86,9 @@ pub struct ShadeInputs<'a, F> {
     pub env: &'a [[F; 3]],
     pub indirect: Indirect<'a, F>,
     pub params: ShadeParams,
+    /// Texels of the map shaded as directional lights (see `svgir_trace::bright`); `None`: the
+    /// K-sample estimate of SPEC 4 alone.
+    pub lights: Option<&'a BrightLights>,
 }
 
 /// Per-vertex linear HDR colour and its direct / indirect parts, each `(i * M + m) * 3 + c`.
@@ -126,6 +129,9 @@ impl<F: Float> ShadeInputs<'_, F> {
         expect_len("environment texels", self.env.len(), (g.width * g.height) as usize)?;
         if let Indirect::Given(l) = self.indirect {
             expect_len("indirect radiance", l.len(), n * self.mb.k)?;
+        }
+        if let Some(l) = self.lights {
+            l.check(n, g.width, g.height)?;
         }
         if self.params.env_max.is_nan() || self.params.env_max < 0.0 {
             return Err(PbrError::InvalidParameter(format!("env_max = {}", self.params.env_max)));
@@ -227,10 +233,13 @@ pub(crate) fn sample<F: Float>(
     }
     let d = frame.dir(table, k);
     let (direct, live, taps) = if vis > F::ZERO {
-        let taps = match cache {
+        let mut taps = match cache {
             Some(c) => c.taps(i * mb.k + k),
             None => inp.env_geom.taps(d),
         };
+        if let Some(l) = inp.lights {
+            l.mask_taps(&mut taps);
+        }
         let mut raw = zero;
         for t in 0..4 {
             let w = F::from_f32(taps.weight[t]);
@@ -245,6 +254,59 @@ pub(crate) fn sample<F: Float>(
         (zero, [false; 3], Taps { index: [0; 4], weight: [0.0; 4] })
     };
     Some(Sample { dir: to_f(d.to_array()), vis, direct, live, taps, traced, ind })
+}
+
+/// Directional light b seen from Gaussian i, as a sample of the same 2pi/K-weighted sum: its
+/// one tap carries `Omega_b K / 2pi` times the texel (no clamp), V is the traced visibility (or
+/// 1 above the geometric horizon with the visibility switch off). `None` when it is not seen.
+#[inline]
+pub(crate) fn light_sample<F: Float>(
+    inp: &ShadeInputs<F>,
+    lights: &BrightLights,
+    i: usize,
+    b: usize,
+) -> Option<Sample<F>> {
+    let dir = lights.dirs[b];
+    let vis = if inp.params.visibility {
+        lights.visibility(i, b)
+    } else if inp.mb.normals[i].dot(dir) > 0.0 {
+        1.0
+    } else {
+        0.0
+    };
+    if vis <= 0.0 {
+        return None;
+    }
+    let t = lights.texels[b];
+    let w = lights.solid_angle[b] * inp.mb.k as f32 / std::f32::consts::TAU;
+    let (vis, wf) = (F::from_f32(vis), F::from_f32(w));
+    let texel = inp.env[t as usize];
+    let zero = [F::ZERO; 3];
+    Some(Sample {
+        dir: to_f(dir.to_array()),
+        vis,
+        direct: texel.map(|x| vis * wf * x),
+        live: [true; 3],
+        taps: Taps { index: [t; 4], weight: [w, 0.0, 0.0, 0.0] },
+        traced: zero,
+        ind: zero,
+    })
+}
+
+/// Every sample of Gaussian i that carries light: the K micro-buffer directions, then the
+/// directional lights.
+#[inline]
+pub(crate) fn samples<'s, F: Float>(
+    inp: &'s ShadeInputs<'s, F>,
+    table: &'s FibTable,
+    cache: Option<&'s DirectionCache>,
+    frame: &'s Frame,
+    i: usize,
+) -> impl Iterator<Item = Sample<F>> + 's {
+    let lights = inp.lights.filter(|l| !l.is_empty());
+    (0..inp.mb.k)
+        .filter_map(move |k| sample(inp, table, cache, frame, i, k))
+        .chain(lights.into_iter().flat_map(move |l| (0..l.len()).filter_map(move |b| light_sample(inp, l, i, b))))
 }
 
 /// IEEE binary16 to f32, equal to `svgir_trace::pack::f16_to_f32` for every input (tested
@@ -315,8 +377,7 @@ fn shade_gaussian<F: Float>(
     let z = [[F::ZERO; 3]; MAX_VERTICES];
     // E: sum cos L; P: sum S cos L; split into direct (d) and indirect (i) light.
     let (mut e_d, mut e_i, mut p_d, mut p_i) = (z, z, z, z);
-    for k in 0..inp.mb.k {
-        let Some(s) = sample(inp, table, cache, &frame, i, k) else { continue };
+    for s in samples(inp, table, cache, &frame, i) {
         let hv = half(wo, s.dir);
         for mm in 0..m {
             let cos = dot(vx.n[mm], s.dir);

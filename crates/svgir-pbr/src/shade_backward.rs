@@ -16,7 +16,7 @@
 
 use crate::direction_cache::DirectionCache;
 use crate::grads::PbrGrads;
-use crate::shade::{lobes, sample, vertices, view_dir, FibTable, Frame, ShadeInputs};
+use crate::shade::{lobes, samples, vertices, view_dir, FibTable, Frame, ShadeInputs};
 use crate::specular::{half, spec_grad};
 use crate::{expect_len, PbrError};
 use rayon::prelude::*;
@@ -55,8 +55,7 @@ fn backward_gaussian<F: Float>(
     let mut e = [[F::ZERO; 3]; MAX_VERTICES];
     let mut vr = [F::ZERO; MAX_VERTICES];
     let mut vn = [[F::ZERO; 3]; MAX_VERTICES];
-    for k in 0..inp.mb.k {
-        let Some(s) = sample(inp, table, cache, &frame, i, k) else { continue };
+    for s in samples(inp, table, cache, &frame, i) {
         let hv = half(wo, s.dir);
         let lin = [0, 1, 2].map(|c| s.direct[c] + s.ind[c]);
         let mut v_lin = [F::ZERO; 3];

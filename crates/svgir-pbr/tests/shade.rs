@@ -10,7 +10,7 @@ use svgir_pbr::{
     shade_into_cached, DirectionCache, EnvLight, Indirect, ShadeInputs, ShadeOutput, ShadeParams,
 };
 use svgir_shading::ggx;
-use svgir_trace::{MicroBuffer, VertexMaterials};
+use svgir_trace::{brightest_texels, BrightLights, MicroBuffer, VertexMaterials};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
 enum Mode {
@@ -32,6 +32,19 @@ struct Case {
     env: Vec<[f64; 3]>,
     rho: f64,
     g: Vec<f64>,
+    lights: Option<BrightLights>,
+}
+
+/// Directional lights at the `count` brightest texels of `geom`, with random visibility (a
+/// quarter of the (Gaussian, light) pairs occluded).
+fn random_lights(geom: &EnvMap, n: usize, count: usize, seed: u64) -> Option<BrightLights> {
+    let mut rng = Rng::new(seed);
+    let texels = brightest_texels(geom, count);
+    let cols: Vec<Vec<f32>> = texels
+        .iter()
+        .map(|_| (0..n).map(|_| if rng.uniform() < 0.25 { 0.0 } else { rng.range(0.3, 1.0) }).collect())
+        .collect();
+    (count > 0).then(|| BrightLights::from_visibility(geom, &texels, &cols).unwrap())
 }
 
 fn case(n: usize, m: usize, k: usize, seed: u64) -> Case {
@@ -56,6 +69,7 @@ fn case(n: usize, m: usize, k: usize, seed: u64) -> Case {
         g: (0..n * m * 3).map(|_| rng.normal() as f64).collect(),
         geom,
         mb,
+        lights: None,
     }
 }
 
@@ -97,21 +111,25 @@ fn inputs<'a>(
             Mode::Given => Indirect::Given(&c.given),
         },
         params,
+        lights: c.lights.as_ref(),
     }
 }
 
 #[test]
 fn gradients_match_finite_differences_f64() {
     let configs = [
-        (1usize, Mode::Traced, true, 64.0f32),
-        (2, Mode::Off, true, 3.0),
-        (4, Mode::Traced, true, 3.0),
-        (4, Mode::Given, false, 64.0),
-        (6, Mode::Traced, false, 3.5),
+        (1usize, Mode::Traced, true, 64.0f32, 0usize),
+        (2, Mode::Off, true, 3.0, 0),
+        (4, Mode::Traced, true, 3.0, 0),
+        (4, Mode::Given, false, 64.0, 0),
+        (6, Mode::Traced, false, 3.5, 0),
+        (4, Mode::Traced, true, 3.0, 3),
+        (2, Mode::Off, false, 64.0, 4),
     ];
-    for (ci, &(m, mode, visibility, env_max)) in configs.iter().enumerate() {
+    for (ci, &(m, mode, visibility, env_max, lights)) in configs.iter().enumerate() {
         let params = ShadeParams { visibility, env_max };
         let mut c = case(5, m, 8, 10 + ci as u64);
+        c.lights = random_lights(&c.geom, 5, lights, ci as u64);
         let act = activate(m, &c.albedo, &c.rough, &c.offset, &c.mb.normals).unwrap();
         let rad = env_radiance(&c.env);
         let grads = shade_backward(&inputs(&c, &act.view(), mode, params, &rad, c.rho), &c.g).unwrap();
@@ -128,7 +146,7 @@ fn gradients_match_finite_differences_f64() {
         .unwrap();
         let v_param = env_radiance_backward(&c.env, &grads.v_env);
         let h = 1e-6;
-        let tag = format!("M={m} {mode:?} V={visibility} env_max={env_max}");
+        let tag = format!("M={m} {mode:?} V={visibility} env_max={env_max} lights={lights}");
         let check = |what: &str, i: usize, fd: f64, an: f64| {
             assert!((fd - an).abs() <= 2e-7 * (1.0 + fd.abs()), "{tag} {what}[{i}]: fd {fd} vs analytic {an}");
         };
@@ -194,10 +212,19 @@ fn matches_naive_rendering_equation_f32() {
     let visible: Vec<bool> = (0..n).map(|i| i % 7 != 3).collect();
     let mut rng = Rng::new(5);
     let given: Vec<[f32; 3]> = (0..n * k).map(|_| [rng.uniform(), rng.uniform(), rng.uniform()]).collect();
-    for (mode, visibility, env_max) in
-        [(Mode::Traced, true, 64.0f32), (Mode::Off, false, 64.0), (Mode::Given, true, 3.0)]
-    {
+    let lit = random_lights(&env, n, 6, 9).unwrap();
+    // The K-sample part sees the light texels as black.
+    let mut sampled = env.clone();
+    lit.texels.iter().for_each(|&t| sampled.data[t as usize] = [0.0; 3]);
+    for (mode, visibility, env_max, with_lights) in [
+        (Mode::Traced, true, 64.0f32, false),
+        (Mode::Off, false, 64.0, false),
+        (Mode::Given, true, 3.0, false),
+        (Mode::Traced, true, 3.0, true),
+        (Mode::Off, false, 64.0, true),
+    ] {
         let rho = 0.8f32;
+        let lights = with_lights.then_some(&lit);
         let inp = ShadeInputs {
             mb: &mb,
             positions: &positions,
@@ -212,6 +239,7 @@ fn matches_naive_rendering_equation_f32() {
                 Mode::Given => Indirect::Given(&given),
             },
             params: ShadeParams { visibility, env_max },
+            lights,
         };
         let out = shade(&inp).unwrap();
         for i in 0..n {
@@ -224,7 +252,7 @@ fn matches_naive_rendering_equation_f32() {
                 for kk in 0..k {
                     let d = mb.direction(i, kk);
                     let v = if visibility { mb.visibility(i, kk) } else { 1.0 };
-                    let le = env.lookup(d).map(|x| x.clamp(0.0, env_max));
+                    let le = if with_lights { &sampled } else { &env }.lookup(d).map(|x| x.clamp(0.0, env_max));
                     let ind = match mode {
                         Mode::Off => [0.0; 3],
                         Mode::Traced => mb.radiance(i, kk).map(|x| rho * x),
@@ -236,10 +264,26 @@ fn matches_naive_rendering_equation_f32() {
                         want[c] += (f[c] * (v * le[c] + ind[c]) * cos) as f64 * std::f64::consts::TAU / k as f64;
                     }
                 }
+                // Directional lights: unclamped texel radiance times its solid angle.
+                for (b, &t) in lights.iter().flat_map(|l| l.texels.iter().enumerate()) {
+                    let d = lit.dirs[b];
+                    let v = match visibility {
+                        true => lit.visibility(i, b),
+                        false => (mb.normals[i].dot(d) > 0.0) as u8 as f32,
+                    };
+                    let f = ggx(nm.to_array(), wo.to_array(), d.to_array(), a, act.roughness[i * m + mm]);
+                    let cos = nm.dot(d).max(0.0);
+                    for c in 0..3 {
+                        want[c] += (f[c] * v * env.data[t as usize][c] * cos * lit.solid_angle[b]) as f64;
+                    }
+                }
                 for c in 0..3 {
                     let got = out.color[b + c] as f64;
                     let want = if visible[i] { want[c] } else { 0.0 };
-                    assert!((got - want).abs() <= 1e-4 * (1.0 + want.abs()), "{mode:?} i={i} m={mm}: {got} vs {want}");
+                    assert!(
+                        (got - want).abs() <= 1e-4 * (1.0 + want.abs()),
+                        "{mode:?} lights={with_lights} i={i} m={mm}: {got} vs {want}"
+                    );
                 }
             }
         }
@@ -274,6 +318,7 @@ fn white_lambertian_under_constant_light_returns_the_light() {
                 env: &env.data,
                 indirect: Indirect::Off,
                 params: ShadeParams { visibility: false, env_max: 64.0 },
+                lights: None,
             };
             shade(&inp).unwrap().color
         };
@@ -305,6 +350,7 @@ fn backward_is_identical_for_any_thread_count_and_bad_input_errors() {
         env: &env.data,
         indirect: Indirect::Traced { rho: 1.0 },
         params: ShadeParams::default(),
+        lights: None,
     };
     let mut rng = Rng::new(1);
     let g: Vec<f32> = (0..n * m * 3).map(|_| rng.normal()).collect();
@@ -356,6 +402,7 @@ fn direction_cache_is_bit_identical_and_checked() {
                     Mode::Given => Indirect::Given(&c.given),
                 },
                 params,
+                lights: None,
             };
             let mut out = ShadeOutput::new();
             shade_into_cached(&inp, Some(&cache), &mut out).unwrap();

@@ -13,6 +13,7 @@
 //! Nothing is saved for backward: [`crate::gather_backward`] recomputes the (cheap) escape lists.
 //! All maths is generic over `Float` so the tests check the gradients in f64.
 
+use crate::bright::BrightLights;
 use crate::microbuffer::{MicroBuffer, NO_HIT};
 use crate::TraceError;
 use rayon::prelude::*;
@@ -51,14 +52,32 @@ impl<F> VertexMaterials<'_, F> {
 }
 
 #[derive(Clone, Copy, Debug, PartialEq)]
-pub struct GatherParams {
+pub struct GatherParams<'a> {
     /// Upper clamp of the environment radiance inside the rendering equation (SPEC 4).
     pub env_max: f32,
+    /// Texels of the map that act as directional lights ([`BrightLights`]): the hit Gaussian
+    /// also reflects each of them, weighted by its solid angle and its traced visibility.
+    pub lights: Option<&'a BrightLights>,
 }
 
-impl Default for GatherParams {
+impl Default for GatherParams<'_> {
     fn default() -> Self {
-        Self { env_max: 64.0 }
+        Self { env_max: 64.0, lights: None }
+    }
+}
+
+/// The light the gather reads: map geometry, radiance texels (f64 in the tests), clamp, lights.
+#[derive(Clone, Copy)]
+pub(crate) struct LightIn<'a, F> {
+    pub geom: &'a EnvMap,
+    pub env: &'a [[F; 3]],
+    pub env_max: F,
+    pub lights: Option<&'a BrightLights>,
+}
+
+impl<'a> LightIn<'a, f32> {
+    pub fn new(env: &'a EnvMap, p: &GatherParams<'a>) -> Self {
+        Self { geom: env, env: &env.data, env_max: p.env_max, lights: p.lights }
     }
 }
 
@@ -77,7 +96,7 @@ impl<F: Float> Escapes<F> {
         Self { h: NO_HIT, dirs: Vec::new(), light: Vec::new(), live: Vec::new(), taps: Vec::new() }
     }
 
-    pub fn fill(&mut self, mb: &MicroBuffer, geom: &EnvMap, env: &[[F; 3]], env_max: F, h: u32) {
+    pub fn fill(&mut self, mb: &MicroBuffer, light: &LightIn<F>, h: u32) {
         if self.h == h {
             return;
         }
@@ -92,19 +111,37 @@ impl<F: Float> Escapes<F> {
                 continue;
             }
             let d = mb.direction(hu, s);
-            let taps = geom.taps(d);
+            let mut taps = light.geom.taps(d);
+            if let Some(b) = light.lights {
+                b.mask_taps(&mut taps);
+            }
             let mut raw = [F::ZERO; 3];
             for t in 0..4 {
-                let texel = env[taps.index[t] as usize];
+                let texel = light.env[taps.index[t] as usize];
                 let w = F::from_f32(taps.weight[t]);
                 for c in 0..3 {
                     raw[c] += w * texel[c];
                 }
             }
             self.dirs.push(to_f(d.to_array()));
-            self.light.push(raw.map(|x| x.clampf(F::ZERO, env_max)));
-            self.live.push(raw.map(|x| x >= F::ZERO && x <= env_max));
+            self.light.push(raw.map(|x| x.clampf(F::ZERO, light.env_max)));
+            self.live.push(raw.map(|x| x >= F::ZERO && x <= light.env_max));
             self.taps.push(taps);
+        }
+        // Directional lights: the sample weight is 2pi/K, so each carries `V Omega K / 2pi`
+        // times its texel as a one-tap lookup (unclamped; the backward routes through the tap).
+        let Some(l) = light.lights else { return };
+        for (b, &t) in l.texels.iter().enumerate() {
+            let v = l.visibility(hu, b);
+            if v <= 0.0 {
+                continue;
+            }
+            let w = v * l.solid_angle[b] * mb.k as f32 / std::f32::consts::TAU;
+            let texel = light.env[t as usize];
+            self.dirs.push(to_f(l.dirs[b].to_array()));
+            self.light.push(texel.map(|x| F::from_f32(w) * x));
+            self.live.push([true; 3]);
+            self.taps.push(Taps { index: [t; 4], weight: [w, 0.0, 0.0, 0.0] });
         }
     }
 }
@@ -161,13 +198,19 @@ pub(crate) fn check(mb: &MicroBuffer, mats: &VertexMaterials<impl Sized>, env: &
     Ok(())
 }
 
+/// `Err` unless `p.lights` (if any) index `env`'s grid and cover every Gaussian of `mb`.
+pub(crate) fn check_lights(mb: &MicroBuffer, env: &EnvMap, p: &GatherParams) -> Result<(), TraceError> {
+    match p.lights {
+        Some(l) => l.check(mb.len(), env.width, env.height),
+        None => Ok(()),
+    }
+}
+
 /// Generic single (j, k) forward (used by the f64 gradient tests).
 pub(crate) fn gather_one_generic<F: Float>(
     mb: &MicroBuffer,
     mats: &VertexMaterials<F>,
-    geom: &EnvMap,
-    env: &[[F; 3]],
-    env_max: F,
+    light: &LightIn<F>,
     j: usize,
     k: usize,
 ) -> [F; 3] {
@@ -175,7 +218,7 @@ pub(crate) fn gather_one_generic<F: Float>(
         None => [F::ZERO; 3],
         Some(h) => {
             let mut esc = Escapes::new();
-            esc.fill(mb, geom, env, env_max, h);
+            esc.fill(mb, light, h);
             shade_pair(mb, mats, &esc, j, k)
         }
     }
@@ -192,7 +235,8 @@ pub fn gather_one(
 ) -> Result<[f32; 3], TraceError> {
     check(mb, mats, env)?;
     check_pairs(mb, [(j, k)])?;
-    Ok(gather_one_generic(mb, mats, env, &env.data, p.env_max, j, k))
+    check_lights(mb, env, p)?;
+    Ok(gather_one_generic(mb, mats, &LightIn::new(env, p), j, k))
 }
 
 /// L1b for every (j, k), row-major `j * K + k` (relighting, SPEC 7).
@@ -203,6 +247,8 @@ pub fn gather_all(
     p: &GatherParams,
 ) -> Result<Vec<[f32; 3]>, TraceError> {
     check(mb, mats, env)?;
+    check_lights(mb, env, p)?;
+    let light = LightIn::new(env, p);
     let mut out = vec![[0.0f32; 3]; mb.len() * mb.k];
     if mb.k == 0 {
         return Ok(out);
@@ -210,7 +256,7 @@ pub fn gather_all(
     out.par_chunks_mut(mb.k).enumerate().for_each_init(Escapes::new, |esc, (j, row)| {
         for (k, o) in row.iter_mut().enumerate() {
             if let Some(h) = mb.hit(j, k) {
-                esc.fill(mb, env, &env.data, p.env_max, h);
+                esc.fill(mb, &light, h);
                 *o = shade_pair(mb, mats, esc, j, k);
             }
         }
@@ -228,12 +274,14 @@ pub fn gather_pairs(
 ) -> Result<Vec<[f32; 3]>, TraceError> {
     check(mb, mats, env)?;
     check_pairs(mb, pairs.iter().map(|&(j, k)| (j as usize, k as usize)))?;
+    check_lights(mb, env, p)?;
+    let light = LightIn::new(env, p);
     Ok(pairs
         .par_iter()
         .map_init(Escapes::new, |esc, &(j, k)| match mb.hit(j as usize, k as usize) {
             None => [0.0; 3],
             Some(h) => {
-                esc.fill(mb, env, &env.data, p.env_max, h);
+                esc.fill(mb, &light, h);
                 shade_pair(mb, mats, esc, j as usize, k as usize)
             }
         })

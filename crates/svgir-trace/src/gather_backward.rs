@@ -14,7 +14,7 @@
 //! partials are then added in block order. Block size depends only on N, so the result is
 //! bit-identical for any thread count.
 
-use crate::gather::{check, check_pairs, Escapes, GatherParams, VertexMaterials};
+use crate::gather::{check, check_lights, check_pairs, Escapes, GatherParams, LightIn, VertexMaterials};
 use crate::microbuffer::{MicroBuffer, NO_HIT};
 use crate::TraceError;
 use rayon::prelude::*;
@@ -112,16 +112,14 @@ pub(crate) fn backward_pair<F: Float>(
 pub(crate) fn backward_generic<F: Float>(
     mb: &MicroBuffer,
     mats: &VertexMaterials<F>,
-    geom: &EnvMap,
-    env: &[[F; 3]],
-    env_max: F,
+    light: &LightIn<F>,
     entries: impl Iterator<Item = (usize, usize)>,
     v_out: &[[F; 3]],
 ) -> GatherGrads<F> {
     let n = mb.len();
     let m = mats.m;
     let kk = mb.k;
-    let texels = env.len();
+    let texels = light.env.len();
     let mut grads = GatherGrads::zeros(n, m, texels);
     if n == 0 || kk == 0 {
         return grads;
@@ -161,7 +159,7 @@ pub(crate) fn backward_generic<F: Float>(
             for h in h0..h1 {
                 let lh = h - h0;
                 for &(jk, up) in &sorted[start[h]..start[h + 1]] {
-                    esc.fill(mb, geom, env, env_max, h as u32);
+                    esc.fill(mb, light, h as u32);
                     backward_pair(
                         mb,
                         mats,
@@ -201,7 +199,8 @@ pub fn gather_all_backward(
     if v_l1b.len() != mb.len() * mb.k {
         return Err(TraceError::SizeMismatch { what: "v_l1b", got: v_l1b.len(), want: mb.len() * mb.k });
     }
-    Ok(backward_generic(mb, mats, env, &env.data, p.env_max, (0..v_l1b.len()).map(|i| (i, i)), v_l1b))
+    check_lights(mb, env, p)?;
+    Ok(backward_generic(mb, mats, &LightIn::new(env, p), (0..v_l1b.len()).map(|i| (i, i)), v_l1b))
 }
 
 /// Gradients for upstream `v_l1b[i]` on the pairs `pairs[i] = (j, k)` (radiance consistency).
@@ -219,7 +218,8 @@ pub fn gather_pairs_backward(
     }
     check_pairs(mb, pairs.iter().map(|&(j, k)| (j as usize, k as usize)))?;
     let entries = pairs.iter().enumerate().map(|(i, &(j, k))| (j as usize * mb.k + k as usize, i));
-    Ok(backward_generic(mb, mats, env, &env.data, p.env_max, entries, v_l1b))
+    check_lights(mb, env, p)?;
+    Ok(backward_generic(mb, mats, &LightIn::new(env, p), entries, v_l1b))
 }
 
 /// Add the gradient of `v . L1b(j, k)` into `grads` (sequential; one pair).
@@ -239,9 +239,10 @@ pub fn gather_one_backward(
     if grads.v_albedo.len() != n * m * 3 || grads.v_env.len() != env.data.len() {
         return Err(TraceError::SizeMismatch { what: "grads", got: grads.v_albedo.len(), want: n * m * 3 });
     }
+    check_lights(mb, env, p)?;
     if let Some(h) = mb.hit(j, k) {
         let mut esc = Escapes::new();
-        esc.fill(mb, env, &env.data, p.env_max, h);
+        esc.fill(mb, &LightIn::new(env, p), h);
         let h = h as usize;
         backward_pair(
             mb,
@@ -262,6 +263,7 @@ pub fn gather_one_backward(
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::bright::{brightest_texels, BrightLights};
     use crate::gather::{gather_all, gather_one, gather_one_generic, gather_pairs};
     use crate::scenes::object_scene;
     use crate::{Bvh, TraceParams};
@@ -277,11 +279,14 @@ mod tests {
         normals: Vec<f64>,
         env: EnvMap,
         env64: Vec<[f64; 3]>,
+        lights: Option<BrightLights>,
     }
 
-    fn case(m: usize, seed: u64) -> Case {
+    /// A scene with random materials and map; `lights` of its texels act as directional lights.
+    fn case(m: usize, seed: u64, lights: usize) -> Case {
         let surfels = object_scene(400, seed);
-        let mb = MicroBuffer::trace(&Bvh::build(&surfels), &surfels, 16, seed, &TraceParams::default()).unwrap();
+        let bvh = Bvh::build(&surfels);
+        let mb = MicroBuffer::trace(&bvh, &surfels, 16, seed, &TraceParams::default()).unwrap();
         let mut rng = Rng::new(seed);
         let n = surfels.len();
         let albedo = (0..n * m * 3).map(|_| rng.range(0.03, 0.8) as f64).collect();
@@ -298,7 +303,15 @@ mod tests {
             *t = [rng.range(0.1, 3.0), rng.range(0.1, 3.0), rng.range(0.1, 3.0)];
         }
         let env64 = env.data.iter().map(|t| t.map(|x| x as f64)).collect();
-        Case { surfels, mb, albedo, rough, normals, env, env64 }
+        let lights = (lights > 0).then(|| {
+            let texels = brightest_texels(&env, lights);
+            BrightLights::trace(&bvh, &surfels, &mb.normals, &env, &texels, &TraceParams::default(), None).unwrap()
+        });
+        Case { surfels, mb, albedo, rough, normals, env, env64, lights }
+    }
+
+    fn light_in<'a>(c: &'a Case, env: &'a [[f64; 3]], env_max: f64) -> LightIn<'a, f64> {
+        LightIn { geom: &c.env, env, env_max, lights: c.lights.as_ref() }
     }
 
     fn mats64(c: &Case, m: usize) -> VertexMaterials<'_, f64> {
@@ -311,7 +324,7 @@ mod tests {
         let mut total = 0.0;
         for j in 0..c.mb.len() {
             for k in 0..c.mb.k {
-                let l = gather_one_generic(&c.mb, &mats, &c.env, env, env_max, j, k);
+                let l = gather_one_generic(&c.mb, &mats, &light_in(c, env, env_max), j, k);
                 total += (0..3).map(|ch| l[ch] * g[j * c.mb.k + k][ch]).sum::<f64>();
             }
         }
@@ -320,16 +333,21 @@ mod tests {
 
     #[test]
     fn gradients_match_finite_differences_f64() {
-        for (m, seed) in [(4usize, 1u64), (6, 2), (1, 3)] {
-            let mut c = case(m, seed);
+        for (m, seed, lights) in [(4usize, 1u64, 0usize), (6, 2, 0), (1, 3, 0), (4, 4, 6), (2, 5, 3)] {
+            let mut c = case(m, seed, lights);
             let env_max = 2.5; // some bilinear lookups exceed it: exercises the clamp
             let mut rng = Rng::new(seed + 10);
             let g: Vec<[f64; 3]> = (0..c.mb.len() * c.mb.k)
                 .map(|_| [rng.normal() as f64, rng.normal() as f64, rng.normal() as f64])
                 .collect();
             let env64 = c.env64.clone();
-            let grads =
-                backward_generic(&c.mb, &mats64(&c, m), &c.env, &env64, env_max, (0..g.len()).map(|i| (i, i)), &g);
+            let grads = backward_generic(
+                &c.mb,
+                &mats64(&c, m),
+                &light_in(&c, &env64, env_max),
+                (0..g.len()).map(|i| (i, i)),
+                &g,
+            );
             let h = 1e-6;
             let pick = |v: &[f64], rng: &mut Rng| -> Vec<usize> {
                 let nz: Vec<usize> = (0..v.len()).filter(|&i| v[i] != 0.0).collect();
@@ -338,7 +356,10 @@ mod tests {
             };
             let check = |name: &str, i: usize, analytic: f64, plus: f64, minus: f64| {
                 let fd = (plus - minus) / (2.0 * h);
-                assert!((fd - analytic).abs() <= 1e-6 * (1.0 + fd.abs()), "M={m} {name}[{i}]: fd {fd} vs {analytic}");
+                assert!(
+                    (fd - analytic).abs() <= 1e-6 * (1.0 + fd.abs()),
+                    "M={m} lights={lights} {name}[{i}]: fd {fd} vs {analytic}"
+                );
             };
             for i in pick(&grads.v_albedo, &mut rng) {
                 let x = c.albedo[i];
@@ -377,6 +398,16 @@ mod tests {
                 let q = loss(&c, m, &e, env_max, &g);
                 check("env", i, flat[i], p, q);
             }
+            // Every light texel: its gradient comes from the directional path only.
+            for &t in c.lights.iter().flat_map(|l| l.texels.iter()) {
+                let i = 3 * t as usize + 1;
+                let mut e = env64.clone();
+                e[i / 3][i % 3] += h;
+                let p = loss(&c, m, &e, env_max, &g);
+                e[i / 3][i % 3] -= 2.0 * h;
+                let q = loss(&c, m, &e, env_max, &g);
+                check("light texel", i, flat[i], p, q);
+            }
             // Texels whose every lookup is clamped get exactly zero, and FD agrees.
             for i in (0..flat.len()).filter(|&i| flat[i] == 0.0).take(3) {
                 let mut e = env64.clone();
@@ -390,14 +421,25 @@ mod tests {
 
     #[test]
     fn f32_paths_agree_with_naive_formula_and_each_other() {
+        for lights in [0, 5] {
+            f32_paths_agree(lights);
+        }
+    }
+
+    fn f32_paths_agree(lights: usize) {
         let m = 4;
-        let c = case(m, 7);
+        let c = case(m, 7, lights);
         let alb: Vec<f32> = c.albedo.iter().map(|&x| x as f32).collect();
         let rough: Vec<f32> = c.rough.iter().map(|&x| x as f32).collect();
         let nrm: Vec<f32> = c.normals.iter().map(|&x| x as f32).collect();
         let mats = VertexMaterials { m, albedo: &alb, roughness: &rough, normals: &nrm };
-        let p = GatherParams::default();
+        let p = GatherParams { lights: c.lights.as_ref(), ..GatherParams::default() };
         let all = gather_all(&c.mb, &mats, &c.env, &p).unwrap();
+        // The K-sample part sees the light texels as black.
+        let mut sampled = c.env.clone();
+        for &t in c.lights.iter().flat_map(|l| l.texels.iter()) {
+            sampled.data[t as usize] = [0.0; 3];
+        }
         let (n, kk) = (c.mb.len(), c.mb.k);
         let mut nonzero = 0;
         for j in 0..n {
@@ -411,9 +453,21 @@ mod tests {
                     let uv = c.mb.uv(j, k);
                     let w =
                         [(1.0 - uv[0]) * (1.0 - uv[1]), uv[0] * (1.0 - uv[1]), (1.0 - uv[0]) * uv[1], uv[0] * uv[1]];
-                    for s in (0..kk).filter(|&s| c.mb.hit(h, s).is_none()) {
-                        let l = c.mb.direction(h, s);
-                        let le = c.env.lookup(l).map(|x| x.clamp(0.0, 64.0));
+                    // (direction, radiance, weight): escaped samples, then directional lights.
+                    let mut incoming: Vec<(Vec3, [f32; 3], f32)> = (0..kk)
+                        .filter(|&s| c.mb.hit(h, s).is_none())
+                        .map(|s| {
+                            let l = c.mb.direction(h, s);
+                            (l, sampled.lookup(l).map(|x| x.clamp(0.0, 64.0)), std::f32::consts::TAU / kk as f32)
+                        })
+                        .collect();
+                    if let Some(ls) = &c.lights {
+                        for (b, &t) in ls.texels.iter().enumerate() {
+                            let v = ls.visibility(h, b);
+                            incoming.push((ls.dirs[b], c.env.data[t as usize], v * ls.solid_angle[b]));
+                        }
+                    }
+                    for (l, le, weight) in incoming {
                         for mm in 0..4 {
                             let b = (h * 4 + mm) * 3;
                             let nv = [nrm[b], nrm[b + 1], nrm[b + 2]];
@@ -426,7 +480,7 @@ mod tests {
                             );
                             let cos = Vec3::from_array(nv).dot(l).max(1e-6);
                             for ch in 0..3 {
-                                want[ch] += w[mm] * f[ch] * cos * le[ch] * std::f32::consts::TAU / kk as f32;
+                                want[ch] += w[mm] * f[ch] * cos * le[ch] * weight;
                             }
                         }
                     }

@@ -1,5 +1,6 @@
 //! svgir-trace: ray tracing Gaussian surfels (SPEC 5).
 //!
+//! - [`bright`]: the brightest env texels as directional lights with traced visibility.
 //! - [`bvh`]: binned-SAH BVH over the surfels' 3-sigma disks, flat 32-byte nodes.
 //! - [`hit`]: the ray-disk test (plane crossing, 3-sigma ellipse, alpha rules).
 //! - [`traverse`]: all hits front to back in (t, id) order and the transmittance march (Eqn 12).
@@ -11,6 +12,7 @@
 //! The maths is in `svgir-shading`; this crate does no I/O and prints nothing.
 
 pub mod bench;
+pub mod bright;
 pub mod bvh;
 pub mod gather;
 pub mod gather_backward;
@@ -21,6 +23,7 @@ pub mod reference;
 pub mod scenes;
 pub mod traverse;
 
+pub use bright::{brightest_texels, BrightLights};
 pub use bvh::{Bvh, Node};
 pub use gather::{gather_all, gather_one, gather_pairs, GatherParams, VertexMaterials};
 pub use gather_backward::{gather_all_backward, gather_one_backward, gather_pairs_backward, GatherGrads};

@@ -238,6 +238,12 @@ struct Header2 {
     trace_seconds: f64,
     times: PhaseTimes,
     groups: Vec<AdamGroup>,
+    /// Texels of the learned map that are directional lights (visibility is re-traced on load).
+    #[serde(default)]
+    light_texels: Vec<u32>,
+    /// A `trace_opacity` array follows the Adam state (absent in older checkpoints).
+    #[serde(default)]
+    has_trace_opacity: bool,
 }
 
 pub fn save_stage2(t: &Stage2, path: &Path) -> Result<(), CheckpointError> {
@@ -254,6 +260,7 @@ pub fn save_stage2(t: &Stage2, path: &Path) -> Result<(), CheckpointError> {
     arrays.push(("mb.first_hit".into(), bytes(&mb.first_hit)));
     arrays.push(("mb.uv".into(), bytes(&mb.uv)));
     push_groups(&mut arrays, &t.groups);
+    arrays.push(("trace_opacity".into(), bytes(&t.trace_opacity)));
     let header = Header2 {
         config: t.config.clone(),
         iteration: t.iteration,
@@ -266,6 +273,8 @@ pub fn save_stage2(t: &Stage2, path: &Path) -> Result<(), CheckpointError> {
         trace_seconds: t.trace_seconds,
         times: t.times.clone(),
         groups: strip(&t.groups),
+        light_texels: t.lights.texels.clone(),
+        has_trace_opacity: true,
     };
     write_container(path, &header, &arrays)
 }
@@ -299,6 +308,10 @@ pub fn load_stage2(path: &Path) -> Result<Stage2, CheckpointError> {
         return Err(corrupt(path, "material or light arrays have the wrong size"));
     }
     let groups = read_groups::<7>(&mut a, &h.groups, &[n, n, n, n, n, texels, 1])?;
+    let trace_opacity = if h.has_trace_opacity { Some(a.next("trace_opacity")?) } else { None };
+    if trace_opacity.as_ref().is_some_and(|o| o.len() != n) {
+        return Err(corrupt(path, "trace_opacity has the wrong size"));
+    }
     let rebuild = |e: svgir_pbr::PbrError| CheckpointError::Rebuild { path: path.to_path_buf(), what: e.to_string() };
     let mut t = Stage2::from_parts(h.config, surfels, mb, h.trace_seconds).map_err(rebuild)?;
     t.materials.albedo_raw = albedo;
@@ -310,5 +323,9 @@ pub fn load_stage2(path: &Path) -> Result<Stage2, CheckpointError> {
     t.iteration = h.iteration;
     t.rng = Rng::from_state(h.rng_state);
     t.times = h.times;
+    if let Some(o) = trace_opacity {
+        t.trace_opacity = o;
+    }
+    t.set_lights(&h.light_texels).map_err(rebuild)?;
     Ok(t)
 }

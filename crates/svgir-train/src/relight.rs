@@ -9,11 +9,15 @@
 //! the synthetic scenes: 2815 in a 32x64 texel, more than half of the map's power), and
 //! clamping it removes most of the light (the shading oracle example shows a 2-4x darker
 //! shading under the training light).
+//!
+//! A model trained with directional lights (`Stage2Config::lights > 0`) is relit the same way:
+//! the same number of the new map's brightest texels become directional lights with traced
+//! visibility, in the direct term and in the one-bounce gather.
 
 use crate::stage2::{PbrRender, Shading, Stage2};
 use svgir_core::{Camera, EnvMap};
 use svgir_pbr::{DirectionCache, Indirect, PbrError, ShadeParams};
-use svgir_trace::{Bvh, GatherParams, MicroBuffer};
+use svgir_trace::{brightest_texels, BrightLights, Bvh, GatherParams, MicroBuffer};
 
 /// SPEC 7: directions per Gaussian at relighting evaluation.
 pub const RELIGHT_DIRECTIONS: usize = 384;
@@ -22,6 +26,7 @@ pub const RELIGHT_DIRECTIONS: usize = 384;
 pub struct Relighter {
     pub mb: MicroBuffer,
     cache: DirectionCache,
+    bvh: Bvh,
     /// Seconds spent building the BVH and tracing.
     pub trace_seconds: f64,
 }
@@ -31,32 +36,42 @@ pub struct Relighter {
 pub struct PreparedLight {
     pub env: EnvMap,
     pub one_bounce: Option<Vec<[f32; 3]>>,
+    /// The map's brightest texels as directional lights (`None` unless the model has lights).
+    pub lights: Option<BrightLights>,
 }
 
 impl Relighter {
     /// Traces `directions` per Gaussian of `s2` (the training buffers are reused when K matches).
     pub fn new(s2: &Stage2, directions: usize) -> Result<Self, PbrError> {
         let t0 = std::time::Instant::now();
+        let bvh = Bvh::build(&s2.surfels);
         let mb = if directions == s2.mb.k {
             s2.mb.clone()
         } else {
-            let bvh = Bvh::build(&s2.surfels);
             MicroBuffer::trace(&bvh, &s2.surfels, directions, s2.config.seed, &s2.config.trace_params())?
         };
         let cache = DirectionCache::new(&mb, &s2.env.radiance())?;
-        Ok(Self { mb, cache, trace_seconds: t0.elapsed().as_secs_f64() })
+        Ok(Self { mb, cache, bvh, trace_seconds: t0.elapsed().as_secs_f64() })
     }
 
     /// Eqn 13 under `env` (unclamped) with the model's current materials; nothing for a model
     /// trained without indirect light (the ablation relights as it was trained).
     pub fn prepare(&self, s2: &Stage2, env: EnvMap) -> Result<PreparedLight, PbrError> {
+        let lights = match s2.config.lights {
+            0 => None,
+            count => {
+                let texels = brightest_texels(&env, count);
+                let p = s2.config.trace_params();
+                Some(BrightLights::trace(&self.bvh, &s2.surfels, &self.mb.normals, &env, &texels, &p, None)?)
+            }
+        };
         if !s2.config.indirect {
-            return Ok(PreparedLight { env, one_bounce: None });
+            return Ok(PreparedLight { env, one_bounce: None, lights });
         }
         let act = s2.materials.activated(&s2.normals)?;
-        let one_bounce =
-            svgir_trace::gather_all(&self.mb, &act.view(), &env, &GatherParams { env_max: f32::INFINITY })?;
-        Ok(PreparedLight { env, one_bounce: Some(one_bounce) })
+        let p = GatherParams { env_max: f32::INFINITY, lights: lights.as_ref() };
+        let one_bounce = svgir_trace::gather_all(&self.mb, &act.view(), &env, &p)?;
+        Ok(PreparedLight { env, one_bounce: Some(one_bounce), lights })
     }
 
     /// The PBR render of `camera` under a prepared light (`albedo_scale` as in SPEC 8).
@@ -74,6 +89,7 @@ impl Relighter {
             env: &light.env,
             indirect: light.one_bounce.as_deref().map_or(Indirect::Off, Indirect::Given),
             params: ShadeParams { visibility: s2.config.visibility, env_max: f32::INFINITY },
+            lights: light.lights.as_ref(),
         };
         s2.render_shaded(camera, bg, &shading, albedo_scale)
     }

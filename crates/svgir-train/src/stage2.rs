@@ -25,10 +25,11 @@ use std::time::Instant;
 use svgir_core::{Camera, Dataset, Rng, Surfels};
 use svgir_pbr::{
     radiance_consistency, radiance_consistency_backward, shade_backward_cached, shade_into_cached, ConsistencyInputs,
-    DirectionCache, EnvLight, Indirect, PbrError, PbrGrads, ShadeInputs, ShadeOutput, ShadeParams, SvgMaterials,
+    DirectionCache, EnvActivation, EnvLight, Indirect, PbrError, PbrGrads, ShadeInputs, ShadeOutput, ShadeParams,
+    SvgMaterials,
 };
 use svgir_raster::{backward, render, Background, ColorSource, Features, OutputGrads, RasterConfig, RenderInput};
-use svgir_trace::{Bvh, GatherParams, MicroBuffer, TraceParams};
+use svgir_trace::{brightest_texels, BrightLights, Bvh, GatherParams, MicroBuffer, TraceParams};
 
 /// Extra channels rasterised with the PBR image: albedo (3), roughness (1), shading normal (3).
 pub const EXTRA_CHANNELS: usize = 7;
@@ -106,6 +107,20 @@ pub struct Stage2Config {
     /// How the learned light starts (SPEC 4: random).
     #[serde(default)]
     pub env_init: EnvInit,
+    /// Brightest texels of the learned map shaded as directional lights with traced visibility
+    /// (`svgir_trace::bright`; our addition for lights with a sun). 0: SPEC 4 alone.
+    #[serde(default)]
+    pub lights: usize,
+    /// Re-select the light texels every this many iterations.
+    #[serde(default = "default_lights_every")]
+    pub lights_every: u64,
+    /// Radiance activation of the learned map (SPEC 4: softplus).
+    #[serde(default)]
+    pub env_activation: EnvActivation,
+}
+
+fn default_lights_every() -> u64 {
+    100
 }
 
 /// The learned environment map's initial parameters.
@@ -136,6 +151,9 @@ impl Default for Stage2Config {
             trace_t_max: None,
             consistency_samples: 8192,
             env_init: EnvInit::Random,
+            lights: 0,
+            lights_every: default_lights_every(),
+            env_activation: EnvActivation::Softplus,
         }
     }
 }
@@ -177,6 +195,8 @@ pub struct Shading<'a> {
     pub env: &'a svgir_core::EnvMap,
     pub indirect: Indirect<'a, f32>,
     pub params: ShadeParams,
+    /// Texels of `env` shaded as directional lights.
+    pub lights: Option<&'a BrightLights>,
 }
 
 pub struct Stage2 {
@@ -198,6 +218,13 @@ pub struct Stage2 {
     pub raster: RasterConfig,
     pub times: PhaseTimes,
     pub trace_seconds: f64,
+    /// Directional lights of the learned map (empty unless `config.lights > 0`).
+    pub lights: BrightLights,
+    /// BVH for tracing light visibility, built on first use.
+    bvh: Option<Bvh>,
+    /// Opacity logits at the start of stage 2, when the micro-buffers were traced: light
+    /// visibility is traced against the same frozen occluders (and so is reproducible on resume).
+    pub trace_opacity: Vec<f32>,
 }
 
 /// Stage 2's rasteriser settings: no distortion output (no loss uses it).
@@ -234,7 +261,10 @@ impl Stage2 {
         let env = match config.env_init {
             EnvInit::Random => EnvLight::new(config.env_height, Rng::new(config.seed).fork(2).next_u64())?,
             EnvInit::Uniform => EnvLight::uniform(config.env_height)?,
-        };
+        }
+        .with_activation(config.env_activation)?;
+        let lights = BrightLights::empty(env.width, env.height);
+        let surfels_opacity = surfels.opacity_logits.clone();
         let dir_cache = DirectionCache::new(&mb, &env.radiance())?;
         let lr = &config.lr;
         let groups = [
@@ -263,7 +293,31 @@ impl Stage2 {
             raster: raster_config(),
             times: PhaseTimes::default(),
             trace_seconds,
+            lights,
+            bvh: None,
+            trace_opacity: surfels_opacity,
         })
+    }
+
+    /// Make the texels `texels` of the learned map the directional lights, tracing visibility
+    /// for the ones not already traced.
+    pub fn set_lights(&mut self, texels: &[u32]) -> Result<(), PbrError> {
+        if texels == self.lights.texels.as_slice() {
+            return Ok(());
+        }
+        let t0 = Instant::now();
+        let occluders = Surfels { opacity_logits: self.trace_opacity.clone(), ..self.surfels.clone() };
+        let bvh = self.bvh.get_or_insert_with(|| Bvh::build(&occluders));
+        let geom = svgir_core::EnvMap::constant(self.env.width, self.env.height, [0.0; 3]);
+        let p = self.config.trace_params();
+        self.lights = BrightLights::trace(bvh, &occluders, &self.mb.normals, &geom, texels, &p, Some(&self.lights))?;
+        self.trace_seconds += t0.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    /// The lights to shade with, `None` when there are none.
+    pub fn active_lights(&self) -> Option<&BrightLights> {
+        (!self.lights.is_empty()).then_some(&self.lights)
     }
 
     pub fn is_done(&self) -> bool {
@@ -310,6 +364,9 @@ impl Stage2 {
     pub fn step(&mut self, dataset: &Dataset) -> Result<Stage2Step, PbrError> {
         let cfg = self.config.clone();
         let wts = &cfg.weights;
+        if cfg.lights > 0 && self.iteration % cfg.lights_every.max(1) == 0 {
+            self.set_lights(&brightest_texels(&self.env.radiance(), cfg.lights))?;
+        }
         self.iteration += 1;
         let view = &dataset.train[self.rng.below(dataset.train.len())];
         let bg = cfg
@@ -356,6 +413,7 @@ impl Stage2 {
             env: &env_rad.data,
             indirect: self.indirect(),
             params: self.shade_params(),
+            lights: self.active_lights(),
         };
         let mut shaded = ShadeOutput::new();
         shade_into_cached(&shade_in, Some(&self.dir_cache), &mut shaded)?;
@@ -430,7 +488,7 @@ impl Stage2 {
             mats: act.view(),
             env: &env_rad,
             rho: self.rho,
-            params: GatherParams::default(),
+            params: GatherParams { lights: self.active_lights(), ..GatherParams::default() },
         };
         let mut cons_loss = 0.0;
         let cons_grads = if cfg.consistency && cfg.indirect {
@@ -443,7 +501,7 @@ impl Stage2 {
         };
         let (reg, v_reg) = self.materials.offset_penalty();
         loss += wts.normal_offset * reg;
-        let (tv, v_tv) = self.env.tv_l2();
+        let (tv, v_tv) = self.env.tv_l2(self.active_lights().map(|l| l.mask()));
         loss += wts.env_tv * tv;
         let t2 = Instant::now();
 
@@ -546,6 +604,7 @@ impl Stage2 {
                 None => self.indirect(),
             },
             params: self.shade_params(),
+            lights: self.active_lights(),
         };
         self.render_shaded(camera, bg, &shading, albedo_scale)
     }
@@ -577,6 +636,7 @@ impl Stage2 {
             env: &shading.env.data,
             indirect: shading.indirect,
             params: shading.params,
+            lights: shading.lights,
         };
         shade_into_cached(&inputs, shading.cache, &mut shaded)?;
         let extra = Self::extra_features(&act, &self.facing(camera));

@@ -1,9 +1,11 @@
 //! End-to-end stage-2 tests on a real scene, downscaled: material/light fitting raises the PBR
-//! image's PSNR on test views, and a resumed run continues bit-identically.
+//! image's PSNR on test views, and a resumed run continues bit-identically, with and without
+//! directional lights.
 
 use std::path::PathBuf;
-use svgir_core::{Dataset, Rng};
+use svgir_core::{Dataset, Rng, Surfels};
 use svgir_io::{load_dataset, LoadOptions};
+use svgir_pbr::EnvActivation;
 use svgir_train::{checkpoint, init, BackgroundMode, Stage1, Stage1Config, Stage2, Stage2Config};
 
 fn scene() -> Option<Dataset> {
@@ -17,7 +19,7 @@ fn scene() -> Option<Dataset> {
 }
 
 /// A quick stage-1 model, then a small stage-2 set-up (K = 16).
-fn stage2(ds: &Dataset, iterations: u64) -> Stage2 {
+fn stage1(ds: &Dataset) -> Surfels {
     let mut cfg = Stage1Config::default().scaled_to(300);
     cfg.background = BackgroundMode::Black;
     cfg.densify.max_gaussians = 3000;
@@ -27,8 +29,7 @@ fn stage2(ds: &Dataset, iterations: u64) -> Stage2 {
     while !s1.is_done() {
         s1.step(ds);
     }
-    let cfg2 = Stage2Config { iterations, directions: 16, ..Stage2Config::default() };
-    Stage2::new(cfg2, s1.surfels, ds).expect("stage 2 set-up")
+    s1.surfels
 }
 
 fn pbr_psnr(t: &Stage2, ds: &Dataset) -> f32 {
@@ -47,24 +48,42 @@ fn pbr_psnr(t: &Stage2, ds: &Dataset) -> f32 {
 #[test]
 fn stage2_raises_pbr_psnr_and_resumes_bit_identically() {
     let Some(ds) = scene() else { return };
-    let mut t = stage2(&ds, 120);
-    let start = pbr_psnr(&t, &ds);
-    for _ in 0..100 {
-        t.step(&ds).unwrap();
+    let surfels = stage1(&ds);
+    let spec = Stage2Config { iterations: 120, directions: 16, ..Stage2Config::default() };
+    // Directional lights, re-selected before and after the checkpoint (iterations 80 and 120).
+    let lit = Stage2Config {
+        iterations: 130,
+        lights: 8,
+        lights_every: 40,
+        env_activation: EnvActivation::Exp,
+        ..spec.clone()
+    };
+    for cfg in [spec, lit] {
+        run_and_resume(&ds, Stage2::new(cfg, surfels.clone(), &ds).expect("stage 2 set-up"));
     }
-    let mid = pbr_psnr(&t, &ds);
-    eprintln!("stage-2 test PBR PSNR {start:.2} -> {mid:.2} dB");
-    assert!(mid > start + 2.0, "PBR PSNR {start:.2} -> {mid:.2}");
+}
+
+fn run_and_resume(ds: &Dataset, mut t: Stage2) {
+    let tag = format!("lights={}", t.config.lights);
+    let start = pbr_psnr(&t, ds);
+    for _ in 0..100 {
+        t.step(ds).unwrap();
+    }
+    let mid = pbr_psnr(&t, ds);
+    eprintln!("stage-2 test ({tag}) PBR PSNR {start:.2} -> {mid:.2} dB");
+    assert!(mid > start + 2.0, "{tag}: PBR PSNR {start:.2} -> {mid:.2}");
+    assert_eq!(t.lights.len(), t.config.lights, "{tag}");
 
     let path = std::env::temp_dir().join(format!("svgir_resume2_{}.bin", std::process::id()));
     checkpoint::save_stage2(&t, &path).unwrap();
     let mut u = checkpoint::load_stage2(&path).unwrap();
     std::fs::remove_file(&path).ok();
-    assert!(u.mb == t.mb, "restored micro-buffers differ");
+    assert!(u.mb == t.mb, "{tag}: restored micro-buffers differ");
+    assert!(u.lights == t.lights, "{tag}: restored lights differ");
     while !t.is_done() {
-        let a = t.step(&ds).unwrap();
-        let b = u.step(&ds).unwrap();
-        assert_eq!(a.loss.to_bits(), b.loss.to_bits(), "iteration {}", a.iteration);
+        let a = t.step(ds).unwrap();
+        let b = u.step(ds).unwrap();
+        assert_eq!(a.loss.to_bits(), b.loss.to_bits(), "{tag}: iteration {}", a.iteration);
     }
     assert_eq!(t.materials, u.materials);
     assert_eq!(t.env, u.env);

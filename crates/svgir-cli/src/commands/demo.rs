@@ -75,6 +75,9 @@ pub fn run(args: DemoArgs) -> Result<()> {
         env_init: inverse::EnvInitArg::Random,
         rho_lr: 0.01,
         albedo_lr: 0.01,
+        lights: 0,
+        lights_every: 100,
+        env_activation: inverse::EnvActivationArg::Softplus,
         // The quick demo (a CI test) keeps its 16 training directions; the full demo relights
         // with 128 rather than SPEC 7's 384 (`svgir inverse`'s default) to stay a few minutes
         // long (K is recorded in eval.json).

@@ -13,6 +13,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 use svgir_core::{Dataset, Image, LightInfo};
 use svgir_metrics::{evaluate_pair, ImageMetrics, Lpips, SsimVariant};
+use svgir_pbr::EnvActivation;
 use svgir_train::relight::Relighter;
 use svgir_train::stage2::{EnvInit, Stage2Rates};
 use svgir_train::{checkpoint, Stage2, Stage2Config};
@@ -81,6 +82,23 @@ pub struct InverseArgs {
     /// Learning rate of the albedo (SPEC 6: 0.01).
     #[arg(long, default_value_t = 0.01)]
     pub albedo_lr: f32,
+    /// Shade this many of the learned map's brightest texels as directional lights with traced
+    /// visibility and no clamp (re-selected every --lights-every iterations; relighting does the
+    /// same with the new map). For training lights with a sun; 0: SPEC 4's K samples alone.
+    #[arg(long, default_value_t = 0)]
+    pub lights: usize,
+    #[arg(long, default_value_t = 100)]
+    pub lights_every: u64,
+    /// Radiance of the learned map: SPEC 4's 2 softplus(x), or exp(x), which can reach a sun's
+    /// radiance within a schedule (use with --lights).
+    #[arg(long, value_enum, default_value_t = EnvActivationArg::Softplus)]
+    pub env_activation: EnvActivationArg,
+}
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum EnvActivationArg {
+    Softplus,
+    Exp,
 }
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -126,6 +144,12 @@ pub fn run(args: InverseArgs) -> Result<()> {
             EnvInitArg::Uniform => EnvInit::Uniform,
         },
         lr: Stage2Rates { rho: args.rho_lr, albedo: args.albedo_lr, ..Stage2Rates::default() },
+        lights: args.lights,
+        lights_every: args.lights_every.max(1),
+        env_activation: match args.env_activation {
+            EnvActivationArg::Softplus => EnvActivation::Softplus,
+            EnvActivationArg::Exp => EnvActivation::Exp,
+        },
         ..Stage2Config::default()
     };
     let ckpt = out.join("checkpoint.bin");

@@ -1,0 +1,276 @@
+//! Bright texels of the environment map as directional lights (our addition; README "Where we
+//! differ").
+//!
+//! SPEC 4 estimates the light integral with K Fibonacci directions of weight 2pi/K each. A sun
+//! in a 32 x 64 map is one texel of ~0.01 sr holding up to 60% of the map's power (the training
+//! lights of cup_and_ball and bowl_fruit_128): K = 64 samples hit it for ~1% of the Gaussians,
+//! and the [0, 64] clamp removes most of it where they do. So the map is split in two:
+//! - the `count` texels of highest power `luminance x solid angle` are *directional lights*:
+//!   direction = texel direction, weight = the texel's exact solid angle
+//!   ([`EnvMap::texel_solid_angle`], the integral of its bilinear hat, so the split conserves the
+//!   bilinear map's power), visibility traced per (Gaussian, light) here, no clamp;
+//! - every other texel stays in the K-sample estimate, where lookups treat the light texels as
+//!   black ([`BrightLights::mask_taps`]) so nothing is counted twice.
+//!
+//! With `count = 0` the split is empty and everything is SPEC 4.
+//!
+//! Visibility of light b from Gaussian j is the transmittance march of SPEC 5 (V = T_final, 0
+//! below 0.2) from j's centre towards the texel, and 0 when the texel lies below j's geometric
+//! horizon (the hemisphere of the micro-buffer normal). Stored light-major as u16 unorm, N per
+//! light, so a re-selection keeps the columns of texels already traced. Work split: rayon over
+//! Gaussians per light column; deterministic for any thread count.
+
+use crate::pack::{from_unorm16, unorm16};
+use crate::traverse::{march, HitSource, Ray, TraceParams};
+use crate::TraceError;
+use glam::Vec3;
+use rayon::prelude::*;
+use svgir_core::envmap::Taps;
+use svgir_core::{EnvMap, Surfels};
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct BrightLights {
+    /// Size of the environment grid the texel indices refer to.
+    pub width: u32,
+    pub height: u32,
+    /// Texel index (`row * width + col`) of each light.
+    pub texels: Vec<u32>,
+    /// Unit direction of each light (the texel's grid direction).
+    pub dirs: Vec<Vec3>,
+    /// Weight of each light: the texel's solid angle.
+    pub solid_angle: Vec<f32>,
+    /// Per texel of the map: is it a light (and so black in the K-sample lookups)?
+    mask: Vec<bool>,
+    /// Visibility per light, N entries each (u16 unorm).
+    vis: Vec<Vec<u16>>,
+}
+
+/// The `count` texels of highest power `luminance(L_t) x solid angle` (ties by index), among
+/// those with positive power.
+pub fn brightest_texels(env: &EnvMap, count: usize) -> Vec<u32> {
+    let mut power: Vec<(f32, u32)> = (0..env.height)
+        .flat_map(|r| (0..env.width).map(move |c| (r, c)))
+        .map(|(r, c)| {
+            let t = env.data[(r * env.width + c) as usize];
+            let lum = 0.2126 * t[0] + 0.7152 * t[1] + 0.0722 * t[2];
+            (lum * env.texel_solid_angle(r, c), r * env.width + c)
+        })
+        .filter(|(p, _)| *p > 0.0)
+        .collect();
+    power.sort_by(|a, b| b.0.total_cmp(&a.0).then(a.1.cmp(&b.1)));
+    power.into_iter().take(count).map(|(_, t)| t).collect()
+}
+
+impl BrightLights {
+    /// No lights: every texel is sampled as in SPEC 4.
+    pub fn empty(width: u32, height: u32) -> Self {
+        Self {
+            width,
+            height,
+            texels: Vec::new(),
+            dirs: Vec::new(),
+            solid_angle: Vec::new(),
+            mask: vec![false; (width * height) as usize],
+            vis: Vec::new(),
+        }
+    }
+
+    /// Lights at `texels` of a `geom`-sized map, seen from every Gaussian of `surfels` (hemisphere
+    /// axes `normals`, normally the micro-buffer's). Columns for texels that `reuse` already
+    /// traced (same map size and surfels) are copied instead of traced again.
+    pub fn trace<S: HitSource + Sync>(
+        src: &S,
+        surfels: &Surfels,
+        normals: &[Vec3],
+        geom: &EnvMap,
+        texels: &[u32],
+        p: &TraceParams,
+        reuse: Option<&BrightLights>,
+    ) -> Result<Self, TraceError> {
+        let n = surfels.len();
+        if normals.len() != n {
+            return Err(TraceError::SizeMismatch { what: "normals", got: normals.len(), want: n });
+        }
+        let columns = texels
+            .iter()
+            .map(|&t| {
+                let reused = reuse
+                    .filter(|r| r.width == geom.width && r.height == geom.height)
+                    .and_then(|r| r.texels.iter().position(|&x| x == t).map(|b| r.vis[b].clone()))
+                    .filter(|v| v.len() == n);
+                if let Some(v) = reused {
+                    return v;
+                }
+                if t >= geom.width * geom.height {
+                    return Vec::new(); // rejected by `assemble`
+                }
+                let dir = geom.texel_dir(t / geom.width, t % geom.width).normalize();
+                (0..n)
+                    .into_par_iter()
+                    .with_min_len(256)
+                    .map(|j| {
+                        if normals[j].dot(dir) <= 0.0 {
+                            return 0;
+                        }
+                        let ray = Ray::from_gaussian(surfels, j, dir, p);
+                        unorm16(march(src, &surfels.sh, surfels.sh_degree, &ray, p).visibility)
+                    })
+                    .collect()
+            })
+            .collect();
+        Self::assemble(geom, texels, columns)
+    }
+
+    /// Lights at `texels` with given visibility columns (`columns[b][j]` in [0, 1], e.g. from
+    /// another tracer or a test).
+    pub fn from_visibility(geom: &EnvMap, texels: &[u32], columns: &[Vec<f32>]) -> Result<Self, TraceError> {
+        Self::assemble(geom, texels, columns.iter().map(|c| c.iter().map(|&v| unorm16(v)).collect()).collect())
+    }
+
+    fn assemble(geom: &EnvMap, texels: &[u32], columns: Vec<Vec<u16>>) -> Result<Self, TraceError> {
+        if columns.len() != texels.len() {
+            return Err(TraceError::SizeMismatch { what: "light columns", got: columns.len(), want: texels.len() });
+        }
+        let mut out = Self::empty(geom.width, geom.height);
+        for (&t, column) in texels.iter().zip(columns) {
+            if t >= geom.width * geom.height {
+                return Err(TraceError::InvalidParameter(format!(
+                    "light texel {t} outside a {}x{} map",
+                    geom.width, geom.height
+                )));
+            }
+            if out.mask[t as usize] {
+                return Err(TraceError::InvalidParameter(format!("light texel {t} given twice")));
+            }
+            if let Some(first) = out.vis.first() {
+                if first.len() != column.len() {
+                    return Err(TraceError::SizeMismatch {
+                        what: "light column",
+                        got: column.len(),
+                        want: first.len(),
+                    });
+                }
+            }
+            let (row, col) = (t / geom.width, t % geom.width);
+            out.mask[t as usize] = true;
+            out.texels.push(t);
+            out.dirs.push(geom.texel_dir(row, col).normalize());
+            out.solid_angle.push(geom.texel_solid_angle(row, col));
+            out.vis.push(column);
+        }
+        Ok(out)
+    }
+
+    pub fn len(&self) -> usize {
+        self.texels.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.texels.is_empty()
+    }
+
+    /// Is texel `t` a light?
+    #[inline]
+    pub fn is_light(&self, t: u32) -> bool {
+        self.mask[t as usize]
+    }
+
+    /// Per texel of the map: is it a light?
+    pub fn mask(&self) -> &[bool] {
+        &self.mask
+    }
+
+    /// Zero the weights of taps on light texels: the K-sample estimate sees them as black.
+    #[inline]
+    pub fn mask_taps(&self, taps: &mut Taps) {
+        if self.texels.is_empty() {
+            return;
+        }
+        for k in 0..4 {
+            if self.mask[taps.index[k] as usize] {
+                taps.weight[k] = 0.0;
+            }
+        }
+    }
+
+    /// Visibility of light b from Gaussian j.
+    #[inline]
+    pub fn visibility(&self, j: usize, b: usize) -> f32 {
+        from_unorm16(self.vis[b][j])
+    }
+
+    /// `Err` unless the lights index a `width` x `height` map and cover `n` Gaussians.
+    pub fn check(&self, n: usize, width: u32, height: u32) -> Result<(), TraceError> {
+        if (self.width, self.height) != (width, height) {
+            return Err(TraceError::InvalidParameter(format!(
+                "lights for a {}x{} map used with a {width}x{height} map",
+                self.width, self.height
+            )));
+        }
+        match self.vis.iter().find(|v| v.len() != n) {
+            Some(v) => Err(TraceError::SizeMismatch { what: "light visibility", got: v.len(), want: n }),
+            None => Ok(()),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scenes::object_scene;
+    use crate::{Bvh, MicroBuffer};
+
+    #[test]
+    fn brightest_texels_rank_by_power() {
+        let mut env = EnvMap::constant(8, 4, [1.0; 3]);
+        env.data[9] = [50.0; 3];
+        env.data[20] = [0.0, 10.0, 0.0];
+        // A pole texel (row 0) owns a tiny solid angle: bright but little power.
+        env.data[2] = [20.0; 3];
+        let top = brightest_texels(&env, 2);
+        assert_eq!(top, vec![9, 20]);
+        assert_eq!(brightest_texels(&EnvMap::constant(8, 4, [0.0; 3]), 3), Vec::<u32>::new());
+    }
+
+    #[test]
+    fn visibility_matches_the_micro_buffer_march() {
+        let s = object_scene(600, 4);
+        let bvh = Bvh::build(&s);
+        let p = TraceParams::default();
+        let mb = MicroBuffer::trace(&bvh, &s, 4, 1, &p).unwrap();
+        let geom = EnvMap::constant(16, 8, [1.0; 3]);
+        let texels = [17u32, 40, 77, 100];
+        let lights = BrightLights::trace(&bvh, &s, &mb.normals, &geom, &texels, &p, None).unwrap();
+        assert_eq!(lights.len(), 4);
+        let (mut seen, mut blocked) = (0, 0);
+        for (b, &t) in texels.iter().enumerate() {
+            assert!(lights.is_light(t));
+            let d = geom.texel_dir(t / 16, t % 16).normalize();
+            for j in 0..s.len() {
+                let v = lights.visibility(j, b);
+                let want = if mb.normals[j].dot(d) <= 0.0 {
+                    0.0
+                } else {
+                    march(&bvh, &s.sh, s.sh_degree, &Ray::from_gaussian(&s, j, d, &p), &p).visibility
+                };
+                assert!((v - want).abs() < 2e-5, "j={j} b={b}: {v} vs {want}");
+                seen += (v > 0.5) as usize;
+                blocked += (v == 0.0 && mb.normals[j].dot(d) > 0.0) as usize;
+            }
+        }
+        assert!(seen > 0 && blocked > 0, "the scene should both show and shadow the lights");
+        // Re-selection reuses traced columns and rejects bad texels.
+        let again = BrightLights::trace(&bvh, &s, &mb.normals, &geom, &[100, 3], &p, Some(&lights)).unwrap();
+        assert_eq!(again.vis[0], lights.vis[3]);
+        assert!(!again.is_light(17));
+        assert!(BrightLights::trace(&bvh, &s, &mb.normals, &geom, &[128], &p, None).is_err());
+        assert!(BrightLights::trace(&bvh, &s, &mb.normals, &geom, &[5, 5], &p, None).is_err());
+        assert!(lights.check(s.len(), 16, 8).is_ok());
+        assert!(lights.check(s.len() + 1, 16, 8).is_err());
+        assert!(lights.check(s.len(), 32, 16).is_err());
+        // Masked taps drop exactly the light texels.
+        let mut taps = Taps { index: [17, 18, 40, 41], weight: [0.25; 4] };
+        lights.mask_taps(&mut taps);
+        assert_eq!(taps.weight, [0.0, 0.25, 0.0, 0.25]);
+    }
+}
