@@ -5,7 +5,9 @@
 //!        max(1e-6, n_h^m . w_{h,s})) L_env(w_{h,s})`,
 //! i.e. the hit surfel, interpolated at the hit's own (u~, v~) (SPEC 9.2), reflects the
 //! environment it sees unoccluded in its own micro-buffer towards j; no re-tracing. `L_env` is the
-//! bilinear lookup (`EnvMap::taps`) clamped to [0, env_max] (SPEC 4: 64).
+//! bilinear lookup (`EnvMap::taps`) clamped to [0, env_max] (SPEC 4: 64). With
+//! `GatherParams::lights` the escape list also holds h's directional lights ([`BrightLights`]),
+//! weighted by solid angle and traced visibility, and the K samples see those texels as black.
 //!
 //! Work split: [`gather_all`] runs rayon over receiving Gaussians j (each task owns its K outputs);
 //! per task a scratch holds the escape list of the last hit Gaussian h (directions and env

@@ -364,7 +364,7 @@ impl Stage2 {
     pub fn step(&mut self, dataset: &Dataset) -> Result<Stage2Step, PbrError> {
         let cfg = self.config.clone();
         let wts = &cfg.weights;
-        if cfg.lights > 0 && self.iteration % cfg.lights_every.max(1) == 0 {
+        if cfg.lights > 0 && self.iteration.is_multiple_of(cfg.lights_every.max(1)) {
             self.set_lights(&brightest_texels(&self.env.radiance(), cfg.lights))?;
         }
         self.iteration += 1;

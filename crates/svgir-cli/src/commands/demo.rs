@@ -59,6 +59,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         data: None,
         iterations: iterations2,
         oracle_materials: false,
+        oracle_light: false,
         seed: args.seed,
         vertices: 4,
         directions: if args.quick { 16 } else { 64 },

@@ -33,6 +33,11 @@ pub struct InverseArgs {
     /// of this geometry and shading with perfect materials). Not a result: it reads ground truth.
     #[arg(long)]
     pub oracle_materials: bool,
+    /// Diagnostic: before the evaluation, replace the learned light by the dataset's training
+    /// light (its brightest texels as directional lights when --lights > 0), so NVS measures
+    /// the model under the true light. Not a result: it reads ground truth.
+    #[arg(long)]
+    pub oracle_light: bool,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Gaussian vertices per surfel: 1 (constant material), 2, 4 or 6.
@@ -209,6 +214,15 @@ pub fn run(args: InverseArgs) -> Result<()> {
             st.views, st.assigned, st.total
         );
         anyhow::ensure!(st.views > 0, "--oracle-materials: the training views have no albedo/roughness maps");
+    }
+    if args.oracle_light {
+        let light = dataset.train_light.as_ref().context("--oracle-light: the dataset names no training light")?;
+        let path =
+            light.envmap_path.as_ref().context("--oracle-light: the training light's map is not in the dataset")?;
+        let map = svgir_io::read_envmap(path, light.strength, s2.config.env_height)?;
+        s2.env = svgir_pbr::EnvLight::from_radiance(&map)?.with_activation(s2.config.env_activation)?;
+        s2.set_lights(&svgir_trace::brightest_texels(&map, s2.config.lights))?;
+        eprintln!("oracle light: {} (strength {})", path.display(), light.strength);
     }
     let lpips = load_lpips(args.lpips)?;
     let eval = evaluate(&s2, &dataset, &out, lpips.as_ref(), args.turntable, args.relight_directions)?;
