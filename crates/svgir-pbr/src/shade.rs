@@ -278,7 +278,7 @@ pub(crate) fn light_sample<F: Float>(
         return None;
     }
     let t = lights.texels[b];
-    let w = lights.solid_angle[b] * inp.mb.k as f32 / std::f32::consts::TAU;
+    let w = lights.sample_scale(b, inp.mb.k);
     let (vis, wf) = (F::from_f32(vis), F::from_f32(w));
     let texel = inp.env[t as usize];
     let zero = [F::ZERO; 3];

@@ -193,6 +193,13 @@ impl BrightLights {
         }
     }
 
+    /// Light b as one of K samples of weight 2pi/K: its radiance is scaled by `Omega_b K / 2pi`
+    /// so that the shared 2pi/K factor gives it its solid angle.
+    #[inline]
+    pub fn sample_scale(&self, b: usize, k: usize) -> f32 {
+        self.solid_angle[b] * k as f32 / std::f32::consts::TAU
+    }
+
     /// Visibility of light b from Gaussian j.
     #[inline]
     pub fn visibility(&self, j: usize, b: usize) -> f32 {

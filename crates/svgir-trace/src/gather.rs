@@ -138,7 +138,7 @@ impl<F: Float> Escapes<F> {
             if v <= 0.0 {
                 continue;
             }
-            let w = v * l.solid_angle[b] * mb.k as f32 / std::f32::consts::TAU;
+            let w = v * l.sample_scale(b, mb.k);
             let texel = light.env[t as usize];
             self.dirs.push(to_f(l.dirs[b].to_array()));
             self.light.push(texel.map(|x| F::from_f32(w) * x));

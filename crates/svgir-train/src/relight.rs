@@ -26,7 +26,8 @@ pub const RELIGHT_DIRECTIONS: usize = 384;
 pub struct Relighter {
     pub mb: MicroBuffer,
     cache: DirectionCache,
-    bvh: Bvh,
+    /// For tracing K directions and the directional lights; built only when one is needed.
+    bvh: Option<Bvh>,
     /// Seconds spent building the BVH and tracing.
     pub trace_seconds: f64,
 }
@@ -44,11 +45,12 @@ impl Relighter {
     /// Traces `directions` per Gaussian of `s2` (the training buffers are reused when K matches).
     pub fn new(s2: &Stage2, directions: usize) -> Result<Self, PbrError> {
         let t0 = std::time::Instant::now();
-        let bvh = Bvh::build(&s2.surfels);
-        let mb = if directions == s2.mb.k {
-            s2.mb.clone()
-        } else {
-            MicroBuffer::trace(&bvh, &s2.surfels, directions, s2.config.seed, &s2.config.trace_params())?
+        let bvh = (directions != s2.mb.k || s2.config.lights > 0).then(|| Bvh::build(&s2.surfels));
+        let mb = match &bvh {
+            Some(bvh) if directions != s2.mb.k => {
+                MicroBuffer::trace(bvh, &s2.surfels, directions, s2.config.seed, &s2.config.trace_params())?
+            }
+            _ => s2.mb.clone(),
         };
         let cache = DirectionCache::new(&mb, &s2.env.radiance())?;
         Ok(Self { mb, cache, bvh, trace_seconds: t0.elapsed().as_secs_f64() })
@@ -57,13 +59,13 @@ impl Relighter {
     /// Eqn 13 under `env` (unclamped) with the model's current materials; nothing for a model
     /// trained without indirect light (the ablation relights as it was trained).
     pub fn prepare(&self, s2: &Stage2, env: EnvMap) -> Result<PreparedLight, PbrError> {
-        let lights = match s2.config.lights {
-            0 => None,
-            count => {
+        let lights = match (&self.bvh, s2.config.lights) {
+            (Some(bvh), count) if count > 0 => {
                 let texels = brightest_texels(&env, count);
                 let p = s2.config.trace_params();
-                Some(BrightLights::trace(&self.bvh, &s2.surfels, &self.mb.normals, &env, &texels, &p, None)?)
+                Some(BrightLights::trace(bvh, &s2.surfels, &self.mb.normals, &env, &texels, &p, None)?)
             }
+            _ => None,
         };
         if !s2.config.indirect {
             return Ok(PreparedLight { env, one_bounce: None, lights });
