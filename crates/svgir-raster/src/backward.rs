@@ -9,7 +9,7 @@
 //! front with a running suffix sum, and `T_i = T_{i+1} / (1 - alpha_i)` recovered from the saved
 //! final T (as 3DGS).
 //!
-//! Work split: one rayon task per row of tiles, Gaussian-outer (in reverse list order) and
+//! Work split: one rayon task per tile, Gaussian-outer (in reverse list order) and
 //! pixel-inner as in the forward; gradients go to a per-entry buffer (one slot per (Gaussian,
 //! tile) pair, owned by that tile), then each Gaussian sums its entries in a fixed order. No
 //! atomics, no racy `+=`, bit-reproducible for a given input (SPEC 9.4, 9.9).
@@ -75,29 +75,30 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
 
     let mut entry_grads = vec![F::ZERO; bins.ids.len() * dim];
     {
-        let elens = (0..bins.tiles_y).map(|ty| {
-            let r = bins.row_range(ty);
-            (r[1] - r[0]) as usize * dim
-        });
-        let bands: Vec<(u32, &mut [F])> =
-            split_lens(&mut entry_grads, elens).into_iter().enumerate().map(|(ty, s)| (ty as u32, s)).collect();
-        bands.into_par_iter().for_each(|(ty, eg)| {
-            let ctx = Ctx {
-                bins,
-                recs: &state.recs,
-                state,
-                cf: &cf,
-                ef: &ef,
-                grads,
-                bg: &input.background,
-                cfg,
-                w,
-                h,
-                dim,
-                off_ext,
-            };
-            backward_band(&ctx, ty, eg);
-        });
+        // One task per tile (its entries are a contiguous run of `entry_grads`): finer than the
+        // forward's rows of tiles, since the back-to-front walk's cost is more uneven.
+        let elens = bins.ranges.iter().map(|r| (r[1] - r[0]) as usize * dim);
+        let tiles: Vec<(usize, &mut [F])> = split_lens(&mut entry_grads, elens).into_iter().enumerate().collect();
+        let ctx = Ctx {
+            bins,
+            recs: &state.recs,
+            state,
+            cf: &cf,
+            ef: &ef,
+            grads,
+            bg: &input.background,
+            cfg,
+            w,
+            h,
+            dim,
+            off_ext,
+        };
+        tiles.into_par_iter().for_each_init(
+            || Scratch::new(bins.tile as usize, ce),
+            |scr, (t, eg)| {
+                backward_tile(&ctx, t, eg, scr);
+            },
+        );
     }
 
     // Per-Gaussian reduction in entry order, then the preprocess backward.
@@ -111,6 +112,12 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
             }
         }
     };
+    // Gathered in a pass of its own: the entry slots of one Gaussian are scattered over the
+    // tiles (cache misses), and a small loop body lets many of those loads be in flight at once,
+    // where the per-Gaussian backward below would stall on each.
+    let hi = if sh_mode { OFF_COL + 3 } else { OFF_COL };
+    let mut sums = vec![[F::ZERO; OFF_COL + 3]; n];
+    sums.par_iter_mut().enumerate().with_min_len(1024).for_each(|(g, acc)| sum_entries(g, 0, hi, &mut acc[..hi]));
     let mut v_positions = vec![F::V3::default(); n];
     let mut v_rotations = vec![F::quat([F::ZERO; 4]); n];
     let mut v_log_scales = vec![F::V2::default(); n];
@@ -131,9 +138,7 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
             if !splat.visible() {
                 return;
             }
-            let mut acc = [F::ZERO; OFF_COL + 3];
-            let hi = if sh_mode { OFF_COL + 3 } else { OFF_COL };
-            sum_entries(g, 0, hi, &mut acc[..hi]);
+            let acc = &sums[g];
             let mut sg = SplatGradSum::<F>::default();
             sg.h.copy_from_slice(&acc[OFF_H..OFF_H + 9]);
             sg.center.copy_from_slice(&acc[OFF_C..OFF_C + 2]);
@@ -206,28 +211,60 @@ struct Ctx<'a, F: Real> {
     off_ext: usize,
 }
 
+/// Per-task buffers of the tile kernel, reused from tile to tile.
+struct Scratch<F> {
+    px: Vec<PixB<F>>,
+    ge_px: Vec<F>,
+    ext: Vec<F>,
+    ev: Box<RowEval<F>>,
+    /// Pixels by decreasing number of composited entries.
+    by_ncon: Vec<(u32, u32)>,
+    /// Per tile row, the columns that composited the current entry (they only join as the walk
+    /// goes back to front).
+    row_act: Vec<u64>,
+}
+
+impl<F: Real> Scratch<F> {
+    fn new(tile: usize, ce: usize) -> Self {
+        let tp = tile * tile;
+        Self {
+            px: vec![PixB::default(); tp],
+            ge_px: vec![F::ZERO; tp * ce],
+            ext: vec![F::ZERO; ce],
+            ev: Box::default(),
+            by_ncon: Vec::with_capacity(tp),
+            row_act: vec![0; tile],
+        }
+    }
+}
+
 /// Dispatches to the kernel specialised for which optional paths are live (each is a branch
 /// per composited pixel otherwise).
-fn backward_band<F: Real>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
+fn backward_tile<F: Real>(ctx: &Ctx<F>, t: usize, eg: &mut [F], scr: &mut Scratch<F>) {
     let ci = ctx.cf.vertices > 1;
     let ex = ctx.ef.channels > 0;
     let dist = ctx.cfg.distortion && ctx.grads.distortion.is_some();
     match (ci, ex, dist) {
-        (false, false, false) => backward_band_k::<F, false, false, false>(ctx, ty, eg),
-        (false, false, true) => backward_band_k::<F, false, false, true>(ctx, ty, eg),
-        (false, true, false) => backward_band_k::<F, false, true, false>(ctx, ty, eg),
-        (false, true, true) => backward_band_k::<F, false, true, true>(ctx, ty, eg),
-        (true, false, false) => backward_band_k::<F, true, false, false>(ctx, ty, eg),
-        (true, false, true) => backward_band_k::<F, true, false, true>(ctx, ty, eg),
-        (true, true, false) => backward_band_k::<F, true, true, false>(ctx, ty, eg),
-        (true, true, true) => backward_band_k::<F, true, true, true>(ctx, ty, eg),
+        (false, false, false) => backward_tile_k::<F, false, false, false>(ctx, t, eg, scr),
+        (false, false, true) => backward_tile_k::<F, false, false, true>(ctx, t, eg, scr),
+        (false, true, false) => backward_tile_k::<F, false, true, false>(ctx, t, eg, scr),
+        (false, true, true) => backward_tile_k::<F, false, true, true>(ctx, t, eg, scr),
+        (true, false, false) => backward_tile_k::<F, true, false, false>(ctx, t, eg, scr),
+        (true, false, true) => backward_tile_k::<F, true, false, true>(ctx, t, eg, scr),
+        (true, true, false) => backward_tile_k::<F, true, true, false>(ctx, t, eg, scr),
+        (true, true, true) => backward_tile_k::<F, true, true, true>(ctx, t, eg, scr),
     }
 }
 
-/// One row of tiles. `CI`: colours interpolated from several vertices; `EX`: extra feature
-/// channels; `DIST`: the distortion output has a gradient.
+/// One tile; `eg` holds its entries' gradient slots. `CI`: colours interpolated from several
+/// vertices; `EX`: extra feature channels; `DIST`: the distortion output has a gradient.
 #[inline(never)]
-fn backward_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(ctx: &Ctx<F>, ty: u32, eg: &mut [F]) {
+fn backward_tile_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
+    ctx: &Ctx<F>,
+    t: usize,
+    eg: &mut [F],
+    scr: &mut Scratch<F>,
+) {
     let bins = ctx.bins;
     let (cf, ef) = (ctx.cf, ctx.ef);
     let ce = ef.channels;
@@ -240,219 +277,208 @@ fn backward_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(ct
     let m_scale = far / (far - near);
     let wu = ctx.w as usize;
     let tile = bins.tile as usize;
-    let e_band0 = bins.row_range(ty)[0] as usize;
-    let tp = tile * tile;
-    let mut px = vec![PixB::<F>::default(); tp];
-    let mut ge_px = vec![F::ZERO; tp * ce];
+    let Scratch { px, ge_px, ext, ev, by_ncon, row_act } = scr;
     let g = ctx.grads;
     let st = ctx.state;
     let (mut wc, mut wcu, mut wcv) = ([F::ZERO; MAX_VERTICES], [F::ZERO; MAX_VERTICES], [F::ZERO; MAX_VERTICES]);
     let (mut we, mut weu, mut wev) = ([F::ZERO; MAX_VERTICES], [F::ZERO; MAX_VERTICES], [F::ZERO; MAX_VERTICES]);
     let mut col = [F::ZERO; 3];
-    let mut ext = vec![F::ZERO; ce];
-    let mut ev = Box::<RowEval<F>>::default();
     let offs = row_offsets::<F>();
-    // Pixels by decreasing number of composited entries, and per tile row the columns that
-    // composited the current entry (they only join as the walk goes back to front).
-    let mut by_ncon: Vec<(u32, u32)> = Vec::with_capacity(tp);
-    let mut row_act = vec![0u64; tile];
     // Whether any feature is interpolated (else no gradient flows through u~, v~).
     let interp = CI || (EX && ef.vertices > 1);
-    for tx in 0..bins.tiles_x {
-        let t = (ty * bins.tiles_x + tx) as usize;
-        let tr = bins.tile_rect(t, ctx.w, ctx.h);
-        let [r0, _] = bins.ranges[t];
-        let (tx0, ty0) = (tr[0] as usize, tr[2] as usize);
-        // Load per-pixel state and upstream gradients.
-        let mut max_n = 0u32;
-        by_ncon.clear();
-        row_act.fill(0);
-        for y in tr[2] as usize..tr[3] as usize {
-            for x in tr[0] as usize..tr[1] as usize {
-                let li = (y - ty0) * tile + (x - tx0);
-                let p = y * wu + x;
-                let tn = st.final_t[p];
-                let nc = st.n_contrib[p];
-                max_n = max_n.max(nc);
-                if nc > 0 {
-                    by_ncon.push((nc, ((y - ty0) * 64 + (x - tx0)) as u32));
-                }
-                let gc = g.color.map_or([F::ZERO; 3], |v| [v[p * 3], v[p * 3 + 1], v[p * 3 + 2]]);
-                let b = background_at(ctx.bg, p);
-                px[li] = PixB {
-                    t: tn,
-                    acc: tn * (gc[0] * b[0] + gc[1] * b[1] + gc[2] * b[2]),
-                    gc,
-                    gn: g.normal.map_or([F::ZERO; 3], |v| [v[p * 3], v[p * 3 + 1], v[p * 3 + 2]]),
-                    go: g.alpha.map_or(F::ZERO, |v| v[p]),
-                    gd: g.depth.map_or(F::ZERO, |v| v[p]),
-                    gdist: if DIST { g.distortion.map_or(F::ZERO, |v| v[p]) } else { F::ZERO },
-                    a: F::ONE - tn,
-                    m1: st.moment1[p],
-                    m2: st.moment2[p],
-                    ncon: nc,
-                };
-                for ch in 0..ce {
-                    ge_px[li * ce + ch] = g.extra.map_or(F::ZERO, |v| v[p * ce + ch]);
-                }
+    let tr = bins.tile_rect(t, ctx.w, ctx.h);
+    let [r0, _] = bins.ranges[t];
+    let e_tile0 = r0 as usize;
+    let (tx0, ty0) = (tr[0] as usize, tr[2] as usize);
+    // Load per-pixel state and upstream gradients.
+    let mut max_n = 0u32;
+    by_ncon.clear();
+    row_act.fill(0);
+    for y in tr[2] as usize..tr[3] as usize {
+        for x in tr[0] as usize..tr[1] as usize {
+            let li = (y - ty0) * tile + (x - tx0);
+            let p = y * wu + x;
+            let tn = st.final_t[p];
+            let nc = st.n_contrib[p];
+            max_n = max_n.max(nc);
+            if nc > 0 {
+                by_ncon.push((nc, ((y - ty0) * 64 + (x - tx0)) as u32));
+            }
+            let gc = g.color.map_or([F::ZERO; 3], |v| [v[p * 3], v[p * 3 + 1], v[p * 3 + 2]]);
+            let b = background_at(ctx.bg, p);
+            px[li] = PixB {
+                t: tn,
+                acc: tn * (gc[0] * b[0] + gc[1] * b[1] + gc[2] * b[2]),
+                gc,
+                gn: g.normal.map_or([F::ZERO; 3], |v| [v[p * 3], v[p * 3 + 1], v[p * 3 + 2]]),
+                go: g.alpha.map_or(F::ZERO, |v| v[p]),
+                gd: g.depth.map_or(F::ZERO, |v| v[p]),
+                gdist: if DIST { g.distortion.map_or(F::ZERO, |v| v[p]) } else { F::ZERO },
+                a: F::ONE - tn,
+                m1: st.moment1[p],
+                m2: st.moment2[p],
+                ncon: nc,
+            };
+            for ch in 0..ce {
+                ge_px[li * ce + ch] = g.extra.map_or(F::ZERO, |v| v[p * ce + ch]);
             }
         }
-        by_ncon.sort_unstable_by_key(|a| std::cmp::Reverse(a.0));
-        let mut next_act = 0;
-        for e in (r0 as usize..r0 as usize + max_n as usize).rev() {
-            let local = (e - r0 as usize) as u32;
-            while let Some(&(nc, rc)) = by_ncon.get(next_act) {
-                if nc <= local {
-                    break;
-                }
-                row_act[rc as usize / 64] |= 1u64 << (rc % 64);
-                next_act += 1;
+    }
+    by_ncon.sort_unstable_by_key(|a| std::cmp::Reverse(a.0));
+    let mut next_act = 0;
+    for e in (r0 as usize..r0 as usize + max_n as usize).rev() {
+        let local = (e - r0 as usize) as u32;
+        while let Some(&(nc, rc)) = by_ncon.get(next_act) {
+            if nc <= local {
+                break;
             }
-            let sp = &ctx.recs[e];
-            let gid = sp.id as usize;
-            let (x0, x1) = (sp.rect[0].max(tr[0]) as usize, sp.rect[1].min(tr[1]) as usize);
-            let c32 = [sp.center[0].to_f32(), sp.center[1].to_f32()];
-            let (y0, y1) = (sp.rect[2].max(tr[2]) as usize, sp.rect[3].min(tr[3]) as usize);
-            let slot = &mut eg[(e - e_band0) * dim..(e - e_band0 + 1) * dim];
-            let mut sg = SplatGrad::<F>::default();
-            let mut v_n = [F::ZERO; 3];
-            // Colour gradient of a one-vertex colour, summed here rather than in the slot.
-            let mut v_col = [F::ZERO; 3];
-            for y in y0..y1 {
-                // Only pixels that composited this entry.
-                let act = row_act[y - ty0];
-                if act == 0 {
+            row_act[rc as usize / 64] |= 1u64 << (rc % 64);
+            next_act += 1;
+        }
+        let sp = &ctx.recs[e];
+        let gid = sp.id as usize;
+        let (x0, x1) = (sp.rect[0].max(tr[0]) as usize, sp.rect[1].min(tr[1]) as usize);
+        let c32 = [sp.center[0].to_f32(), sp.center[1].to_f32()];
+        let (y0, y1) = (sp.rect[2].max(tr[2]) as usize, sp.rect[3].min(tr[3]) as usize);
+        let slot = &mut eg[(e - e_tile0) * dim..(e - e_tile0 + 1) * dim];
+        let mut sg = SplatGrad::<F>::default();
+        let mut v_n = [F::ZERO; 3];
+        // Colour gradient of a one-vertex colour, summed here rather than in the slot.
+        let mut v_col = [F::ZERO; 3];
+        for y in y0..y1 {
+            // Only pixels that composited this entry.
+            let act = row_act[y - ty0];
+            if act == 0 {
+                continue;
+            }
+            let yf = F::c(y as f64) + half;
+            let (xa, xb) = sp.conic.span(c32, yf.to_f32(), x0, x1);
+            let Some((xa, xb)) = live_span(act, tx0, xa, xb) else { continue };
+            let row = (y - ty0) * tile;
+            let rs = row_setup(&sp.h, yf);
+            eval_row(&sp.h, sp.center, sp.opacity, &rs, yf, xa, xb - xa, near, &offs, ev);
+            let xa_f = F::c(xa as f64) + half;
+            for x in xa..xb {
+                let i = x - xa;
+                let li = row + (x - tx0);
+                let p = &mut px[li];
+                if local >= p.ncon || ev.alpha[i] == F::ZERO {
                     continue;
                 }
-                let yf = F::c(y as f64) + half;
-                let (xa, xb) = sp.conic.span(c32, yf.to_f32(), x0, x1);
-                let Some((xa, xb)) = live_span(act, tx0, xa, xb) else { continue };
-                let row = (y - ty0) * tile;
-                let rs = row_setup(&sp.h, yf);
-                eval_row(&sp.h, sp.center, sp.opacity, &rs, yf, xa, xb - xa, near, &offs, &mut ev);
-                let xa_f = F::c(xa as f64) + half;
-                for x in xa..xb {
-                    let i = x - xa;
-                    let li = row + (x - tx0);
-                    let p = &mut px[li];
-                    if local >= p.ncon || ev.alpha[i] == F::ZERO {
-                        continue;
-                    }
-                    let xf = xa_f + offs[i];
-                    let hit = hit_from_row(sp.center, sp.opacity, &ev, i, xf, yf);
-                    // One reciprocal for both divisions by (1 - alpha_i).
-                    let inv_one_m = F::ONE / (F::ONE - hit.alpha);
-                    let ti = p.t * inv_one_m;
-                    p.t = ti;
-                    let wgt = hit.alpha * ti;
-                    let (ut, dut, vt, dvt) = if interp {
-                        let (ut, dut) = normalised_coord(hit.u);
-                        let (vt, dvt) = normalised_coord(hit.v);
-                        (ut, dut, vt, dvt)
-                    } else {
-                        (F::ZERO, F::ZERO, F::ZERO, F::ZERO)
-                    };
-                    let gc = p.gc;
-                    let gn = p.gn;
-                    if CI {
-                        weights(cf.vertices, ut, vt, &mut wc);
-                        weight_grads(cf.vertices, ut, vt, &mut wcu, &mut wcv);
-                        cf.eval(gid, &wc, &mut col);
-                    } else {
-                        col = sp.color;
-                    }
-                    // Distortion depth m(z) and dm/dz, only when the distortion has a gradient.
-                    let (m, dm_dz) = if DIST {
-                        let inv_z = F::ONE / hit.z;
-                        (m_scale * (F::ONE - near * inv_z), m_scale * near * inv_z * inv_z)
-                    } else {
-                        (F::ZERO, F::ZERO)
-                    };
-                    let mut gw = gc[0] * col[0]
-                        + gc[1] * col[1]
-                        + gc[2] * col[2]
-                        + p.go
-                        + p.gd * hit.z
-                        + gn[0] * sp.normal[0]
-                        + gn[1] * sp.normal[1]
-                        + gn[2] * sp.normal[2];
-                    if DIST {
-                        gw += p.gdist * (p.a * m * m - two * m * p.m1 + p.m2);
-                    }
-                    // d/du~, d/dv~ of sum_ch g_ch f_ch(u~, v~), times w.
-                    let (mut gut, mut gvt) = (F::ZERO, F::ZERO);
-                    if CI {
-                        for vtx in 0..cf.vertices {
-                            let row = &cf.data[(gid * cf.vertices + vtx) * 3..(gid * cf.vertices + vtx + 1) * 3];
-                            let dot = gc[0] * row[0] + gc[1] * row[1] + gc[2] * row[2];
-                            let cw = wgt * wc[vtx];
-                            for ch in 0..3 {
-                                slot[OFF_COL + vtx * 3 + ch] += cw * gc[ch];
-                            }
-                            gut += wcu[vtx] * dot;
-                            gvt += wcv[vtx] * dot;
-                        }
-                    } else {
+                let xf = xa_f + offs[i];
+                let hit = hit_from_row(sp.center, sp.opacity, &ev, i, xf, yf);
+                // One reciprocal for both divisions by (1 - alpha_i).
+                let inv_one_m = F::ONE / (F::ONE - hit.alpha);
+                let ti = p.t * inv_one_m;
+                p.t = ti;
+                let wgt = hit.alpha * ti;
+                let (ut, dut, vt, dvt) = if interp {
+                    let (ut, dut) = normalised_coord(hit.u);
+                    let (vt, dvt) = normalised_coord(hit.v);
+                    (ut, dut, vt, dvt)
+                } else {
+                    (F::ZERO, F::ZERO, F::ZERO, F::ZERO)
+                };
+                let gc = p.gc;
+                let gn = p.gn;
+                if CI {
+                    weights(cf.vertices, ut, vt, &mut wc);
+                    weight_grads(cf.vertices, ut, vt, &mut wcu, &mut wcv);
+                    cf.eval(gid, &wc, &mut col);
+                } else {
+                    col = sp.color;
+                }
+                // Distortion depth m(z) and dm/dz, only when the distortion has a gradient.
+                let (m, dm_dz) = if DIST {
+                    let inv_z = F::ONE / hit.z;
+                    (m_scale * (F::ONE - near * inv_z), m_scale * near * inv_z * inv_z)
+                } else {
+                    (F::ZERO, F::ZERO)
+                };
+                let mut gw = gc[0] * col[0]
+                    + gc[1] * col[1]
+                    + gc[2] * col[2]
+                    + p.go
+                    + p.gd * hit.z
+                    + gn[0] * sp.normal[0]
+                    + gn[1] * sp.normal[1]
+                    + gn[2] * sp.normal[2];
+                if DIST {
+                    gw += p.gdist * (p.a * m * m - two * m * p.m1 + p.m2);
+                }
+                // d/du~, d/dv~ of sum_ch g_ch f_ch(u~, v~), times w.
+                let (mut gut, mut gvt) = (F::ZERO, F::ZERO);
+                if CI {
+                    for vtx in 0..cf.vertices {
+                        let row = &cf.data[(gid * cf.vertices + vtx) * 3..(gid * cf.vertices + vtx + 1) * 3];
+                        let dot = gc[0] * row[0] + gc[1] * row[1] + gc[2] * row[2];
+                        let cw = wgt * wc[vtx];
                         for ch in 0..3 {
-                            v_col[ch] += wgt * gc[ch];
+                            slot[OFF_COL + vtx * 3 + ch] += cw * gc[ch];
                         }
+                        gut += wcu[vtx] * dot;
+                        gvt += wcv[vtx] * dot;
                     }
-                    if EX {
-                        if ef.vertices > 1 {
-                            weights(ef.vertices, ut, vt, &mut we);
-                            weight_grads(ef.vertices, ut, vt, &mut weu, &mut wev);
-                        } else {
-                            we[0] = F::ONE;
-                        }
-                        ef.eval(gid, &we, &mut ext);
-                        let ge = &ge_px[li * ce..(li + 1) * ce];
-                        for ch in 0..ce {
-                            gw += ge[ch] * ext[ch];
-                        }
-                        for vtx in 0..ef.vertices {
-                            let base = (gid * ef.vertices + vtx) * ce;
-                            let row = &ef.data[base..base + ce];
-                            let cw = wgt * we[vtx];
-                            let mut dot = F::ZERO;
-                            for ch in 0..ce {
-                                slot[ctx.off_ext + vtx * ce + ch] += cw * ge[ch];
-                                dot += ge[ch] * row[ch];
-                            }
-                            if ef.vertices > 1 {
-                                gut += weu[vtx] * dot;
-                                gvt += wev[vtx] * dot;
-                            }
-                        }
-                    }
-                    let v_alpha = ti * gw - p.acc * inv_one_m;
-                    p.acc += gw * wgt;
+                } else {
                     for ch in 0..3 {
-                        v_n[ch] += wgt * gn[ch];
+                        v_col[ch] += wgt * gc[ch];
                     }
-                    // Depth: D = sum w z; distortion: dDist/dm_i = 2 w_i (m_i A - M1).
-                    let mut v_z = wgt * p.gd;
-                    if DIST {
-                        v_z += p.gdist * two * wgt * (m * p.a - p.m1) * dm_dz;
-                    }
-                    let (v_u, v_v) = if interp { (wgt * gut * dut, wgt * gvt * dvt) } else { (F::ZERO, F::ZERO) };
-                    intersect_backward(&hit, &sp.h, sp.center, sp.opacity, xf, yf, v_alpha, v_z, v_u, v_v, &mut sg);
                 }
-            }
-            if !CI {
+                if EX {
+                    if ef.vertices > 1 {
+                        weights(ef.vertices, ut, vt, &mut we);
+                        weight_grads(ef.vertices, ut, vt, &mut weu, &mut wev);
+                    } else {
+                        we[0] = F::ONE;
+                    }
+                    ef.eval(gid, &we, ext);
+                    let ge = &ge_px[li * ce..(li + 1) * ce];
+                    for ch in 0..ce {
+                        gw += ge[ch] * ext[ch];
+                    }
+                    for vtx in 0..ef.vertices {
+                        let base = (gid * ef.vertices + vtx) * ce;
+                        let row = &ef.data[base..base + ce];
+                        let cw = wgt * we[vtx];
+                        let mut dot = F::ZERO;
+                        for ch in 0..ce {
+                            slot[ctx.off_ext + vtx * ce + ch] += cw * ge[ch];
+                            dot += ge[ch] * row[ch];
+                        }
+                        if ef.vertices > 1 {
+                            gut += weu[vtx] * dot;
+                            gvt += wev[vtx] * dot;
+                        }
+                    }
+                }
+                let v_alpha = ti * gw - p.acc * inv_one_m;
+                p.acc += gw * wgt;
                 for ch in 0..3 {
-                    slot[OFF_COL + ch] += v_col[ch];
+                    v_n[ch] += wgt * gn[ch];
                 }
+                // Depth: D = sum w z; distortion: dDist/dm_i = 2 w_i (m_i A - M1).
+                let mut v_z = wgt * p.gd;
+                if DIST {
+                    v_z += p.gdist * two * wgt * (m * p.a - p.m1) * dm_dz;
+                }
+                let (v_u, v_v) = if interp { (wgt * gut * dut, wgt * gvt * dvt) } else { (F::ZERO, F::ZERO) };
+                intersect_backward(&hit, &sp.h, sp.center, sp.opacity, xf, yf, v_alpha, v_z, v_u, v_v, &mut sg);
             }
-            let v_h = sg.h_grad(&sp.h);
-            for j in 0..9 {
-                slot[OFF_H + j] += v_h[j];
+        }
+        if !CI {
+            for ch in 0..3 {
+                slot[OFF_COL + ch] += v_col[ch];
             }
-            slot[OFF_C] += sg.center[0];
-            slot[OFF_C + 1] += sg.center[1];
-            slot[OFF_OP] += sg.opacity;
-            for j in 0..3 {
-                slot[OFF_N + j] += v_n[j];
-            }
+        }
+        let v_h = sg.h_grad(&sp.h);
+        for j in 0..9 {
+            slot[OFF_H + j] += v_h[j];
+        }
+        slot[OFF_C] += sg.center[0];
+        slot[OFF_C + 1] += sg.center[1];
+        slot[OFF_OP] += sg.opacity;
+        for j in 0..3 {
+            slot[OFF_N + j] += v_n[j];
         }
     }
 }
