@@ -366,7 +366,7 @@ fn backward_tile_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
                     continue;
                 }
                 let xf = xa_f + offs[i];
-                let hit = hit_from_row(sp.center, sp.opacity, &ev, i, xf, yf);
+                let hit = hit_from_row(sp.center, sp.opacity, ev, i, xf, yf);
                 // One reciprocal for both divisions by (1 - alpha_i).
                 let inv_one_m = F::ONE / (F::ONE - hit.alpha);
                 let ti = p.t * inv_one_m;

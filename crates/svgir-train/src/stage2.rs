@@ -97,10 +97,18 @@ pub struct Stage2Config {
     pub visibility: bool,
     pub indirect: bool,
     pub consistency: bool,
-    /// Tracing: continuation offset after a hit, and the tracing range (SPEC 5, 9.5).
+    /// Tracing: continuation offset after a hit, world units. SPEC 5 says 0.05; we default to
+    /// [`DEFAULT_TRACE_EPS`] (see there).
     pub trace_eps: f32,
     /// `None`: unbounded (SPEC 9.5).
     pub trace_t_max: Option<f32>,
+    /// Extra continuation offset in multiples of the hit surfel's size (`TraceParams::eps_scale`).
+    #[serde(default)]
+    pub trace_eps_scale: f32,
+    /// Rays start this many of their own surfel's max scales away (`TraceParams::t_min_scale`:
+    /// 3, the rim of its 3-sigma disk).
+    #[serde(default = "default_trace_start_scale")]
+    pub trace_start_scale: f32,
     /// L_rc is a mean over visible Gaussians; estimate it on at most this many, drawn at random
     /// each iteration (unbiased for the mean, and it keeps the loss cheap on the CPU).
     pub consistency_samples: usize,
@@ -119,8 +127,22 @@ pub struct Stage2Config {
     pub env_activation: EnvActivation,
 }
 
+/// Our default continuation offset after a hit. SPEC 5's 0.05 world units skips the other
+/// overlapping surfels of the surface just hit (a surfel's 3-sigma radius is ~0.1 on our
+/// synthetic scenes), so a surface takes only one surfel's alpha off the transmittance and
+/// lets the rest through: visibility leaks. The traversal visits every hit once in (t, id) order
+/// anyway, so no offset is needed against re-hits. Measured on cup_and_ball with ground-truth
+/// materials and light (relighting K = 128): relighting 23.1 -> 25.6 dB, and the render without
+/// indirect light becomes as dark as with visibility against the true mesh (GT/ours 1.14-1.20
+/// against the mesh oracle's 1.16-1.20), where 0.05 left it at 0.96-0.99.
+pub const DEFAULT_TRACE_EPS: f32 = 1e-4;
+
 fn default_lights_every() -> u64 {
     100
+}
+
+fn default_trace_start_scale() -> f32 {
+    TraceParams::default().t_min_scale
 }
 
 /// The learned environment map's initial parameters.
@@ -147,8 +169,10 @@ impl Default for Stage2Config {
             visibility: true,
             indirect: true,
             consistency: true,
-            trace_eps: 0.05,
+            trace_eps: DEFAULT_TRACE_EPS,
             trace_t_max: None,
+            trace_eps_scale: 0.0,
+            trace_start_scale: default_trace_start_scale(),
             consistency_samples: 8192,
             env_init: EnvInit::Random,
             lights: 0,
@@ -160,7 +184,13 @@ impl Default for Stage2Config {
 
 impl Stage2Config {
     pub fn trace_params(&self) -> TraceParams {
-        TraceParams { eps: self.trace_eps, t_max: self.trace_t_max.unwrap_or(f32::INFINITY), ..TraceParams::default() }
+        TraceParams {
+            eps: self.trace_eps,
+            eps_scale: self.trace_eps_scale,
+            t_min_scale: self.trace_start_scale,
+            t_max: self.trace_t_max.unwrap_or(f32::INFINITY),
+            ..TraceParams::default()
+        }
     }
 }
 

@@ -98,6 +98,17 @@ pub struct InverseArgs {
     /// radiance within a schedule (use with --lights).
     #[arg(long, value_enum, default_value_t = EnvActivationArg::Softplus)]
     pub env_activation: EnvActivationArg,
+    /// Tracing: continuation offset after a hit, world units (SPEC 5: 0.05, which lets light
+    /// leak through surfaces made of overlapping surfels; see `DEFAULT_TRACE_EPS`).
+    #[arg(long, default_value_t = svgir_train::stage2::DEFAULT_TRACE_EPS)]
+    pub trace_eps: f32,
+    /// Tracing: extra continuation offset in multiples of the hit surfel's max scale.
+    #[arg(long, default_value_t = 0.0)]
+    pub trace_eps_scale: f32,
+    /// Tracing: rays start this many of their own surfel's max scales away (3: the rim of its
+    /// 3-sigma disk, so neighbours on the same surface do not occlude it).
+    #[arg(long, default_value_t = 3.0)]
+    pub trace_start_scale: f32,
 }
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -155,6 +166,9 @@ pub fn run(args: InverseArgs) -> Result<()> {
             EnvActivationArg::Softplus => EnvActivation::Softplus,
             EnvActivationArg::Exp => EnvActivation::Exp,
         },
+        trace_eps: args.trace_eps,
+        trace_eps_scale: args.trace_eps_scale,
+        trace_start_scale: args.trace_start_scale,
         ..Stage2Config::default()
     };
     let ckpt = out.join("checkpoint.bin");
