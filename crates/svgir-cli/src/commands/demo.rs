@@ -54,6 +54,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         opacity_reset_every: None,
     })?;
     eprintln!("svgir demo: stage 2 ({iterations2} iterations)");
+    let trace = svgir_train::Stage2Config::default();
     inverse::run(inverse::InverseArgs {
         run: args.out.clone(),
         data: None,
@@ -79,9 +80,9 @@ pub fn run(args: DemoArgs) -> Result<()> {
         lights: 0,
         lights_every: 100,
         env_activation: inverse::EnvActivationArg::Softplus,
-        trace_eps: svgir_train::stage2::DEFAULT_TRACE_EPS,
-        trace_eps_scale: 0.0,
-        trace_start_scale: 3.0,
+        trace_eps: trace.trace_eps,
+        trace_eps_scale: trace.trace_eps_scale,
+        trace_start_scale: trace.trace_start_scale,
         // The quick demo (a CI test) keeps its 16 training directions; the full demo relights
         // with 128 rather than SPEC 7's 384 (`svgir inverse`'s default) to stay a few minutes
         // long (K is recorded in eval.json).

@@ -100,14 +100,14 @@ pub struct InverseArgs {
     pub env_activation: EnvActivationArg,
     /// Tracing: continuation offset after a hit, world units (SPEC 5: 0.05, which lets light
     /// leak through surfaces made of overlapping surfels; see `DEFAULT_TRACE_EPS`).
-    #[arg(long, default_value_t = svgir_train::stage2::DEFAULT_TRACE_EPS)]
+    #[arg(long, default_value_t = Stage2Config::default().trace_eps)]
     pub trace_eps: f32,
     /// Tracing: extra continuation offset in multiples of the hit surfel's max scale.
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(long, default_value_t = Stage2Config::default().trace_eps_scale)]
     pub trace_eps_scale: f32,
     /// Tracing: rays start this many of their own surfel's max scales away (3: the rim of its
     /// 3-sigma disk, so neighbours on the same surface do not occlude it).
-    #[arg(long, default_value_t = 3.0)]
+    #[arg(long, default_value_t = Stage2Config::default().trace_start_scale)]
     pub trace_start_scale: f32,
 }
 
