@@ -61,6 +61,61 @@ pub fn brightest_texels(env: &EnvMap, count: usize) -> Vec<u32> {
     power.into_iter().take(count).map(|(_, t)| t).collect()
 }
 
+/// Gather the power of the map's brightest lobe into one texel (the sun as a light).
+///
+/// SPEC 4's K-direction estimator can only learn a sun as a broad lobe: a single texel is hit by
+/// a sample for about 1% of the Gaussians. Once that lobe has formed, this moves its power above
+/// the surrounding sky into the lobe's brightest texel, where a directional light
+/// ([`BrightLights`]) can cast the sun's hard shadows. The lobe is every texel within
+/// `radius` radians of the peak; the sky level is the per-channel median over the ring between
+/// `radius` and `2 radius`. Per channel, the lobe's excess `sum max(L_t - sky, 0) Omega_t` is
+/// removed from its texels and added to the peak texel divided by the peak's solid angle, so the
+/// map's total power `sum L_t Omega_t` is unchanged. Returns the new map and the peak texel.
+pub fn concentrate_lobe(env: &EnvMap, radius: f32) -> (EnvMap, u32) {
+    let (w, h) = (env.width, env.height);
+    let lum = |t: [f32; 3]| 0.2126 * t[0] + 0.7152 * t[1] + 0.0722 * t[2];
+    // Brightest by radiance (ties by index): the lobe's peak, not the largest-area texel.
+    let peak = (0..w * h).fold(
+        0u32,
+        |best, t| {
+            if lum(env.data[t as usize]) > lum(env.data[best as usize]) {
+                t
+            } else {
+                best
+            }
+        },
+    );
+    let dir = |t: u32| env.texel_dir(t / w, t % w).normalize();
+    let d0 = dir(peak);
+    let angle = |t: u32| d0.dot(dir(t)).clamp(-1.0, 1.0).acos();
+    let mut sky = [0.0f32; 3];
+    for (c, s) in sky.iter_mut().enumerate() {
+        let mut ring: Vec<f32> = (0..w * h)
+            .filter(|&t| (radius..2.0 * radius).contains(&angle(t)))
+            .map(|t| env.data[t as usize][c])
+            .collect();
+        ring.sort_by(f32::total_cmp);
+        *s = ring.get(ring.len() / 2).copied().unwrap_or(0.0);
+    }
+    let mut out = env.clone();
+    let mut excess = [0.0f64; 3];
+    for t in (0..w * h).filter(|&t| angle(t) < radius) {
+        let omega = env.texel_solid_angle(t / w, t % w) as f64;
+        for c in 0..3 {
+            let x = env.data[t as usize][c];
+            if x > sky[c] {
+                excess[c] += (x - sky[c]) as f64 * omega;
+                out.data[t as usize][c] = sky[c];
+            }
+        }
+    }
+    let omega = env.texel_solid_angle(peak / w, peak % w) as f64;
+    for c in 0..3 {
+        out.data[peak as usize][c] += (excess[c] / omega) as f32;
+    }
+    (out, peak)
+}
+
 impl BrightLights {
     /// No lights: every texel is sampled as in SPEC 4.
     pub fn empty(width: u32, height: u32) -> Self {
@@ -226,6 +281,40 @@ mod tests {
     use super::*;
     use crate::scenes::object_scene;
     use crate::{Bvh, MicroBuffer};
+
+    #[test]
+    fn concentrate_lobe_moves_the_lobe_power_into_its_peak() {
+        let mut env = EnvMap::constant(64, 32, [1.0, 2.0, 3.0]);
+        let (w, h) = (env.width, env.height);
+        let sun = env.texel_dir(8, 20).normalize();
+        for t in 0..w * h {
+            let a = sun.dot(env.texel_dir(t / w, t % w).normalize()).clamp(-1.0, 1.0).acos();
+            let bump = 40.0 * (-(a / 0.15).powi(2)).exp();
+            env.data[t as usize] = [1.0 + bump, 2.0 + 0.5 * bump, 3.0];
+        }
+        let power = |m: &EnvMap| {
+            let mut p = [0.0f64; 3];
+            for t in 0..w * h {
+                let o = m.texel_solid_angle(t / w, t % w) as f64;
+                (0..3).for_each(|c| p[c] += m.data[t as usize][c] as f64 * o);
+            }
+            p
+        };
+        let (out, peak) = concentrate_lobe(&env, 0.5);
+        assert_eq!(peak, 8 * w + 20);
+        let (before, after) = (power(&env), power(&out));
+        for c in 0..3 {
+            assert!((before[c] - after[c]).abs() < 1e-4 * before[c], "channel {c}: {} vs {}", before[c], after[c]);
+        }
+        // The lobe is flattened to the sky level, the peak holds its power, the rest is untouched.
+        assert_eq!(out.data[(8 * w + 22) as usize], [1.0, 2.0, 3.0]);
+        assert_eq!(out.data[(24 * w + 50) as usize], env.data[(24 * w + 50) as usize]);
+        let o = env.texel_solid_angle(8, 20) as f64;
+        let lobe_r =
+            (before[0] - 1.0 * (0..w * h).map(|t| env.texel_solid_angle(t / w, t % w) as f64).sum::<f64>()) / o;
+        assert!(((out.data[peak as usize][0] as f64 - 1.0) - lobe_r).abs() < 1e-2 * lobe_r);
+        assert!(out.data[peak as usize][2] == 3.0, "a channel without a lobe gains nothing");
+    }
 
     #[test]
     fn brightest_texels_rank_by_power() {

@@ -23,7 +23,7 @@ pub mod reference;
 pub mod scenes;
 pub mod traverse;
 
-pub use bright::{brightest_texels, BrightLights};
+pub use bright::{brightest_texels, concentrate_lobe, BrightLights};
 pub use bvh::{Bvh, Node};
 pub use gather::{gather_all, gather_one, gather_pairs, GatherParams, VertexMaterials};
 pub use gather_backward::{gather_all_backward, gather_one_backward, gather_pairs_backward, GatherGrads};

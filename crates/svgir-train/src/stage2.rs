@@ -29,7 +29,7 @@ use svgir_pbr::{
     SvgMaterials,
 };
 use svgir_raster::{backward, render, Background, ColorSource, Features, OutputGrads, RasterConfig, RenderInput};
-use svgir_trace::{brightest_texels, BrightLights, Bvh, GatherParams, MicroBuffer, TraceParams};
+use svgir_trace::{brightest_texels, concentrate_lobe, BrightLights, Bvh, GatherParams, MicroBuffer, TraceParams};
 
 /// Extra channels rasterised with the PBR image: albedo (3), roughness (1), shading normal (3).
 pub const EXTRA_CHANNELS: usize = 7;
@@ -125,6 +125,18 @@ pub struct Stage2Config {
     /// Radiance activation of the learned map (SPEC 4: softplus).
     #[serde(default)]
     pub env_activation: EnvActivation,
+    /// At this iteration (0: never), gather the learned map's brightest lobe into one texel
+    /// (`svgir_trace::concentrate_lobe`), which then becomes a directional light: the K samples
+    /// learn a sun only as a broad lobe, whose shadows are soft. Needs `lights > 0`.
+    #[serde(default)]
+    pub sun_at: u64,
+    /// Angular radius of the lobe gathered at `sun_at`, degrees.
+    #[serde(default = "default_sun_radius_deg")]
+    pub sun_radius_deg: f32,
+}
+
+fn default_sun_radius_deg() -> f32 {
+    30.0
 }
 
 /// Our default continuation offset after a hit. SPEC 5's 0.05 world units skips the other
@@ -178,6 +190,8 @@ impl Default for Stage2Config {
             lights: 0,
             lights_every: default_lights_every(),
             env_activation: EnvActivation::Softplus,
+            sun_at: 0,
+            sun_radius_deg: default_sun_radius_deg(),
         }
     }
 }
@@ -345,6 +359,21 @@ impl Stage2 {
         Ok(())
     }
 
+    /// Gather the learned map's brightest lobe into its peak texel and make that texel a light
+    /// (see `Stage2Config::sun_at`). The map's Adam moments restart: they belong to the old map.
+    pub fn concentrate_sun(&mut self) -> Result<(), PbrError> {
+        let (map, peak) = concentrate_lobe(&self.env.radiance(), self.config.sun_radius_deg.to_radians());
+        self.env = EnvLight::from_radiance(&map)?.with_activation(self.config.env_activation)?;
+        let env_group = &mut self.groups[5];
+        (0..env_group.rows()).for_each(|r| env_group.reset_row(r));
+        let mut texels = brightest_texels(&map, self.config.lights);
+        if !texels.contains(&peak) {
+            texels.insert(0, peak);
+            texels.truncate(self.config.lights.max(1));
+        }
+        self.set_lights(&texels)
+    }
+
     /// The lights to shade with, `None` when there are none.
     pub fn active_lights(&self) -> Option<&BrightLights> {
         (!self.lights.is_empty()).then_some(&self.lights)
@@ -394,6 +423,9 @@ impl Stage2 {
     pub fn step(&mut self, dataset: &Dataset) -> Result<Stage2Step, PbrError> {
         let cfg = self.config.clone();
         let wts = &cfg.weights;
+        if cfg.lights > 0 && cfg.sun_at > 0 && self.iteration == cfg.sun_at {
+            self.concentrate_sun()?;
+        }
         if cfg.lights > 0 && self.iteration.is_multiple_of(cfg.lights_every.max(1)) {
             self.set_lights(&brightest_texels(&self.env.radiance(), cfg.lights))?;
         }

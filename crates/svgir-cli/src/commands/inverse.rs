@@ -38,6 +38,11 @@ pub struct InverseArgs {
     /// the model under the true light. Not a result: it reads ground truth.
     #[arg(long)]
     pub oracle_light: bool,
+    /// Diagnostic: train the materials under the dataset's true training light, held fixed
+    /// (its brightest texels as directional lights when --lights > 0): how well the materials
+    /// are recovered when the light is known. Not a result: it reads ground truth.
+    #[arg(long)]
+    pub train_true_light: bool,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Gaussian vertices per surfel: 1 (constant material), 2, 4 or 6.
@@ -98,6 +103,13 @@ pub struct InverseArgs {
     /// radiance within a schedule (use with --lights).
     #[arg(long, value_enum, default_value_t = EnvActivationArg::Softplus)]
     pub env_activation: EnvActivationArg,
+    /// At this iteration, gather the learned map's brightest lobe (within --sun-radius degrees)
+    /// into one texel, shaded from then on as a directional light (a sun; needs --lights; use
+    /// with --env-activation exp so its radiance stays trainable). 0: never.
+    #[arg(long, default_value_t = 0)]
+    pub sun_at: u64,
+    #[arg(long, default_value_t = Stage2Config::default().sun_radius_deg)]
+    pub sun_radius: f32,
     /// Tracing: continuation offset after a hit, world units (SPEC 5: 0.05, which lets light
     /// leak through surfaces made of overlapping surfels; see `DEFAULT_TRACE_EPS`).
     #[arg(long, default_value_t = Stage2Config::default().trace_eps)]
@@ -159,7 +171,12 @@ pub fn run(args: InverseArgs) -> Result<()> {
             EnvInitArg::Random => EnvInit::Random,
             EnvInitArg::Uniform => EnvInit::Uniform,
         },
-        lr: Stage2Rates { rho: args.rho_lr, albedo: args.albedo_lr, ..Stage2Rates::default() },
+        lr: Stage2Rates {
+            rho: args.rho_lr,
+            albedo: args.albedo_lr,
+            env: if args.train_true_light { 0.0 } else { Stage2Rates::default().env },
+            ..Stage2Rates::default()
+        },
         lights: args.lights,
         lights_every: args.lights_every.max(1),
         env_activation: match args.env_activation {
@@ -169,6 +186,8 @@ pub fn run(args: InverseArgs) -> Result<()> {
         trace_eps: args.trace_eps,
         trace_eps_scale: args.trace_eps_scale,
         trace_start_scale: args.trace_start_scale,
+        sun_at: args.sun_at,
+        sun_radius_deg: args.sun_radius,
         ..Stage2Config::default()
     };
     let ckpt = out.join("checkpoint.bin");
@@ -187,8 +206,11 @@ pub fn run(args: InverseArgs) -> Result<()> {
         std::fs::write(out.join("config.json"), serde_json::to_string_pretty(&meta)?)?;
         let _ = std::fs::remove_file(out.join("metrics.jsonl"));
         eprintln!("stage 2: tracing {} Gaussians x {} directions...", stage1.surfels.len(), config.directions);
-        let s2 = Stage2::new(config, stage1.surfels.clone(), &dataset)?;
+        let mut s2 = Stage2::new(config, stage1.surfels.clone(), &dataset)?;
         eprintln!("micro-buffers traced in {:.1} s", s2.trace_seconds);
+        if args.train_true_light {
+            set_true_light(&mut s2, &dataset)?;
+        }
         s2
     };
     let stop = super::train::interrupt_flag();
@@ -230,13 +252,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         anyhow::ensure!(st.views > 0, "--oracle-materials: the training views have no albedo/roughness maps");
     }
     if args.oracle_light {
-        let light = dataset.train_light.as_ref().context("--oracle-light: the dataset names no training light")?;
-        let path =
-            light.envmap_path.as_ref().context("--oracle-light: the training light's map is not in the dataset")?;
-        let map = svgir_io::read_envmap(path, light.strength, s2.config.env_height)?;
-        s2.env = svgir_pbr::EnvLight::from_radiance(&map)?.with_activation(s2.config.env_activation)?;
-        s2.set_lights(&svgir_trace::brightest_texels(&map, s2.config.lights))?;
-        eprintln!("oracle light: {} (strength {})", path.display(), light.strength);
+        set_true_light(&mut s2, &dataset)?;
     }
     let lpips = load_lpips(args.lpips)?;
     let eval = evaluate(&s2, &dataset, &out, lpips.as_ref(), args.turntable, args.relight_directions)?;
@@ -266,6 +282,17 @@ pub fn run(args: InverseArgs) -> Result<()> {
     svgir_io::ply::write_gaussians_ply(out.join("point_cloud_svg.ply"), &s2.surfels, &extras)?;
     println!("stage 2: {}", serde_json::to_string(&eval_out)?);
     println!("results: {}", out.display());
+    Ok(())
+}
+
+/// Replace the learned light by the dataset's training light (diagnostics; reads ground truth).
+fn set_true_light(s2: &mut Stage2, dataset: &Dataset) -> Result<()> {
+    let light = dataset.train_light.as_ref().context("--oracle-light: the dataset names no training light")?;
+    let path = light.envmap_path.as_ref().context("--oracle-light: the training light's map is not in the dataset")?;
+    let map = svgir_io::read_envmap(path, light.strength, s2.config.env_height)?;
+    s2.env = svgir_pbr::EnvLight::from_radiance(&map)?.with_activation(s2.config.env_activation)?;
+    s2.set_lights(&svgir_trace::brightest_texels(&map, s2.config.lights))?;
+    eprintln!("true light: {} (strength {})", path.display(), light.strength);
     Ok(())
 }
 
