@@ -64,6 +64,29 @@ impl Default for Stage2Weights {
     }
 }
 
+impl Stage2Weights {
+    /// The weights' names, as `set` and the run config spell them.
+    pub const NAMES: [&'static str; 8] =
+        ["l1", "ssim", "consistency", "normal", "smooth_albedo", "smooth_roughness", "normal_offset", "env_tv"];
+
+    /// Set one weight by name; `None` when no weight has that name (see `NAMES`).
+    pub fn set(&mut self, name: &str, value: f32) -> Option<()> {
+        let w = match name {
+            "l1" => &mut self.l1,
+            "ssim" => &mut self.ssim,
+            "consistency" => &mut self.consistency,
+            "normal" => &mut self.normal,
+            "smooth_albedo" => &mut self.smooth_albedo,
+            "smooth_roughness" => &mut self.smooth_roughness,
+            "normal_offset" => &mut self.normal_offset,
+            "env_tv" => &mut self.env_tv,
+            _ => return None,
+        };
+        *w = value;
+        Some(())
+    }
+}
+
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Stage2Rates {
     pub opacity: f32,

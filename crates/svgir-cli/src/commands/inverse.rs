@@ -15,7 +15,7 @@ use svgir_core::{Dataset, Image, LightInfo};
 use svgir_metrics::{evaluate_pair, ImageMetrics, Lpips, SsimVariant};
 use svgir_pbr::EnvActivation;
 use svgir_train::relight::Relighter;
-use svgir_train::stage2::{EnvInit, Stage2Rates};
+use svgir_train::stage2::{EnvInit, Stage2Rates, Stage2Weights};
 use svgir_train::{checkpoint, Stage2, Stage2Config};
 
 #[derive(Args)]
@@ -121,6 +121,24 @@ pub struct InverseArgs {
     /// 3-sigma disk, so neighbours on the same surface do not occlude it).
     #[arg(long, default_value_t = Stage2Config::default().trace_start_scale)]
     pub trace_start_scale: f32,
+    /// Loss weight, repeatable: l1, ssim, consistency, normal, smooth_albedo, smooth_roughness,
+    /// normal_offset or env_tv (defaults: SPEC 6, Eqn 15).
+    #[arg(long = "weight", value_name = "NAME=VALUE")]
+    pub weights: Vec<String>,
+}
+
+/// Stage 2's loss weights: SPEC 6's, with each `NAME=VALUE` of `--weight` applied.
+fn loss_weights(overrides: &[String]) -> Result<Stage2Weights> {
+    let mut weights = Stage2Weights::default();
+    for item in overrides {
+        let (name, value) = item.split_once('=').with_context(|| format!("--weight {item}: expected NAME=VALUE"))?;
+        let value: f32 = value.trim().parse().with_context(|| format!("--weight {item}: {value:?} is not a number"))?;
+        anyhow::ensure!(value.is_finite() && value >= 0.0, "--weight {item}: a weight must be finite and >= 0");
+        weights.set(name.trim(), value).with_context(|| {
+            format!("--weight {item}: no weight named {name:?} (one of {})", Stage2Weights::NAMES.join(", "))
+        })?;
+    }
+    Ok(weights)
 }
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -188,6 +206,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         trace_start_scale: args.trace_start_scale,
         sun_at: args.sun_at,
         sun_radius_deg: args.sun_radius,
+        weights: loss_weights(&args.weights)?,
         ..Stage2Config::default()
     };
     let ckpt = out.join("checkpoint.bin");
@@ -510,4 +529,26 @@ fn evaluate(
         result["relight"] = json!({"mean": mean_json(&all), "per_light": per_light});
     }
     Ok(result)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::loss_weights;
+
+    #[test]
+    fn weight_overrides_apply_and_bad_ones_are_named() {
+        let w = loss_weights(&["smooth_albedo=0.5".into(), " env_tv = 0 ".into()]).unwrap();
+        assert_eq!((w.smooth_albedo, w.env_tv), (0.5, 0.0));
+        assert_eq!(w.l1, 0.9);
+        for (bad, says) in [
+            ("albedo=1", "no weight named"),
+            ("smooth_albedo", "expected NAME=VALUE"),
+            ("l1=x", "not a number"),
+            ("l1=-1", ">= 0"),
+            ("l1=NaN", "finite"),
+        ] {
+            let err = format!("{:#}", loss_weights(&[bad.into()]).unwrap_err());
+            assert!(err.contains(says) && err.contains(bad), "{bad}: {err}");
+        }
+    }
 }
