@@ -1,6 +1,6 @@
 //! End-to-end stage-2 tests on a real scene, downscaled: material/light fitting raises the PBR
 //! image's PSNR on test views, and a resumed run continues bit-identically, with and without
-//! directional lights.
+//! directional lights and the sun gathered into one of them.
 
 use std::path::PathBuf;
 use svgir_core::{Dataset, Rng, Surfels};
@@ -50,12 +50,14 @@ fn stage2_raises_pbr_psnr_and_resumes_bit_identically() {
     let Some(ds) = scene() else { return };
     let surfels = stage1(&ds);
     let spec = Stage2Config { iterations: 120, directions: 16, ..Stage2Config::default() };
-    // Directional lights, re-selected before and after the checkpoint (iterations 80 and 120).
+    // Directional lights, re-selected before and after the checkpoint (iterations 80 and 120),
+    // and the sun gathered into one texel after it (iteration 110), in the run and its resumption.
     let lit = Stage2Config {
         iterations: 130,
         lights: 8,
         lights_every: 40,
         env_activation: EnvActivation::Exp,
+        sun_at: 110,
         ..spec.clone()
     };
     for cfg in [spec, lit] {
