@@ -27,6 +27,7 @@
 use crate::bvh::Bvh;
 use crate::hit::{Disk, Hit};
 use glam::Vec3;
+use svgir_core::color::srgb_to_linear;
 use svgir_core::{ShCoeffs, Surfels};
 
 /// Capacity of the per-traversal hit buffer.
@@ -56,6 +57,10 @@ pub struct TraceParams {
     /// Accept only hits where the ray arrives against the disk's normal (n.d < 0), as the
     /// reference tracer does. Not in the SPEC text, default off; it needs outward-oriented normals.
     pub cull_backfaces: bool,
+    /// Decode each hit's SH colour from sRGB to linear before accumulating it. Stage 1 fits the
+    /// SH to sRGB photos, so its colours are sRGB-encoded, while stage 2 adds the traced radiance
+    /// to linear shading (SPEC 4, 5): without decoding, mid-tones count ~2x too bright.
+    pub linear_radiance: bool,
 }
 
 impl Default for TraceParams {
@@ -70,6 +75,7 @@ impl Default for TraceParams {
             v_cut: 0.2,
             l_max: 10.0,
             cull_backfaces: false,
+            linear_radiance: false,
         }
     }
 }
@@ -312,7 +318,8 @@ pub struct MarchResult {
 }
 
 /// March a ray: at each hit h, `L += c_h(dir) alpha_h T`, `T *= 1 - alpha_h` with
-/// `c_h = max(0, 0.5 + SH_h(dir))` evaluated towards the ray direction; stop when T < t_stop.
+/// `c_h = max(0, 0.5 + SH_h(dir))` evaluated towards the ray direction (decoded from sRGB when
+/// `p.linear_radiance`); stop when T < t_stop.
 pub fn march<S: HitSource>(src: &S, sh: &[ShCoeffs], degree: u32, ray: &Ray, p: &TraceParams) -> MarchResult {
     let mut l = [0.0f32; 3];
     let mut t = 1.0f32;
@@ -323,10 +330,11 @@ pub fn march<S: HitSource>(src: &S, sh: &[ShCoeffs], degree: u32, ray: &Ray, p: 
             first = Some(*h);
         }
         hits += 1;
-        let c = sh[h.id as usize].eval(degree, ray.dir);
+        let c = sh[h.id as usize].eval(degree, ray.dir).map(|x| x.max(0.0));
+        let c = if p.linear_radiance { c.map(srgb_to_linear) } else { c };
         let w = h.alpha * t;
         for ch in 0..3 {
-            l[ch] += c[ch].max(0.0) * w;
+            l[ch] += c[ch] * w;
         }
         t *= 1.0 - h.alpha;
         t >= p.t_stop

@@ -141,6 +141,22 @@ fn stack_of_disks_gives_product_transmittance() {
         assert!((r.radiance[ch] - l[ch]).abs() < 1e-4);
     }
     assert_eq!(r.first.unwrap().id, 0);
+    // Linear radiance: each hit's sRGB colour is decoded before it is weighted (not the sum).
+    let rl = march(&bvh, &s.sh, 0, &ray, &TraceParams { linear_radiance: true, ..p });
+    let mut t = 1.0f32;
+    let mut ll = [0.0f32; 3];
+    for (i, &o) in ops.iter().enumerate() {
+        let c = [0.1 * i as f32, 0.2, 0.9 - 0.1 * i as f32].map(svgir_core::color::srgb_to_linear);
+        for ch in 0..3 {
+            ll[ch] += c[ch] * o * t;
+        }
+        t *= 1.0 - o;
+    }
+    assert_eq!(rl.transmittance, r.transmittance);
+    for ch in 0..3 {
+        assert!((rl.radiance[ch] - ll[ch]).abs() < 1e-5, "{:?} vs {ll:?}", rl.radiance);
+        assert!(rl.radiance[ch] < r.radiance[ch]);
+    }
     // V cut: T = 0.084 < 0.2 -> V = 0 under the default parameters.
     assert_eq!(march(&bvh, &s.sh, 0, &ray, &TraceParams::default()).visibility, 0.0);
     // Continuation offset: with spacing 0.03 < eps = 0.05, hits 0, 2, 4 are taken (1 and 3 skipped).

@@ -86,6 +86,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         trace_eps: trace.trace_eps,
         trace_eps_scale: trace.trace_eps_scale,
         trace_start_scale: trace.trace_start_scale,
+        traced_radiance: inverse::TracedRadianceArg::from_config(&trace),
         weights: Vec::new(),
         // The quick demo (a CI test) keeps its 16 training directions; the full demo relights
         // with 128 rather than SPEC 7's 384 (`svgir inverse`'s default) to stay a few minutes

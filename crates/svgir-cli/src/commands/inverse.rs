@@ -121,6 +121,11 @@ pub struct InverseArgs {
     /// 3-sigma disk, so neighbours on the same surface do not occlude it).
     #[arg(long, default_value_t = Stage2Config::default().trace_start_scale)]
     pub trace_start_scale: f32,
+    /// Colour space of the traced SH radiance used as indirect light (SPEC 5): stage 1 fits the
+    /// SH to sRGB photos, so `linear` decodes each hit's colour before it lights linear shading;
+    /// `srgb` uses it as it is, as the reference code does.
+    #[arg(long, value_enum, default_value_t = TracedRadianceArg::from_config(&Stage2Config::default()))]
+    pub traced_radiance: TracedRadianceArg,
     /// Loss weight, repeatable: l1, ssim, consistency, normal, smooth_albedo, smooth_roughness,
     /// normal_offset or env_tv (defaults: SPEC 6, Eqn 15).
     #[arg(long = "weight", value_name = "NAME=VALUE")]
@@ -145,6 +150,22 @@ fn loss_weights(overrides: &[String]) -> Result<Stage2Weights> {
 pub enum EnvActivationArg {
     Softplus,
     Exp,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum TracedRadianceArg {
+    Srgb,
+    Linear,
+}
+
+impl TracedRadianceArg {
+    pub fn from_config(c: &Stage2Config) -> Self {
+        if c.trace_linear_radiance {
+            Self::Linear
+        } else {
+            Self::Srgb
+        }
+    }
 }
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -204,6 +225,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         trace_eps: args.trace_eps,
         trace_eps_scale: args.trace_eps_scale,
         trace_start_scale: args.trace_start_scale,
+        trace_linear_radiance: args.traced_radiance == TracedRadianceArg::Linear,
         sun_at: args.sun_at,
         sun_radius_deg: args.sun_radius,
         weights: loss_weights(&args.weights)?,

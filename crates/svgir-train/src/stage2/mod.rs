@@ -13,9 +13,14 @@
 //! 3. Losses of Eqn 15 on both images plus L_rc, L_n, smoothness, |dN|^2 and env TV; backward
 //!    through the rasteriser, the shading and the activations; one Adam step per group.
 
+mod config;
+mod render;
+
+pub use config::{EnvInit, Stage2Config, Stage2Rates, Stage2Weights, DEFAULT_TRACE_EPS};
+pub use render::{PbrRender, Shading};
+
 use crate::adam::AdamGroup;
 use crate::composite::{pbr_composite, pbr_composite_backward};
-use crate::config::BackgroundMode;
 use crate::losses::{depth_normal::depth_normal_loss, l1::l1_loss, smoothness::edge_aware_smoothness};
 use crate::orient::orient_normals;
 use crate::stage1::{psnr_of_mse, target_rgb, PhaseTimes};
@@ -25,211 +30,15 @@ use std::time::Instant;
 use svgir_core::{Camera, Dataset, Rng, Surfels};
 use svgir_pbr::{
     radiance_consistency, radiance_consistency_backward, shade_backward_cached, shade_into_cached, ConsistencyInputs,
-    DirectionCache, EnvActivation, EnvLight, Indirect, PbrError, PbrGrads, ShadeInputs, ShadeOutput, ShadeParams,
-    SvgMaterials,
+    DirectionCache, EnvLight, Indirect, PbrError, PbrGrads, ShadeInputs, ShadeOutput, ShadeParams, SvgMaterials,
 };
 use svgir_raster::{backward, render, Background, ColorSource, Features, OutputGrads, RasterConfig, RenderInput};
-use svgir_trace::{brightest_texels, concentrate_lobe, BrightLights, Bvh, GatherParams, MicroBuffer, TraceParams};
+use svgir_trace::{brightest_texels, concentrate_lobe, BrightLights, Bvh, GatherParams, MicroBuffer};
 
 /// Extra channels rasterised with the PBR image: albedo (3), roughness (1), shading normal (3).
 pub const EXTRA_CHANNELS: usize = 7;
 /// Opacity floor when turning composited sums into per-pixel values (SPEC 3).
 const MIN_OPACITY: f32 = crate::composite::MIN_OPACITY as f32;
-
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct Stage2Weights {
-    pub l1: f32,
-    pub ssim: f32,
-    pub consistency: f32,
-    pub normal: f32,
-    pub smooth_albedo: f32,
-    pub smooth_roughness: f32,
-    pub normal_offset: f32,
-    pub env_tv: f32,
-}
-
-impl Default for Stage2Weights {
-    /// SPEC 6 (supplementary) weights; SPEC 9.7 for the normal-offset weight.
-    fn default() -> Self {
-        Self {
-            l1: 0.9,
-            ssim: 0.1,
-            consistency: 0.05,
-            normal: 0.02,
-            smooth_albedo: 0.1,
-            smooth_roughness: 0.05,
-            normal_offset: 0.01,
-            env_tv: 0.02,
-        }
-    }
-}
-
-impl Stage2Weights {
-    /// The weights' names, as `set` and the run config spell them.
-    pub const NAMES: [&'static str; 8] =
-        ["l1", "ssim", "consistency", "normal", "smooth_albedo", "smooth_roughness", "normal_offset", "env_tv"];
-
-    /// Set one weight by name; `None` when no weight has that name (see `NAMES`).
-    pub fn set(&mut self, name: &str, value: f32) -> Option<()> {
-        let w = match name {
-            "l1" => &mut self.l1,
-            "ssim" => &mut self.ssim,
-            "consistency" => &mut self.consistency,
-            "normal" => &mut self.normal,
-            "smooth_albedo" => &mut self.smooth_albedo,
-            "smooth_roughness" => &mut self.smooth_roughness,
-            "normal_offset" => &mut self.normal_offset,
-            "env_tv" => &mut self.env_tv,
-            _ => return None,
-        };
-        *w = value;
-        Some(())
-    }
-}
-
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct Stage2Rates {
-    pub opacity: f32,
-    pub sh: f32,
-    pub normal_offset: f32,
-    pub albedo: f32,
-    pub roughness: f32,
-    pub env: f32,
-    pub rho: f32,
-}
-
-impl Default for Stage2Rates {
-    fn default() -> Self {
-        Self { opacity: 0.005, sh: 2.5e-4, normal_offset: 0.001, albedo: 0.01, roughness: 0.01, env: 0.025, rho: 0.01 }
-    }
-}
-
-#[derive(Clone, Debug, Serialize, Deserialize)]
-pub struct Stage2Config {
-    pub iterations: u64,
-    pub seed: u64,
-    /// Gaussian vertices per surfel (1 = constant material ablation, 2, 4, 6).
-    pub vertices: usize,
-    /// Micro-buffer directions per Gaussian (SPEC 4: 64 in training).
-    pub directions: usize,
-    pub env_height: u32,
-    pub background: BackgroundMode,
-    pub lr: Stage2Rates,
-    pub weights: Stage2Weights,
-    /// Ablation switches.
-    pub visibility: bool,
-    pub indirect: bool,
-    pub consistency: bool,
-    /// Tracing: continuation offset after a hit, world units. SPEC 5 says 0.05; we default to
-    /// [`DEFAULT_TRACE_EPS`] (see there).
-    pub trace_eps: f32,
-    /// `None`: unbounded (SPEC 9.5).
-    pub trace_t_max: Option<f32>,
-    /// Extra continuation offset in multiples of the hit surfel's size (`TraceParams::eps_scale`).
-    #[serde(default)]
-    pub trace_eps_scale: f32,
-    /// Rays start this many of their own surfel's max scales away (`TraceParams::t_min_scale`:
-    /// 3, the rim of its 3-sigma disk).
-    #[serde(default = "default_trace_start_scale")]
-    pub trace_start_scale: f32,
-    /// L_rc is a mean over visible Gaussians; estimate it on at most this many, drawn at random
-    /// each iteration (unbiased for the mean, and it keeps the loss cheap on the CPU).
-    pub consistency_samples: usize,
-    /// How the learned light starts (SPEC 4: random).
-    #[serde(default)]
-    pub env_init: EnvInit,
-    /// Brightest texels of the learned map shaded as directional lights with traced visibility
-    /// (`svgir_trace::bright`; our addition for lights with a sun). 0: SPEC 4 alone.
-    #[serde(default)]
-    pub lights: usize,
-    /// Re-select the light texels every this many iterations.
-    #[serde(default = "default_lights_every")]
-    pub lights_every: u64,
-    /// Radiance activation of the learned map (SPEC 4: softplus).
-    #[serde(default)]
-    pub env_activation: EnvActivation,
-    /// At this iteration (0: never), gather the learned map's brightest lobe into one texel
-    /// (`svgir_trace::concentrate_lobe`), which then becomes a directional light: the K samples
-    /// learn a sun only as a broad lobe, whose shadows are soft. Needs `lights > 0`.
-    #[serde(default)]
-    pub sun_at: u64,
-    /// Angular radius of the lobe gathered at `sun_at`, degrees.
-    #[serde(default = "default_sun_radius_deg")]
-    pub sun_radius_deg: f32,
-}
-
-fn default_sun_radius_deg() -> f32 {
-    30.0
-}
-
-/// Our default continuation offset after a hit. SPEC 5's 0.05 world units skips the other
-/// overlapping surfels of the surface just hit (a surfel's 3-sigma radius is ~0.1 on our
-/// synthetic scenes), so a surface takes only one surfel's alpha off the transmittance and
-/// lets the rest through: visibility leaks. The traversal visits every hit once in (t, id) order
-/// anyway, so no offset is needed against re-hits. Measured on cup_and_ball with ground-truth
-/// materials and light (relighting K = 128): relighting 23.1 -> 25.6 dB, and the render without
-/// indirect light becomes as dark as with visibility against the true mesh (GT/ours 1.14-1.20
-/// against the mesh oracle's 1.16-1.20), where 0.05 left it at 0.96-0.99.
-pub const DEFAULT_TRACE_EPS: f32 = 1e-4;
-
-fn default_lights_every() -> u64 {
-    100
-}
-
-fn default_trace_start_scale() -> f32 {
-    TraceParams::default().t_min_scale
-}
-
-/// The learned environment map's initial parameters.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-pub enum EnvInit {
-    /// SPEC 4: `3 U(0, 1)` per texel and channel, from the run's seed.
-    #[default]
-    Random,
-    /// Every texel at the mean of that distribution (grey, no texel noise to wash out).
-    Uniform,
-}
-
-impl Default for Stage2Config {
-    fn default() -> Self {
-        Self {
-            iterations: 20_000,
-            seed: 0,
-            vertices: 4,
-            directions: 64,
-            env_height: 32,
-            background: BackgroundMode::Black,
-            lr: Stage2Rates::default(),
-            weights: Stage2Weights::default(),
-            visibility: true,
-            indirect: true,
-            consistency: true,
-            trace_eps: DEFAULT_TRACE_EPS,
-            trace_t_max: None,
-            trace_eps_scale: 0.0,
-            trace_start_scale: default_trace_start_scale(),
-            consistency_samples: 8192,
-            env_init: EnvInit::Random,
-            lights: 0,
-            lights_every: default_lights_every(),
-            env_activation: EnvActivation::Softplus,
-            sun_at: 0,
-            sun_radius_deg: default_sun_radius_deg(),
-        }
-    }
-}
-
-impl Stage2Config {
-    pub fn trace_params(&self) -> TraceParams {
-        TraceParams {
-            eps: self.trace_eps,
-            eps_scale: self.trace_eps_scale,
-            t_min_scale: self.trace_start_scale,
-            t_max: self.trace_t_max.unwrap_or(f32::INFINITY),
-            ..TraceParams::default()
-        }
-    }
-}
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Stage2Step {
@@ -239,31 +48,6 @@ pub struct Stage2Step {
     pub psnr_sh: f32,
     pub consistency: f32,
     pub rho: f32,
-}
-
-/// Everything a PBR render produces, per pixel, after dividing by opacity.
-pub struct PbrRender {
-    pub width: u32,
-    pub height: u32,
-    /// sRGB image composited over the background.
-    pub image: Vec<f32>,
-    pub alpha: Vec<f32>,
-    /// Linear albedo, roughness and unit shading normal (0 where nothing was hit).
-    pub albedo: Vec<f32>,
-    pub roughness: Vec<f32>,
-    pub normal: Vec<f32>,
-}
-
-/// What a PBR render shades with: micro-buffers (and their direction cache), the light, the
-/// indirect term and the shading parameters.
-pub struct Shading<'a> {
-    pub mb: &'a MicroBuffer,
-    pub cache: Option<&'a DirectionCache>,
-    pub env: &'a svgir_core::EnvMap,
-    pub indirect: Indirect<'a, f32>,
-    pub params: ShadeParams,
-    /// Texels of `env` shaded as directional lights.
-    pub lights: Option<&'a BrightLights>,
 }
 
 pub struct Stage2 {
@@ -665,94 +449,5 @@ impl Stage2 {
             consistency: cons_loss,
             rho: self.rho,
         })
-    }
-
-    /// Render the PBR image and material buffers for `camera` over `bg`. `indirect` overrides
-    /// the indirect term (relighting: one-bounce light under `env`, rho = 1); `albedo_scale`
-    /// multiplies every vertex albedo (SPEC 8 evaluation). Shades with the training
-    /// micro-buffers and the training clamp of the radiance (SPEC 4); relighting at SPEC 7's K
-    /// goes through [`crate::relight::Relighter`].
-    pub fn render_pbr(
-        &self,
-        camera: &Camera,
-        bg: [f32; 3],
-        env: &svgir_core::EnvMap,
-        indirect: Option<&[[f32; 3]]>,
-        albedo_scale: [f32; 3],
-    ) -> Result<PbrRender, PbrError> {
-        let shading = Shading {
-            mb: &self.mb,
-            cache: Some(&self.dir_cache),
-            env,
-            indirect: match indirect {
-                Some(l) => Indirect::Given(l),
-                None => self.indirect(),
-            },
-            params: self.shade_params(),
-            lights: self.active_lights(),
-        };
-        self.render_shaded(camera, bg, &shading, albedo_scale)
-    }
-
-    /// Render with the given micro-buffers, light and shading parameters.
-    pub fn render_shaded(
-        &self,
-        camera: &Camera,
-        bg: [f32; 3],
-        shading: &Shading,
-        albedo_scale: [f32; 3],
-    ) -> Result<PbrRender, PbrError> {
-        let (w, h) = (camera.width() as usize, camera.height() as usize);
-        let npix = w * h;
-        let m = self.config.vertices;
-        let mut act = self.materials.activated(&self.normals)?;
-        for (i, a) in act.albedo.iter_mut().enumerate() {
-            *a *= albedo_scale[i % 3];
-        }
-        let visible = vec![true; self.surfels.len()];
-        let mut shaded = ShadeOutput::new();
-        let inputs = ShadeInputs {
-            mb: shading.mb,
-            positions: &self.surfels.positions,
-            camera_center: camera.center(),
-            visible: &visible,
-            mats: act.view(),
-            env_geom: shading.env,
-            env: &shading.env.data,
-            indirect: shading.indirect,
-            params: shading.params,
-            lights: shading.lights,
-        };
-        shade_into_cached(&inputs, shading.cache, &mut shaded)?;
-        let extra = Self::extra_features(&act, &self.facing(camera));
-        let input = RenderInput {
-            surfels: &self.surfels,
-            camera,
-            colors: ColorSource::Features(Features { data: &shaded.color, vertices: m, channels: 3 }),
-            extra: Some(Features { data: &extra, vertices: m, channels: EXTRA_CHANNELS }),
-            background: Background::Color([0.0; 3]),
-        };
-        let (out, _) = render(&input, &self.raster);
-        let mut r = PbrRender {
-            width: w as u32,
-            height: h as u32,
-            image: Vec::new(),
-            alpha: out.alpha.clone(),
-            albedo: vec![0.0; npix * 3],
-            roughness: vec![0.0; npix],
-            normal: vec![0.0; npix * 3],
-        };
-        r.image = pbr_composite(&out.color, &out.alpha, bg);
-        for p in 0..npix {
-            let inv = 1.0 / out.alpha[p].max(MIN_OPACITY);
-            let e = &out.extra[EXTRA_CHANNELS * p..EXTRA_CHANNELS * (p + 1)];
-            let n = Vec3::new(e[4], e[5], e[6]).normalize_or_zero();
-            for c in 0..3 {
-                r.albedo[3 * p + c] = e[c] * inv;
-                r.normal[3 * p + c] = n[c];
-            }
-            r.roughness[p] = e[3] * inv;
-        }
-        Ok(r)
     }
 }

@@ -1,0 +1,128 @@
+//! Rendering a stage-2 model: shade every Gaussian's vertices (SPEC 4), splat the colours and
+//! the material buffers (SPEC 3), divide by coverage and encode to sRGB. Used by the evaluation
+//! and relighting; training's own forward pass lives in [`super::Stage2::step`], which also keeps
+//! what the backward needs.
+
+use super::{Stage2, EXTRA_CHANNELS, MIN_OPACITY};
+use crate::composite::pbr_composite;
+use glam::Vec3;
+use svgir_core::Camera;
+use svgir_pbr::{shade_into_cached, DirectionCache, Indirect, PbrError, ShadeInputs, ShadeOutput, ShadeParams};
+use svgir_raster::{render, Background, ColorSource, Features, RenderInput};
+use svgir_trace::{BrightLights, MicroBuffer};
+
+/// Everything a PBR render produces, per pixel, after dividing by opacity.
+pub struct PbrRender {
+    pub width: u32,
+    pub height: u32,
+    /// sRGB image composited over the background.
+    pub image: Vec<f32>,
+    pub alpha: Vec<f32>,
+    /// Linear albedo, roughness and unit shading normal (0 where nothing was hit).
+    pub albedo: Vec<f32>,
+    pub roughness: Vec<f32>,
+    pub normal: Vec<f32>,
+}
+
+/// What a PBR render shades with: micro-buffers (and their direction cache), the light, the
+/// indirect term and the shading parameters.
+pub struct Shading<'a> {
+    pub mb: &'a MicroBuffer,
+    pub cache: Option<&'a DirectionCache>,
+    pub env: &'a svgir_core::EnvMap,
+    pub indirect: Indirect<'a, f32>,
+    pub params: ShadeParams,
+    /// Texels of `env` shaded as directional lights.
+    pub lights: Option<&'a BrightLights>,
+}
+
+impl Stage2 {
+    /// Render the PBR image and material buffers for `camera` over `bg`. `indirect` overrides
+    /// the indirect term (relighting: one-bounce light under `env`, rho = 1); `albedo_scale`
+    /// multiplies every vertex albedo (SPEC 8 evaluation). Shades with the training
+    /// micro-buffers and the training clamp of the radiance (SPEC 4); relighting at SPEC 7's K
+    /// goes through [`crate::relight::Relighter`].
+    pub fn render_pbr(
+        &self,
+        camera: &Camera,
+        bg: [f32; 3],
+        env: &svgir_core::EnvMap,
+        indirect: Option<&[[f32; 3]]>,
+        albedo_scale: [f32; 3],
+    ) -> Result<PbrRender, PbrError> {
+        let shading = Shading {
+            mb: &self.mb,
+            cache: Some(&self.dir_cache),
+            env,
+            indirect: match indirect {
+                Some(l) => Indirect::Given(l),
+                None => self.indirect(),
+            },
+            params: self.shade_params(),
+            lights: self.active_lights(),
+        };
+        self.render_shaded(camera, bg, &shading, albedo_scale)
+    }
+
+    /// Render with the given micro-buffers, light and shading parameters.
+    pub fn render_shaded(
+        &self,
+        camera: &Camera,
+        bg: [f32; 3],
+        shading: &Shading,
+        albedo_scale: [f32; 3],
+    ) -> Result<PbrRender, PbrError> {
+        let (w, h) = (camera.width() as usize, camera.height() as usize);
+        let npix = w * h;
+        let m = self.config.vertices;
+        let mut act = self.materials.activated(&self.normals)?;
+        for (i, a) in act.albedo.iter_mut().enumerate() {
+            *a *= albedo_scale[i % 3];
+        }
+        let visible = vec![true; self.surfels.len()];
+        let mut shaded = ShadeOutput::new();
+        let inputs = ShadeInputs {
+            mb: shading.mb,
+            positions: &self.surfels.positions,
+            camera_center: camera.center(),
+            visible: &visible,
+            mats: act.view(),
+            env_geom: shading.env,
+            env: &shading.env.data,
+            indirect: shading.indirect,
+            params: shading.params,
+            lights: shading.lights,
+        };
+        shade_into_cached(&inputs, shading.cache, &mut shaded)?;
+        let extra = Self::extra_features(&act, &self.facing(camera));
+        let input = RenderInput {
+            surfels: &self.surfels,
+            camera,
+            colors: ColorSource::Features(Features { data: &shaded.color, vertices: m, channels: 3 }),
+            extra: Some(Features { data: &extra, vertices: m, channels: EXTRA_CHANNELS }),
+            background: Background::Color([0.0; 3]),
+        };
+        let (out, _) = render(&input, &self.raster);
+        let mut r = PbrRender {
+            width: w as u32,
+            height: h as u32,
+            image: Vec::new(),
+            alpha: out.alpha.clone(),
+            albedo: vec![0.0; npix * 3],
+            roughness: vec![0.0; npix],
+            normal: vec![0.0; npix * 3],
+        };
+        r.image = pbr_composite(&out.color, &out.alpha, bg);
+        for p in 0..npix {
+            let inv = 1.0 / out.alpha[p].max(MIN_OPACITY);
+            let e = &out.extra[EXTRA_CHANNELS * p..EXTRA_CHANNELS * (p + 1)];
+            let n = Vec3::new(e[4], e[5], e[6]).normalize_or_zero();
+            for c in 0..3 {
+                r.albedo[3 * p + c] = e[c] * inv;
+                r.normal[3 * p + c] = n[c];
+            }
+            r.roughness[p] = e[3] * inv;
+        }
+        Ok(r)
+    }
+}
