@@ -1,25 +1,31 @@
 #!/usr/bin/env bash
 # Both stages on every Blender-Cycles scene in ../shared/data/synthetic, then the SPEC 8 table.
 #
-#   bash tools/synthetic_table.sh [OUT] [STAGE2_ITERATIONS]      (default: runs/synthetic, 1500)
+#   bash tools/synthetic_table.sh [OUT] [STAGE2_ITERATIONS] [-- extra `svgir inverse` options]
+#        (defaults: runs/synthetic, 1500)
 #
-# Stage 1: 3000 iterations from 20k random points, black background, densify every 100 until 1500.
+# Stage 1: STAGE1_ITERATIONS (env, default 10000) from 20k random points, black background,
+#          densify every 100 until half way, opacity reset every 3000.
 # Stage 2: STAGE2_ITERATIONS (SPEC's schedule is 20000), relighting evaluated at K = 384.
-# About 25-35 minutes per scene on 2 cores at the defaults.
+# Environment: SCENES="cup_and_ball suzanne_marble" restricts the scenes.
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 DATA="$ROOT/../shared/data/synthetic"
 OUT="${1:-runs/synthetic}"
 ITERS2="${2:-1500}"
+shift $(( $# < 2 ? $# : 2 ))
+[ "${1:-}" = "--" ] && shift
+ITERS1="${STAGE1_ITERATIONS:-10000}"
 [ -d "$DATA" ] || { echo "error: $DATA not found (the shared data folder next to the checkout)" >&2; exit 1; }
 cargo build --release --manifest-path "$ROOT/Cargo.toml" -p svgir-cli
 SVGIR="$ROOT/target/release/svgir"
-for scene in "$DATA"/*/; do
-  name="$(basename "$scene")"
-  run="$OUT/$name"
-  "$SVGIR" train "$scene" --out "$run" --iterations 3000 --background black --init-points 20000 \
-    --densify-every 100 --densify-until 1500 --opacity-reset-every 3000
-  "$SVGIR" inverse --run "$run" --iterations "$ITERS2" --turntable 0
+for scene in ${SCENES:-$(ls "$DATA")}; do
+  run="$OUT/$scene"
+  if [ ! -f "$run/point_cloud.ply" ]; then
+    "$SVGIR" train "$DATA/$scene" --out "$run" --iterations "$ITERS1" --background black --init-points 20000 \
+      --densify-every 100 --densify-until $((ITERS1 / 2)) --opacity-reset-every 3000
+  fi
+  "$SVGIR" inverse --run "$run" --iterations "$ITERS2" --turntable 0 "$@"
 done
 python3 - "$OUT" <<'PY'
 import json, pathlib, sys
@@ -30,6 +36,7 @@ for ev in sorted(out.glob("*/stage2/eval.json")):
     e = json.loads(ev.read_text())
     r = e["relight"]["mean"]
     per = ", ".join(f"{k} {v['psnr']:.2f}" for k, v in e["relight"]["per_light"].items())
+    fmt = lambda x, f: "-" if x is None else format(x, f)
     print(f"| {ev.parent.parent.name} | {e['nvs']['psnr']:.2f} | {e['albedo']['psnr']:.2f} | {e['roughness_mse']:.4f} "
-          f"| {e['normal_mae_deg']:.2f} | {r['psnr']:.2f} / {r['ssim']:.3f} / {r['lpips']:.3f} | {per} |")
+          f"| {e['normal_mae_deg']:.2f} | {r['psnr']:.2f} / {r['ssim']:.3f} / {fmt(r['lpips'], '.3f')} | {per} |")
 PY

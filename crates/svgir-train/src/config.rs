@@ -64,6 +64,34 @@ pub struct LossWeights {
     pub distortion: f32,
 }
 
+/// Loss weights that can be set by name (`svgir train/inverse --weight NAME=VALUE`).
+pub trait NamedWeights: Default {
+    /// The weights' names, as `set` and the run config spell them.
+    const NAMES: &'static [&'static str];
+    /// Set one weight by name; `None` when no weight has that name (see `NAMES`).
+    fn set(&mut self, name: &str, value: f32) -> Option<()>;
+}
+
+impl NamedWeights for LossWeights {
+    const NAMES: &'static [&'static str] =
+        &["l1", "ssim", "mask", "normal_start", "normal_ramp", "entropy", "distortion"];
+
+    fn set(&mut self, name: &str, value: f32) -> Option<()> {
+        let w = match name {
+            "l1" => &mut self.l1,
+            "ssim" => &mut self.ssim,
+            "mask" => &mut self.mask,
+            "normal_start" => &mut self.normal_start,
+            "normal_ramp" => &mut self.normal_ramp,
+            "entropy" => &mut self.entropy,
+            "distortion" => &mut self.distortion,
+            _ => return None,
+        };
+        *w = value;
+        Some(())
+    }
+}
+
 impl Default for LossWeights {
     fn default() -> Self {
         Self { l1: 0.9, ssim: 0.1, mask: 0.01, normal_start: 0.01, normal_ramp: 0.01, entropy: 0.1, distortion: 0.0 }

@@ -13,6 +13,6 @@ pub mod relight;
 pub mod stage1;
 pub mod stage2;
 
-pub use config::{BackgroundMode, Stage1Config};
+pub use config::{BackgroundMode, NamedWeights, Stage1Config};
 pub use stage1::{Stage1, StepStats};
 pub use stage2::{Stage2, Stage2Config};

@@ -52,6 +52,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         densify_every: None,
         densify_until: None,
         opacity_reset_every: None,
+        weights: Vec::new(),
     })?;
     eprintln!("svgir demo: stage 2 ({iterations2} iterations)");
     let trace = svgir_train::Stage2Config::default();

@@ -132,20 +132,6 @@ pub struct InverseArgs {
     pub weights: Vec<String>,
 }
 
-/// Stage 2's loss weights: SPEC 6's, with each `NAME=VALUE` of `--weight` applied.
-fn loss_weights(overrides: &[String]) -> Result<Stage2Weights> {
-    let mut weights = Stage2Weights::default();
-    for item in overrides {
-        let (name, value) = item.split_once('=').with_context(|| format!("--weight {item}: expected NAME=VALUE"))?;
-        let value: f32 = value.trim().parse().with_context(|| format!("--weight {item}: {value:?} is not a number"))?;
-        anyhow::ensure!(value.is_finite() && value >= 0.0, "--weight {item}: a weight must be finite and >= 0");
-        weights.set(name.trim(), value).with_context(|| {
-            format!("--weight {item}: no weight named {name:?} (one of {})", Stage2Weights::NAMES.join(", "))
-        })?;
-    }
-    Ok(weights)
-}
-
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
 pub enum EnvActivationArg {
     Softplus,
@@ -228,7 +214,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         trace_linear_radiance: args.traced_radiance == TracedRadianceArg::Linear,
         sun_at: args.sun_at,
         sun_radius_deg: args.sun_radius,
-        weights: loss_weights(&args.weights)?,
+        weights: super::loss_weights::<Stage2Weights>(&args.weights)?,
         ..Stage2Config::default()
     };
     let ckpt = out.join("checkpoint.bin");
@@ -555,11 +541,12 @@ fn evaluate(
 
 #[cfg(test)]
 mod tests {
-    use super::loss_weights;
+    use super::super::loss_weights;
+    use svgir_train::stage2::Stage2Weights;
 
     #[test]
     fn weight_overrides_apply_and_bad_ones_are_named() {
-        let w = loss_weights(&["smooth_albedo=0.5".into(), " env_tv = 0 ".into()]).unwrap();
+        let w = loss_weights::<Stage2Weights>(&["smooth_albedo=0.5".into(), " env_tv = 0 ".into()]).unwrap();
         assert_eq!((w.smooth_albedo, w.env_tv), (0.5, 0.0));
         assert_eq!(w.l1, 0.9);
         for (bad, says) in [
@@ -569,7 +556,7 @@ mod tests {
             ("l1=-1", ">= 0"),
             ("l1=NaN", "finite"),
         ] {
-            let err = format!("{:#}", loss_weights(&[bad.into()]).unwrap_err());
+            let err = format!("{:#}", loss_weights::<Stage2Weights>(&[bad.into()]).unwrap_err());
             assert!(err.contains(says) && err.contains(bad), "{bad}: {err}");
         }
     }

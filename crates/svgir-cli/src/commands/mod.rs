@@ -34,3 +34,19 @@ impl DataArgs {
         LoadOptions { resolution: self.resolution, downscale: self.downscale, load_test, max_views: self.max_views }
     }
 }
+
+/// Loss weights at their defaults (SPEC 2 or SPEC 6), with each `NAME=VALUE` of `--weight`
+/// applied; a bad name or value is an error that names it.
+pub fn loss_weights<W: svgir_train::NamedWeights>(overrides: &[String]) -> anyhow::Result<W> {
+    use anyhow::Context;
+    let mut weights = W::default();
+    for item in overrides {
+        let (name, value) = item.split_once('=').with_context(|| format!("--weight {item}: expected NAME=VALUE"))?;
+        let value: f32 = value.trim().parse().with_context(|| format!("--weight {item}: {value:?} is not a number"))?;
+        anyhow::ensure!(value.is_finite() && value >= 0.0, "--weight {item}: a weight must be finite and >= 0");
+        weights
+            .set(name.trim(), value)
+            .with_context(|| format!("--weight {item}: no weight named {name:?} (one of {})", W::NAMES.join(", ")))?;
+    }
+    Ok(weights)
+}

@@ -77,6 +77,11 @@ pub struct TrainArgs {
     /// Override the scaled schedule: reset opacities every N iterations while densifying (3DGS: 3000).
     #[arg(long)]
     pub opacity_reset_every: Option<u64>,
+    /// Loss weight, repeatable: l1, ssim, mask, normal_start, normal_ramp, entropy or distortion
+    /// (defaults: SPEC 2; the depth-normal weight ramps from normal_start to
+    /// normal_start + normal_ramp over the run).
+    #[arg(long = "weight", value_name = "NAME=VALUE")]
+    pub weights: Vec<String>,
 }
 
 pub fn run(args: TrainArgs) -> Result<()> {
@@ -92,7 +97,7 @@ pub fn run(args: TrainArgs) -> Result<()> {
         eprintln!("resumed {} at iteration {}", ckpt_path.display(), t.iteration);
         t
     } else {
-        let config = make_config(&args, &dataset);
+        let config = make_config(&args, &dataset)?;
         let mut rng = Rng::new(config.seed);
         let points = if let Some(p) = &args.init_ply {
             svgir_io::ply::read_points_ply(p)?
@@ -120,8 +125,9 @@ pub fn run(args: TrainArgs) -> Result<()> {
     finish(&trainer, &dataset, &args.out)
 }
 
-fn make_config(args: &TrainArgs, dataset: &Dataset) -> Stage1Config {
+fn make_config(args: &TrainArgs, dataset: &Dataset) -> Result<Stage1Config> {
     let mut c = Stage1Config::default().scaled_to(args.iterations);
+    c.loss = super::loss_weights(&args.weights)?;
     c.seed = args.seed;
     c.background = match args.background {
         Bg::White => BackgroundMode::White,
@@ -145,7 +151,7 @@ fn make_config(args: &TrainArgs, dataset: &Dataset) -> Stage1Config {
     }
     let has_alpha = dataset.train.iter().any(|v| v.image.channels == 4 && v.image.data.chunks(4).any(|p| p[3] < 0.5));
     c.use_mask = !args.no_mask && has_alpha;
-    c
+    Ok(c)
 }
 
 fn write_json(path: &Path, v: &impl serde::Serialize) -> Result<()> {

@@ -1,7 +1,7 @@
 //! Stage 2's configuration: loss weights (Eqn 15), learning rates (SPEC 6), ablation switches
 //! and our tracing and lighting options, all recorded in the run's `config.json`.
 
-use crate::config::BackgroundMode;
+use crate::config::{BackgroundMode, NamedWeights};
 use serde::{Deserialize, Serialize};
 use svgir_pbr::EnvActivation;
 use svgir_trace::TraceParams;
@@ -34,13 +34,11 @@ impl Default for Stage2Weights {
     }
 }
 
-impl Stage2Weights {
-    /// The weights' names, as `set` and the run config spell them.
-    pub const NAMES: [&'static str; 8] =
-        ["l1", "ssim", "consistency", "normal", "smooth_albedo", "smooth_roughness", "normal_offset", "env_tv"];
+impl NamedWeights for Stage2Weights {
+    const NAMES: &'static [&'static str] =
+        &["l1", "ssim", "consistency", "normal", "smooth_albedo", "smooth_roughness", "normal_offset", "env_tv"];
 
-    /// Set one weight by name; `None` when no weight has that name (see `NAMES`).
-    pub fn set(&mut self, name: &str, value: f32) -> Option<()> {
+    fn set(&mut self, name: &str, value: f32) -> Option<()> {
         let w = match name {
             "l1" => &mut self.l1,
             "ssim" => &mut self.ssim,
