@@ -149,3 +149,29 @@ impl Stage1Config {
         self
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::stage2::Stage2Weights;
+
+    /// Every listed name sets exactly one field, and an unknown name sets nothing.
+    fn names_are_settable<W: NamedWeights + Serialize>() {
+        let base = serde_json::to_value(W::default()).unwrap();
+        for name in W::NAMES {
+            let mut w = W::default();
+            assert!(w.set(name, 123.0).is_some(), "{name}");
+            let v = serde_json::to_value(&w).unwrap();
+            assert_eq!(v[name], 123.0, "{name}");
+            let changed = base.as_object().unwrap().iter().filter(|(k, x)| v[k.as_str()] != **x).count();
+            assert_eq!(changed, 1, "{name}");
+        }
+        assert!(W::default().set("no_such_weight", 1.0).is_none());
+    }
+
+    #[test]
+    fn loss_weights_set_by_name() {
+        names_are_settable::<LossWeights>();
+        names_are_settable::<Stage2Weights>();
+    }
+}
