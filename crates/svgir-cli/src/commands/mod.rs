@@ -50,3 +50,26 @@ pub fn loss_weights<W: svgir_train::NamedWeights>(overrides: &[String]) -> anyho
     }
     Ok(weights)
 }
+
+#[cfg(test)]
+mod tests {
+    use super::loss_weights;
+    use svgir_train::stage2::Stage2Weights;
+
+    #[test]
+    fn weight_overrides_apply_and_bad_ones_are_named() {
+        let w = loss_weights::<Stage2Weights>(&["smooth_albedo=0.5".into(), " env_tv = 0 ".into()]).unwrap();
+        assert_eq!((w.smooth_albedo, w.env_tv), (0.5, 0.0));
+        assert_eq!(w.l1, 0.9);
+        for (bad, says) in [
+            ("albedo=1", "no weight named"),
+            ("smooth_albedo", "expected NAME=VALUE"),
+            ("l1=x", "not a number"),
+            ("l1=-1", ">= 0"),
+            ("l1=NaN", "finite"),
+        ] {
+            let err = format!("{:#}", loss_weights::<Stage2Weights>(&[bad.into()]).unwrap_err());
+            assert!(err.contains(says) && err.contains(bad), "{bad}: {err}");
+        }
+    }
+}
