@@ -87,12 +87,14 @@ pub fn run(args: DemoArgs) -> Result<()> {
         trace_eps: trace.trace_eps,
         trace_eps_scale: trace.trace_eps_scale,
         trace_start_scale: trace.trace_start_scale,
+        visibility_cut: trace.trace_visibility_cut,
         traced_radiance: inverse::TracedRadianceArg::from_config(&trace),
         weights: Vec::new(),
         // The quick demo (a CI test) keeps its 16 training directions; the full demo relights
         // with 128 rather than SPEC 7's 384 (`svgir inverse`'s default) to stay a few minutes
         // long (K is recorded in eval.json).
         relight_directions: if args.quick { 16 } else { 128 },
+        relight_lights: svgir_train::relight::RELIGHT_LIGHTS,
     })?;
     let report = args.out.join("report.html");
     super::report::write_report(&args.out, &report)?;

@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use svgir_core::{Dataset, Image, LightInfo};
 use svgir_metrics::{evaluate_pair, ImageMetrics, Lpips, SsimVariant};
 use svgir_pbr::EnvActivation;
-use svgir_train::relight::Relighter;
+use svgir_train::relight::{RelightSampling, Relighter};
 use svgir_train::stage2::{EnvInit, Stage2Rates, Stage2Weights};
 use svgir_train::{checkpoint, Stage2, Stage2Config};
 
@@ -83,6 +83,10 @@ pub struct InverseArgs {
     /// Gaussians x K x 16 bytes).
     #[arg(long, default_value_t = svgir_train::relight::RELIGHT_DIRECTIONS)]
     pub relight_directions: usize,
+    /// Brightest texels of each relighting map shaded as directional lights with traced
+    /// visibility when relighting for the evaluation (0: the K directions alone, as SPEC 7).
+    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_LIGHTS)]
+    pub relight_lights: usize,
     /// Initial learned light: SPEC 4's per-texel random init, or a uniform grey at its mean.
     #[arg(long, value_enum, default_value_t = EnvInitArg::Random)]
     pub env_init: EnvInitArg,
@@ -121,6 +125,10 @@ pub struct InverseArgs {
     /// 3-sigma disk, so neighbours on the same surface do not occlude it).
     #[arg(long, default_value_t = Stage2Config::default().trace_start_scale)]
     pub trace_start_scale: f32,
+    /// Tracing: visibility is 0 where the final transmittance is below this (SPEC 5: 0.2; higher
+    /// treats partly transparent surfaces as opaque, against light leaking through them).
+    #[arg(long, default_value_t = Stage2Config::default().trace_visibility_cut)]
+    pub visibility_cut: f32,
     /// Colour space of the traced SH radiance used as indirect light (SPEC 5): stage 1 fits the
     /// SH to sRGB photos, so `linear` decodes each hit's colour before it lights linear shading;
     /// `srgb` uses it as it is, as the reference code does.
@@ -184,6 +192,11 @@ pub fn run(args: InverseArgs) -> Result<()> {
     let out = args.out.clone().unwrap_or_else(|| args.run.join("stage2"));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
 
+    anyhow::ensure!(
+        (0.0..=1.0).contains(&args.visibility_cut),
+        "--visibility-cut {} is not a transmittance in [0, 1]",
+        args.visibility_cut
+    );
     let config = Stage2Config {
         iterations: args.iterations,
         seed: args.seed,
@@ -211,6 +224,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         trace_eps: args.trace_eps,
         trace_eps_scale: args.trace_eps_scale,
         trace_start_scale: args.trace_start_scale,
+        trace_visibility_cut: args.visibility_cut,
         trace_linear_radiance: args.traced_radiance == TracedRadianceArg::Linear,
         sun_at: args.sun_at,
         sun_radius_deg: args.sun_radius,
@@ -282,7 +296,8 @@ pub fn run(args: InverseArgs) -> Result<()> {
         set_true_light(&mut s2, &dataset)?;
     }
     let lpips = load_lpips(args.lpips)?;
-    let eval = evaluate(&s2, &dataset, &out, lpips.as_ref(), args.turntable, args.relight_directions)?;
+    let sampling = RelightSampling { directions: args.relight_directions, lights: args.relight_lights };
+    let eval = evaluate(&s2, &dataset, &out, lpips.as_ref(), args.turntable, sampling)?;
     let its = s2.iteration.max(1) as f64;
     let t = &s2.times;
     let mut eval_out = eval;
@@ -401,7 +416,7 @@ fn evaluate(
     out: &Path,
     lpips: Option<&Lpips>,
     turntable: usize,
-    relight_directions: usize,
+    sampling: RelightSampling,
 ) -> Result<serde_json::Value> {
     let dir = out.join("test");
     std::fs::create_dir_all(&dir)?;
@@ -478,13 +493,17 @@ fn evaluate(
         result["albedo"] = mean_json(&albedo);
         result["albedo_scale"] = json!(scale);
     }
-    // Relighting (SPEC 7): K = relight_directions micro-buffers, one-bounce indirect per light.
+    // Relighting (SPEC 7): K micro-buffers, one-bounce indirect per light.
     let mut per_light = serde_json::Map::new();
     let mut all = Vec::new();
     let relighter = if ds.relight_lights.iter().any(|l| l.envmap_path.is_some()) {
-        let r = Relighter::new(s2, relight_directions)?;
-        eprintln!("relighting: traced K = {relight_directions} directions in {:.1} s", r.trace_seconds);
-        result["relight_directions"] = json!(relight_directions);
+        let r = Relighter::new(s2, sampling)?;
+        eprintln!(
+            "relighting: traced K = {} directions and {} lights in {:.1} s",
+            sampling.directions, sampling.lights, r.trace_seconds
+        );
+        result["relight_directions"] = json!(sampling.directions);
+        result["relight_lights"] = json!(sampling.lights);
         Some(r)
     } else {
         None

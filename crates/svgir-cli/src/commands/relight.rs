@@ -10,7 +10,7 @@ use clap::Args;
 use std::path::PathBuf;
 use svgir_core::{Camera, Image};
 use svgir_train::checkpoint;
-use svgir_train::relight::Relighter;
+use svgir_train::relight::{RelightSampling, Relighter};
 
 #[derive(Args)]
 pub struct RelightArgs {
@@ -32,6 +32,10 @@ pub struct RelightArgs {
     /// Directions per Gaussian (SPEC 7: 384; memory is Gaussians x K x 16 bytes).
     #[arg(long, default_value_t = svgir_train::relight::RELIGHT_DIRECTIONS)]
     pub directions: usize,
+    /// Brightest texels of the map shaded as directional lights with traced visibility (0: the
+    /// K directions alone, as SPEC 7).
+    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_LIGHTS)]
+    pub lights: usize,
 }
 
 pub fn run(args: RelightArgs) -> Result<()> {
@@ -45,7 +49,7 @@ pub fn run(args: RelightArgs) -> Result<()> {
     let data = PathBuf::from(cfg["data"].as_str().with_context(|| format!("{}: no data path", cfg_path.display()))?);
     let s2 = checkpoint::load_stage2(&stage2_dir.join("checkpoint.bin"))?;
     let env = svgir_io::read_envmap(&args.envmap, args.strength, s2.config.env_height)?;
-    let relighter = Relighter::new(&s2, args.directions)?;
+    let relighter = Relighter::new(&s2, RelightSampling { directions: args.directions, lights: args.lights })?;
     let lit = relighter.prepare(&s2, env)?;
     let name = args.envmap.file_stem().map_or("env".into(), |s| s.to_string_lossy().into_owned());
     let out = args.out.clone().unwrap_or_else(|| stage2_dir.join(format!("relit_{name}")));

@@ -109,6 +109,12 @@ pub struct Stage2Config {
     /// 0.0309, normal MAE 4.36 -> 4.28 deg.
     #[serde(default)]
     pub trace_linear_radiance: bool,
+    /// Visibility is 0 where the march's final transmittance is below this (`TraceParams::v_cut`,
+    /// SPEC 5: 0.2). Surfels are semi-transparent and a ray crossing a surface obliquely can
+    /// pass between disks, so on the 10k-iteration stage-1 models ~25-40% of the rays that hit a
+    /// surface keep T >= 0.5 (`examples/microbuffer_stats`): light leaks into concave interiors.
+    #[serde(default = "default_visibility_cut")]
+    pub trace_visibility_cut: f32,
     /// L_rc is a mean over visible Gaussians; estimate it on at most this many, drawn at random
     /// each iteration (unbiased for the mean, and it keeps the loss cheap on the CPU).
     pub consistency_samples: usize,
@@ -153,6 +159,10 @@ fn default_lights_every() -> u64 {
     100
 }
 
+fn default_visibility_cut() -> f32 {
+    TraceParams::default().v_cut
+}
+
 fn default_trace_start_scale() -> f32 {
     TraceParams::default().t_min_scale
 }
@@ -186,6 +196,7 @@ impl Default for Stage2Config {
             trace_eps_scale: 0.0,
             trace_start_scale: default_trace_start_scale(),
             trace_linear_radiance: true,
+            trace_visibility_cut: default_visibility_cut(),
             consistency_samples: 8192,
             env_init: EnvInit::Random,
             lights: 0,
@@ -205,6 +216,7 @@ impl Stage2Config {
             t_min_scale: self.trace_start_scale,
             t_max: self.trace_t_max.unwrap_or(f32::INFINITY),
             linear_radiance: self.trace_linear_radiance,
+            v_cut: self.trace_visibility_cut,
             ..TraceParams::default()
         }
     }
