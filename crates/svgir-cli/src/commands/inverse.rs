@@ -97,8 +97,8 @@ pub struct InverseArgs {
     #[arg(long, default_value_t = 0.01)]
     pub albedo_lr: f32,
     /// Shade this many of the learned map's brightest texels as directional lights with traced
-    /// visibility and no clamp (re-selected every --lights-every iterations; relighting does the
-    /// same with the new map). For training lights with a sun; 0: SPEC 4's K samples alone.
+    /// visibility and no clamp (re-selected every --lights-every iterations; relighting splits
+    /// the new map by --relight-lights). For training lights with a sun; 0: SPEC 4's K samples alone.
     #[arg(long, default_value_t = 0)]
     pub lights: usize,
     #[arg(long, default_value_t = 100)]
