@@ -61,6 +61,11 @@ pub struct TraceParams {
     /// SH to sRGB photos, so its colours are sRGB-encoded, while stage 2 adds the traced radiance
     /// to linear shading (SPEC 4, 5): without decoding, mid-tones count ~2x too bright.
     pub linear_radiance: bool,
+    /// Visibility only: each hit occludes with `min(0.99, gain x alpha)` instead of alpha (1:
+    /// SPEC 5). Surfels are semi-transparent, so rays that cross a surface obliquely often keep
+    /// most of their transmittance; a gain treats surfaces as more opaque for shadowing while
+    /// the traced radiance stays SPEC 5's composite.
+    pub visibility_alpha_gain: f32,
 }
 
 impl Default for TraceParams {
@@ -75,6 +80,7 @@ impl Default for TraceParams {
             v_cut: 0.2,
             l_max: 10.0,
             cull_backfaces: false,
+            visibility_alpha_gain: 1.0,
             linear_radiance: false,
         }
     }
@@ -323,6 +329,7 @@ pub struct MarchResult {
 pub fn march<S: HitSource>(src: &S, sh: &[ShCoeffs], degree: u32, ray: &Ray, p: &TraceParams) -> MarchResult {
     let mut l = [0.0f32; 3];
     let mut t = 1.0f32;
+    let mut tv = 1.0f32;
     let mut first = None;
     let mut hits = 0;
     src.for_each_hit(ray, p, |h| {
@@ -337,12 +344,13 @@ pub fn march<S: HitSource>(src: &S, sh: &[ShCoeffs], degree: u32, ray: &Ray, p: 
             l[ch] += c[ch] * w;
         }
         t *= 1.0 - h.alpha;
+        tv *= 1.0 - (h.alpha * p.visibility_alpha_gain).min(crate::hit::ALPHA_MAX);
         t >= p.t_stop
     });
     MarchResult {
         radiance: l.map(|x| x.clamp(0.0, p.l_max)),
         transmittance: t,
-        visibility: if t < p.v_cut { 0.0 } else { t },
+        visibility: if tv < p.v_cut { 0.0 } else { tv },
         first,
         hits,
     }

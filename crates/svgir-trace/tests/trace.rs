@@ -159,6 +159,11 @@ fn stack_of_disks_gives_product_transmittance() {
     }
     // V cut: T = 0.084 < 0.2 -> V = 0 under the default parameters.
     assert_eq!(march(&bvh, &s.sh, 0, &ray, &TraceParams::default()).visibility, 0.0);
+    // Visibility opacity gain: V is the product of (1 - min(0.99, g o)); radiance and T unchanged.
+    let rg = march(&bvh, &s.sh, 0, &ray, &TraceParams { visibility_alpha_gain: 1.5, ..p });
+    let tv: f32 = ops.iter().map(|o| 1.0 - (1.5 * o).min(0.99)).product();
+    assert!((rg.visibility - tv).abs() < 1e-6, "{} vs {tv}", rg.visibility);
+    assert_eq!((rg.transmittance, rg.radiance), (r.transmittance, r.radiance));
     // Continuation offset: with spacing 0.03 < eps = 0.05, hits 0, 2, 4 are taken (1 and 3 skipped).
     let s2 = stack(&ops, 0.03);
     let r2 = march(&Bvh::build(&s2), &s2.sh, 0, &ray, &p);

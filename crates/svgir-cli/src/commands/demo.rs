@@ -88,6 +88,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         trace_eps_scale: trace.trace_eps_scale,
         trace_start_scale: trace.trace_start_scale,
         visibility_cut: trace.trace_visibility_cut,
+        visibility_alpha_gain: trace.trace_visibility_alpha_gain,
         traced_radiance: inverse::TracedRadianceArg::from_config(&trace),
         weights: Vec::new(),
         // The quick demo (a CI test) keeps its 16 training directions; the full demo relights

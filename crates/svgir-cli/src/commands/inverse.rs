@@ -129,6 +129,10 @@ pub struct InverseArgs {
     /// treats partly transparent surfaces as opaque, against light leaking through them).
     #[arg(long, default_value_t = Stage2Config::default().trace_visibility_cut)]
     pub visibility_cut: f32,
+    /// Tracing: each hit occludes with min(0.99, gain x alpha) in the visibility march only (SPEC
+    /// 5: 1; the traced radiance is unchanged). Against light leaking through surfaces.
+    #[arg(long, default_value_t = Stage2Config::default().trace_visibility_alpha_gain)]
+    pub visibility_alpha_gain: f32,
     /// Colour space of the traced SH radiance used as indirect light (SPEC 5): stage 1 fits the
     /// SH to sRGB photos, so `linear` decodes each hit's colour before it lights linear shading;
     /// `srgb` uses it as it is, as the reference code does.
@@ -197,6 +201,11 @@ pub fn run(args: InverseArgs) -> Result<()> {
         "--visibility-cut {} is not a transmittance in [0, 1]",
         args.visibility_cut
     );
+    anyhow::ensure!(
+        args.visibility_alpha_gain.is_finite() && args.visibility_alpha_gain >= 1.0,
+        "--visibility-alpha-gain {} must be at least 1",
+        args.visibility_alpha_gain
+    );
     let config = Stage2Config {
         iterations: args.iterations,
         seed: args.seed,
@@ -225,6 +234,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         trace_eps_scale: args.trace_eps_scale,
         trace_start_scale: args.trace_start_scale,
         trace_visibility_cut: args.visibility_cut,
+        trace_visibility_alpha_gain: args.visibility_alpha_gain,
         trace_linear_radiance: args.traced_radiance == TracedRadianceArg::Linear,
         sun_at: args.sun_at,
         sun_radius_deg: args.sun_radius,

@@ -115,6 +115,10 @@ pub struct Stage2Config {
     /// surface keep T >= 0.5 (`examples/microbuffer_stats`): light leaks into concave interiors.
     #[serde(default = "default_visibility_cut")]
     pub trace_visibility_cut: f32,
+    /// Opacity gain of each hit in the visibility march (`TraceParams::visibility_alpha_gain`,
+    /// SPEC 5: 1).
+    #[serde(default = "default_visibility_alpha_gain")]
+    pub trace_visibility_alpha_gain: f32,
     /// L_rc is a mean over visible Gaussians; estimate it on at most this many, drawn at random
     /// each iteration (unbiased for the mean, and it keeps the loss cheap on the CPU).
     pub consistency_samples: usize,
@@ -159,6 +163,10 @@ fn default_lights_every() -> u64 {
     100
 }
 
+fn default_visibility_alpha_gain() -> f32 {
+    1.0
+}
+
 fn default_visibility_cut() -> f32 {
     TraceParams::default().v_cut
 }
@@ -197,6 +205,7 @@ impl Default for Stage2Config {
             trace_start_scale: default_trace_start_scale(),
             trace_linear_radiance: true,
             trace_visibility_cut: default_visibility_cut(),
+            trace_visibility_alpha_gain: default_visibility_alpha_gain(),
             consistency_samples: 8192,
             env_init: EnvInit::Random,
             lights: 0,
@@ -217,6 +226,7 @@ impl Stage2Config {
             t_max: self.trace_t_max.unwrap_or(f32::INFINITY),
             linear_radiance: self.trace_linear_radiance,
             v_cut: self.trace_visibility_cut,
+            visibility_alpha_gain: self.trace_visibility_alpha_gain,
             ..TraceParams::default()
         }
     }
