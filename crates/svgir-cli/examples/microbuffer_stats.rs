@@ -1,8 +1,8 @@
 //! Diagnostic: how opaque the traced surfaces are. Loads a stage-2 checkpoint and prints, over
 //! every (Gaussian, direction) of its micro-buffers, the histogram of the visibility V split by
 //! whether the ray hit anything. On a closed opaque object a ray that hits a surface should end
-//! with V = 0; hit rays with V > 0.2 are light leaking through a surface (too few or too
-//! transparent surfels along the ray), which brightens concave interiors under a new light.
+//! with V = 0; hit rays with V > 0.2 either pass through a surface (too few or too transparent
+//! surfels along the ray) or only graze the faint rim of a surfel; this count cannot tell which.
 //!
 //! `cargo run --release -p svgir-cli --example microbuffer_stats -- CHECKPOINT`
 

@@ -15,7 +15,8 @@
 //! stays in the K-sample estimate. The count is a setting of the relighting, not of the model:
 //! the lights only split the same integral into an exact part and a sampled part. A studio map
 //! with three soft boxes holds 90% of its power in 16 of its 2048 texels, which K = 384 samples
-//! resolve as noisy, leaky shadows; [`RELIGHT_LIGHTS`] of them are traced exactly.
+//! hit only a few times each; [`RELIGHT_LIGHTS`] of them are traced exactly. (Measured on
+//! cup_and_ball the gain is small: 4 -> 64 lights, relighting +0.07 dB; README.)
 
 use crate::stage2::{PbrRender, Shading, Stage2};
 use svgir_core::{Camera, EnvMap};
@@ -36,12 +37,6 @@ pub struct RelightSampling {
     /// Brightest texels of each new map shaded as directional lights (0: SPEC 4's K samples
     /// alone, as the reference does).
     pub lights: usize,
-}
-
-impl Default for RelightSampling {
-    fn default() -> Self {
-        Self { directions: RELIGHT_DIRECTIONS, lights: RELIGHT_LIGHTS }
-    }
 }
 
 /// Micro-buffers for relighting a stage-2 model.

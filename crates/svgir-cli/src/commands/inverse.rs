@@ -173,6 +173,16 @@ pub enum EnvInitArg {
 }
 
 pub fn run(args: InverseArgs) -> Result<()> {
+    anyhow::ensure!(
+        (0.0..=1.0).contains(&args.visibility_cut),
+        "--visibility-cut {} is not a transmittance in [0, 1]",
+        args.visibility_cut
+    );
+    anyhow::ensure!(
+        args.visibility_alpha_gain.is_finite() && args.visibility_alpha_gain >= 1.0,
+        "--visibility-alpha-gain {} must be at least 1",
+        args.visibility_alpha_gain
+    );
     let cfg_path = args.run.join("config.json");
     let run_cfg: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(&cfg_path).with_context(|| format!("{}: cannot read", cfg_path.display()))?,
@@ -196,16 +206,6 @@ pub fn run(args: InverseArgs) -> Result<()> {
     let out = args.out.clone().unwrap_or_else(|| args.run.join("stage2"));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
 
-    anyhow::ensure!(
-        (0.0..=1.0).contains(&args.visibility_cut),
-        "--visibility-cut {} is not a transmittance in [0, 1]",
-        args.visibility_cut
-    );
-    anyhow::ensure!(
-        args.visibility_alpha_gain.is_finite() && args.visibility_alpha_gain >= 1.0,
-        "--visibility-alpha-gain {} must be at least 1",
-        args.visibility_alpha_gain
-    );
     let config = Stage2Config {
         iterations: args.iterations,
         seed: args.seed,

@@ -110,9 +110,9 @@ pub struct Stage2Config {
     #[serde(default)]
     pub trace_linear_radiance: bool,
     /// Visibility is 0 where the march's final transmittance is below this (`TraceParams::v_cut`,
-    /// SPEC 5: 0.2). Surfels are semi-transparent and a ray crossing a surface obliquely can
-    /// pass between disks, so on the 10k-iteration stage-1 models ~25-40% of the rays that hit a
-    /// surface keep T >= 0.5 (`examples/microbuffer_stats`): light leaks into concave interiors.
+    /// SPEC 5: 0.2). Surfels are semi-transparent: on the 10k-iteration stage-1 models 29-40% of
+    /// the rays that hit a surface keep T >= 0.5 (`examples/microbuffer_stats`). A higher cut did
+    /// not improve relighting on cup_and_ball (README).
     #[serde(default = "default_visibility_cut")]
     pub trace_visibility_cut: f32,
     /// Opacity gain of each hit in the visibility march (`TraceParams::visibility_alpha_gain`,
@@ -164,7 +164,7 @@ fn default_lights_every() -> u64 {
 }
 
 fn default_visibility_alpha_gain() -> f32 {
-    1.0
+    TraceParams::default().visibility_alpha_gain
 }
 
 fn default_visibility_cut() -> f32 {
