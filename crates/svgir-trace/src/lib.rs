@@ -12,6 +12,7 @@
 //! The maths is in `svgir-shading`; this crate does no I/O and prints nothing.
 
 pub mod bench;
+pub mod bounce;
 pub mod bright;
 pub mod bvh;
 pub mod gather;
@@ -23,6 +24,7 @@ pub mod reference;
 pub mod scenes;
 pub mod traverse;
 
+pub use bounce::add_bounces;
 pub use bright::{brightest_texels, concentrate_lobe, BrightLights};
 pub use bvh::{Bvh, Node};
 pub use gather::{gather_all, gather_one, gather_pairs, GatherParams, VertexMaterials};

@@ -2,7 +2,8 @@
 //!
 //! A [`Relighter`] traces its own micro-buffers with the evaluation's K (SPEC 7: 384; the
 //! training buffers have 64, too few for a map with a sun or bright lamps), then per light
-//! gathers the one-bounce indirect L1b under that map (Eqn 13, rho = 1) and renders with it.
+//! gathers the one-bounce indirect L1b under that map (Eqn 13, rho = 1), optionally adds further
+//! diffuse bounces ([`svgir_trace::add_bounces`]), and renders with it.
 //!
 //! A given map is used as is: its radiance is not clamped at SPEC 4's 64, which bounds the
 //! *learned* map during training. A measured HDR sun reaches thousands (the noon_grass map of
@@ -29,6 +30,10 @@ pub const RELIGHT_DIRECTIONS: usize = 384;
 /// Default number of directional lights when relighting (our addition, see the module note).
 pub const RELIGHT_LIGHTS: usize = 32;
 
+/// Default number of diffuse bounces added to Eqn 13's one-bounce light when relighting (our
+/// addition, [`svgir_trace::add_bounces`]; 0 is SPEC 7).
+pub const RELIGHT_BOUNCES: usize = 0;
+
 /// How the light integral is estimated when relighting.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct RelightSampling {
@@ -37,6 +42,8 @@ pub struct RelightSampling {
     /// Brightest texels of each new map shaded as directional lights (0: SPEC 4's K samples
     /// alone, as the reference does).
     pub lights: usize,
+    /// Diffuse bounces added to the one-bounce indirect light (0: SPEC 7's Eqn 13 alone).
+    pub bounces: usize,
 }
 
 /// Micro-buffers for relighting a stage-2 model.
@@ -47,6 +54,8 @@ pub struct Relighter {
     bvh: Option<Bvh>,
     /// Directional lights per new map.
     lights: usize,
+    /// Extra diffuse bounces of indirect light.
+    bounces: usize,
     /// Seconds spent building the BVH and tracing.
     pub trace_seconds: f64,
 }
@@ -65,7 +74,7 @@ impl Relighter {
     /// matches).
     pub fn new(s2: &Stage2, sampling: RelightSampling) -> Result<Self, PbrError> {
         let t0 = std::time::Instant::now();
-        let RelightSampling { directions, lights } = sampling;
+        let RelightSampling { directions, lights, bounces } = sampling;
         let bvh = (directions != s2.mb.k || lights > 0).then(|| Bvh::build(&s2.surfels));
         let mb = match &bvh {
             Some(bvh) if directions != s2.mb.k => {
@@ -74,7 +83,7 @@ impl Relighter {
             _ => s2.mb.clone(),
         };
         let cache = DirectionCache::new(&mb, &s2.env.radiance())?;
-        Ok(Self { mb, cache, bvh, lights, trace_seconds: t0.elapsed().as_secs_f64() })
+        Ok(Self { mb, cache, bvh, lights, bounces, trace_seconds: t0.elapsed().as_secs_f64() })
     }
 
     /// Eqn 13 under `env` (unclamped) with the model's current materials; nothing for a model
@@ -93,7 +102,8 @@ impl Relighter {
         }
         let act = s2.materials.activated(&s2.normals)?;
         let p = GatherParams { env_max: f32::INFINITY, lights: lights.as_ref() };
-        let one_bounce = svgir_trace::gather_all(&self.mb, &act.view(), &env, &p)?;
+        let mut one_bounce = svgir_trace::gather_all(&self.mb, &act.view(), &env, &p)?;
+        svgir_trace::add_bounces(&self.mb, &act.view(), &mut one_bounce, self.bounces)?;
         Ok(PreparedLight { env, one_bounce: Some(one_bounce), lights })
     }
 

@@ -117,7 +117,7 @@ fn relight_lights_conserve_the_light_integral() {
         }
     }
     let render = |directions, lights| {
-        let rl = Relighter::new(&s2, RelightSampling { directions, lights }).unwrap();
+        let rl = Relighter::new(&s2, RelightSampling { directions, lights, bounces: 0 }).unwrap();
         let lit = rl.prepare(&s2, env.clone()).unwrap();
         ds.test
             .iter()

@@ -96,6 +96,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         // long (K is recorded in eval.json).
         relight_directions: if args.quick { 16 } else { 128 },
         relight_lights: svgir_train::relight::RELIGHT_LIGHTS,
+        relight_bounces: svgir_train::relight::RELIGHT_BOUNCES,
     })?;
     let report = args.out.join("report.html");
     super::report::write_report(&args.out, &report)?;

@@ -87,6 +87,10 @@ pub struct InverseArgs {
     /// visibility when relighting for the evaluation (0: the K directions alone, as SPEC 7).
     #[arg(long, default_value_t = svgir_train::relight::RELIGHT_LIGHTS)]
     pub relight_lights: usize,
+    /// Diffuse bounces of indirect light added to SPEC 7's one-bounce term when relighting for
+    /// the evaluation (0: Eqn 13 alone).
+    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_BOUNCES)]
+    pub relight_bounces: usize,
     /// Initial learned light: SPEC 4's per-texel random init, or a uniform grey at its mean.
     #[arg(long, value_enum, default_value_t = EnvInitArg::Random)]
     pub env_init: EnvInitArg,
@@ -306,7 +310,11 @@ pub fn run(args: InverseArgs) -> Result<()> {
         set_true_light(&mut s2, &dataset)?;
     }
     let lpips = load_lpips(args.lpips)?;
-    let sampling = RelightSampling { directions: args.relight_directions, lights: args.relight_lights };
+    let sampling = RelightSampling {
+        directions: args.relight_directions,
+        lights: args.relight_lights,
+        bounces: args.relight_bounces,
+    };
     let eval = evaluate(&s2, &dataset, &out, lpips.as_ref(), args.turntable, sampling)?;
     let its = s2.iteration.max(1) as f64;
     let t = &s2.times;
@@ -514,6 +522,7 @@ fn evaluate(
         );
         result["relight_directions"] = json!(sampling.directions);
         result["relight_lights"] = json!(sampling.lights);
+        result["relight_bounces"] = json!(sampling.bounces);
         Some(r)
     } else {
         None

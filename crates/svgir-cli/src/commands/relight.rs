@@ -36,6 +36,9 @@ pub struct RelightArgs {
     /// K directions alone, as SPEC 7).
     #[arg(long, default_value_t = svgir_train::relight::RELIGHT_LIGHTS)]
     pub lights: usize,
+    /// Diffuse bounces of indirect light added to SPEC 7's one-bounce term (0: Eqn 13 alone).
+    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_BOUNCES)]
+    pub bounces: usize,
 }
 
 pub fn run(args: RelightArgs) -> Result<()> {
@@ -49,7 +52,7 @@ pub fn run(args: RelightArgs) -> Result<()> {
     let data = PathBuf::from(cfg["data"].as_str().with_context(|| format!("{}: no data path", cfg_path.display()))?);
     let s2 = checkpoint::load_stage2(&stage2_dir.join("checkpoint.bin"))?;
     let env = svgir_io::read_envmap(&args.envmap, args.strength, s2.config.env_height)?;
-    let relighter = Relighter::new(&s2, RelightSampling { directions: args.directions, lights: args.lights })?;
+    let relighter = Relighter::new(&s2, RelightSampling { directions: args.directions, lights: args.lights, bounces: args.bounces })?;
     let lit = relighter.prepare(&s2, env)?;
     let name = args.envmap.file_stem().map_or("env".into(), |s| s.to_string_lossy().into_owned());
     let out = args.out.clone().unwrap_or_else(|| stage2_dir.join(format!("relit_{name}")));

@@ -62,7 +62,8 @@ pub struct TrainArgs {
     /// Append training statistics to RUN/metrics.jsonl every this many iterations.
     #[arg(long, default_value_t = 50)]
     pub log_every: u64,
-    /// Stop densifying at this many Gaussians.
+    /// Stop densifying at this many Gaussians (default: one per 64 training pixels, against
+    /// overfitting few small photos; 0: no limit).
     #[arg(long)]
     pub max_gaussians: Option<usize>,
     /// Disable the mask and entropy losses (photos without a meaningful alpha channel).
@@ -135,9 +136,12 @@ fn make_config(args: &TrainArgs, dataset: &Dataset) -> Result<Stage1Config> {
         Bg::Random => BackgroundMode::Random,
     };
     c.init_points = args.init_points;
-    if let Some(m) = args.max_gaussians {
-        c.densify.max_gaussians = m;
-    }
+    let pixels: usize = dataset.train.iter().map(|v| (v.image.width * v.image.height) as usize).sum();
+    c.densify.max_gaussians = match args.max_gaussians {
+        Some(0) => usize::MAX,
+        Some(m) => m,
+        None => svgir_train::densify::default_max_gaussians(pixels),
+    };
     // A schedule scaled down to a short run densifies and resets very often (every 10 and
     // 300 iterations at 3000); these let a short run keep 3DGS's cadence instead.
     if let Some(n) = args.densify_every {
