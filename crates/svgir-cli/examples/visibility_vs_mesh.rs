@@ -111,7 +111,8 @@ fn main() -> Result<()> {
     let mesh_path = Path::new(&args[2]).join("mesh.ply");
     let mesh = read_mesh(&mesh_path).with_context(|| format!("reading {}", mesh_path.display()))?;
     let bvh = Bvh::build(&mesh);
-    let (lo, hi) = mesh.verts.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(l, h), p| (l.min(*p), h.max(*p)));
+    let (lo, hi) =
+        mesh.verts.iter().fold((Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)), |(l, h), p| (l.min(*p), h.max(*p)));
     let diag = (hi - lo).length();
     let reach = snap * diag;
     let lift = 1e-4 * diag;
@@ -152,7 +153,14 @@ fn main() -> Result<()> {
                     let q = p;
                     rows.lock().unwrap().push(format!(
                         "{j},{},{},{},{},{},{},{:.4},nan,nan,nan,nan,{:.4},nan,nan",
-                        q.x, q.y, q.z, n.x, n.y, n.z, s2.surfels.opacity(j), n_mesh.dot(n)
+                        q.x,
+                        q.y,
+                        q.z,
+                        n.x,
+                        n.y,
+                        n.z,
+                        s2.surfels.opacity(j),
+                        n_mesh.dot(n)
                     ));
                 }
                 return t;
@@ -265,7 +273,10 @@ fn main() -> Result<()> {
     if let Some(path) = dump {
         let mut rows = rows.into_inner().unwrap();
         rows.sort_by_key(|r| r.split(',').next().and_then(|x| x.parse::<usize>().ok()));
-        let body = format!("j,x,y,z,nx,ny,nz,opacity,e_traced,e_mesh,leak_miss,leak_hit,normal_dot,light_traced,light_mesh\n{}\n", rows.join("\n"));
+        let body = format!(
+            "j,x,y,z,nx,ny,nz,opacity,e_traced,e_mesh,leak_miss,leak_hit,normal_dot,light_traced,light_mesh\n{}\n",
+            rows.join("\n")
+        );
         std::fs::write(&path, body).with_context(|| format!("writing {path}"))?;
     }
     if t.light[0] > 0.0 {

@@ -79,7 +79,8 @@ fn vertex_irradiance(mb: &MicroBuffer, mats: &VertexMaterials<f32>, light: &[[f3
             let d = mb.direction(h, s);
             for (mm, em) in e.iter_mut().enumerate() {
                 let b = (h * m + mm) * 3;
-                let cos = (mats.normals[b] * d.x + mats.normals[b + 1] * d.y + mats.normals[b + 2] * d.z).max(DOT_EPS as f32);
+                let cos =
+                    (mats.normals[b] * d.x + mats.normals[b + 1] * d.y + mats.normals[b + 2] * d.z).max(DOT_EPS as f32);
                 for c in 0..3 {
                     em[c] += scale * cos * l[c];
                 }
@@ -95,7 +96,22 @@ mod tests {
     use crate::{Bvh, TraceParams};
     use svgir_core::Rng;
 
-    fn case(m: usize, seed: u64) -> (MicroBuffer, Vec<f32>, Vec<f32>, Vec<f32>, Vec<[f32; 3]>) {
+    /// Micro-buffers of a small object with random materials and a random one-bounce light.
+    struct Case {
+        mb: MicroBuffer,
+        albedo: Vec<f32>,
+        rough: Vec<f32>,
+        normals: Vec<f32>,
+        l1b: Vec<[f32; 3]>,
+    }
+
+    impl Case {
+        fn mats(&self, m: usize) -> VertexMaterials<'_, f32> {
+            VertexMaterials { m, albedo: &self.albedo, roughness: &self.rough, normals: &self.normals }
+        }
+    }
+
+    fn case(m: usize, seed: u64) -> Case {
         let surfels = object_scene(300, seed);
         let bvh = Bvh::build(&surfels);
         let mb = MicroBuffer::trace(&bvh, &surfels, 16, seed, &TraceParams::default()).unwrap();
@@ -109,8 +125,9 @@ mod tests {
                 normals.extend(surfels.normal(i).to_array());
             }
         }
-        let l1b: Vec<[f32; 3]> = (0..n * 16).map(|_| [rng.range(0.0, 2.0), rng.range(0.0, 2.0), rng.range(0.0, 2.0)]).collect();
-        (mb, albedo, rough, normals, l1b)
+        let l1b: Vec<[f32; 3]> =
+            (0..n * 16).map(|_| [rng.range(0.0, 2.0), rng.range(0.0, 2.0), rng.range(0.0, 2.0)]).collect();
+        Case { mb, albedo, rough, normals, l1b }
     }
 
     /// The definition, one (j, k) at a time, in f64, with no shared irradiance.
@@ -154,11 +171,11 @@ mod tests {
     #[test]
     fn bounces_match_the_definition() {
         for (m, seed, bounces) in [(4usize, 1u64, 1usize), (1, 2, 2), (6, 3, 3)] {
-            let (mb, albedo, rough, normals, l1b) = case(m, seed);
-            let mats = VertexMaterials { m, albedo: &albedo, roughness: &rough, normals: &normals };
+            let c = case(m, seed);
+            let (mb, mats, l1b) = (&c.mb, c.mats(m), &c.l1b);
             let mut got = l1b.clone();
-            add_bounces(&mb, &mats, &mut got, bounces).unwrap();
-            let want = reference(&mb, &mats, &l1b, bounces);
+            add_bounces(mb, &mats, &mut got, bounces).unwrap();
+            let want = reference(mb, &mats, l1b, bounces);
             let mut added = 0.0;
             for (g, w) in got.iter().zip(&want) {
                 for c in 0..3 {
@@ -174,27 +191,27 @@ mod tests {
     #[test]
     fn zero_bounces_or_black_albedo_change_nothing_and_bad_sizes_fail() {
         let m = 4;
-        let (mb, albedo, rough, normals, l1b) = case(m, 7);
-        let mats = VertexMaterials { m, albedo: &albedo, roughness: &rough, normals: &normals };
+        let c = case(m, 7);
+        let (mb, mats, l1b) = (&c.mb, c.mats(m), &c.l1b);
         let mut same = l1b.clone();
-        add_bounces(&mb, &mats, &mut same, 0).unwrap();
-        assert_eq!(same, l1b);
-        let black = vec![0.0; albedo.len()];
-        let dark = VertexMaterials { m, albedo: &black, roughness: &rough, normals: &normals };
-        add_bounces(&mb, &dark, &mut same, 3).unwrap();
-        assert_eq!(same, l1b);
+        add_bounces(mb, &mats, &mut same, 0).unwrap();
+        assert_eq!(&same, l1b);
+        let black = vec![0.0; c.albedo.len()];
+        let dark = VertexMaterials { albedo: &black, ..mats };
+        add_bounces(mb, &dark, &mut same, 3).unwrap();
+        assert_eq!(&same, l1b);
         let mut short = l1b[1..].to_vec();
-        assert!(add_bounces(&mb, &mats, &mut short, 1).is_err());
+        assert!(add_bounces(mb, &mats, &mut short, 1).is_err());
     }
 
     #[test]
     fn more_bounces_converge_for_albedo_below_one() {
         let m = 4;
-        let (mb, albedo, rough, normals, l1b) = case(m, 9);
-        let mats = VertexMaterials { m, albedo: &albedo, roughness: &rough, normals: &normals };
+        let c = case(m, 9);
+        let mats = c.mats(m);
         let total = |b: usize| {
-            let mut l = l1b.clone();
-            add_bounces(&mb, &mats, &mut l, b).unwrap();
+            let mut l = c.l1b.clone();
+            add_bounces(&c.mb, &mats, &mut l, b).unwrap();
             l.iter().map(|x| x[1] as f64).sum::<f64>()
         };
         let (t1, t2, t8, t9) = (total(1), total(2), total(8), total(9));

@@ -8,7 +8,6 @@ use anyhow::{bail, Context, Result};
 use glam::Vec3;
 use std::path::Path;
 
-
 pub struct Mesh {
     pub verts: Vec<Vec3>,
     /// Per-vertex normals from the file (zero if absent).

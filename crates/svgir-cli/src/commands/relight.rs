@@ -52,7 +52,10 @@ pub fn run(args: RelightArgs) -> Result<()> {
     let data = PathBuf::from(cfg["data"].as_str().with_context(|| format!("{}: no data path", cfg_path.display()))?);
     let s2 = checkpoint::load_stage2(&stage2_dir.join("checkpoint.bin"))?;
     let env = svgir_io::read_envmap(&args.envmap, args.strength, s2.config.env_height)?;
-    let relighter = Relighter::new(&s2, RelightSampling { directions: args.directions, lights: args.lights, bounces: args.bounces })?;
+    let relighter = Relighter::new(
+        &s2,
+        RelightSampling { directions: args.directions, lights: args.lights, bounces: args.bounces },
+    )?;
     let lit = relighter.prepare(&s2, env)?;
     let name = args.envmap.file_stem().map_or("env".into(), |s| s.to_string_lossy().into_owned());
     let out = args.out.clone().unwrap_or_else(|| stage2_dir.join(format!("relit_{name}")));
