@@ -79,6 +79,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         env_init: inverse::EnvInitArg::Random,
         rho_lr: 0.01,
         albedo_lr: 0.01,
+        materials_from: 0,
         lights: 0,
         lights_every: 100,
         env_activation: inverse::EnvActivationArg::Softplus,

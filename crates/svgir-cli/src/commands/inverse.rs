@@ -100,6 +100,11 @@ pub struct InverseArgs {
     /// Learning rate of the albedo (SPEC 6: 0.01).
     #[arg(long, default_value_t = 0.01)]
     pub albedo_lr: f32,
+    /// Light warm-up: hold the materials (albedo, roughness, normal offsets) at their initial
+    /// values for this many iterations, so that the light must explain shading and shadows
+    /// first (0: train them from the start, as SPEC 6).
+    #[arg(long, default_value_t = 0)]
+    pub materials_from: u64,
     /// Shade this many of the learned map's brightest texels as directional lights with traced
     /// visibility and no clamp (re-selected every --lights-every iterations; relighting splits
     /// the new map by --relight-lights). For training lights with a sun; 0: SPEC 4's K samples alone.
@@ -242,6 +247,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         trace_linear_radiance: args.traced_radiance == TracedRadianceArg::Linear,
         sun_at: args.sun_at,
         sun_radius_deg: args.sun_radius,
+        materials_from: args.materials_from,
         weights: super::loss_weights::<Stage2Weights>(&args.weights)?,
         ..Stage2Config::default()
     };

@@ -143,6 +143,11 @@ pub struct Stage2Config {
     /// Angular radius of the lobe gathered at `sun_at`, degrees.
     #[serde(default = "default_sun_radius_deg")]
     pub sun_radius_deg: f32,
+    /// Light warm-up: the materials (albedo, roughness, normal offsets) are held at their
+    /// initial values for the first this many iterations (0: trained from the start, as SPEC 6),
+    /// so that the light has to explain shading and shadows before the materials can absorb them.
+    #[serde(default)]
+    pub materials_from: u64,
 }
 
 fn default_sun_radius_deg() -> f32 {
@@ -213,6 +218,7 @@ impl Default for Stage2Config {
             env_activation: EnvActivation::Softplus,
             sun_at: 0,
             sun_radius_deg: default_sun_radius_deg(),
+            materials_from: 0,
         }
     }
 }

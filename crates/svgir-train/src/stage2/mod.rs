@@ -421,9 +421,11 @@ impl Stage2 {
         let g = &mut self.groups;
         g[0].step(&mut self.surfels.opacity_logits, &v_opacity);
         g[1].step(bytemuck::cast_slice_mut(&mut self.surfels.sh), bytemuck::cast_slice(&g_sh.v_sh));
-        g[2].step(&mut self.materials.albedo_raw, &mg.v_albedo_raw);
-        g[3].step(&mut self.materials.roughness_raw, &mg.v_roughness_raw);
-        g[4].step(&mut self.materials.normal_offset, &v_offset);
+        if self.iteration > cfg.materials_from {
+            g[2].step(&mut self.materials.albedo_raw, &mg.v_albedo_raw);
+            g[3].step(&mut self.materials.roughness_raw, &mg.v_roughness_raw);
+            g[4].step(&mut self.materials.normal_offset, &v_offset);
+        }
         g[5].step(bytemuck::cast_slice_mut(&mut self.env.param), bytemuck::cast_slice(&v_env));
         if cfg.indirect {
             let mut rho = [self.rho];
