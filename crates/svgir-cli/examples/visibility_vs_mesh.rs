@@ -80,6 +80,13 @@ impl Tally {
     }
 }
 
+/// One `--dump` row: Gaussian, centre, normal, opacity, then `cols` ("nan" where not compared).
+fn csv_row(j: usize, p: Vec3, n: Vec3, opacity: f32, cols: &[f64]) -> String {
+    let rest: Vec<String> =
+        cols.iter().map(|x| if x.is_nan() { "nan".to_string() } else { format!("{x:.4}") }).collect();
+    format!("{j},{},{},{},{},{},{},{opacity:.4},{}", p.x, p.y, p.z, n.x, n.y, n.z, rest.join(","))
+}
+
 fn main() -> Result<()> {
     let args: Vec<String> = std::env::args().collect();
     anyhow::ensure!(args.len() >= 3, "usage: visibility_vs_mesh CHECKPOINT DATA [--stride N] [--snap F]");
@@ -150,18 +157,9 @@ fn main() -> Result<()> {
                     t.flipped += 1;
                 }
                 if dump.is_some() {
-                    let q = p;
-                    rows.lock().unwrap().push(format!(
-                        "{j},{},{},{},{},{},{},{:.4},nan,nan,nan,nan,{:.4},nan,nan",
-                        q.x,
-                        q.y,
-                        q.z,
-                        n.x,
-                        n.y,
-                        n.z,
-                        s2.surfels.opacity(j),
-                        n_mesh.dot(n)
-                    ));
+                    let nan = f64::NAN;
+                    let cols = [nan, nan, nan, nan, n_mesh.dot(n) as f64, nan, nan];
+                    rows.lock().unwrap().push(csv_row(j, p, n, s2.surfels.opacity(j), &cols));
                 }
                 return t;
             }
@@ -188,7 +186,7 @@ fn main() -> Result<()> {
                 }
             }
             // Directional lights: traced light visibility against the mesh.
-            let (mut lw, mut lv, mut lm) = (0.0f64, 0.0f64, 0.0f64);
+            let mut lit = [0.0f64; 5];
             for b in 0..lights.len() {
                 let d = lights.dirs[b];
                 let c = n.dot(d) as f64;
@@ -197,37 +195,23 @@ fn main() -> Result<()> {
                 }
                 let open = bvh.intersect(origin, d, 0.0, f32::MAX, true).is_none();
                 let v = lights.visibility(j, b) as f64;
-                lw += c;
-                lv += c * v;
-                lm += if open { c } else { 0.0 };
-                t.light[0] += c;
-                t.light[1] += c * v;
-                t.light[2] += if open { c } else { 0.0 };
-                t.light[3] += if !open && v >= 0.5 { c } else { 0.0 };
-                t.light[4] += if open && v < 0.5 { c } else { 0.0 };
+                lit[0] += c;
+                lit[1] += c * v;
+                lit[2] += if open { c } else { 0.0 };
+                lit[3] += if !open && v >= 0.5 { c } else { 0.0 };
+                lit[4] += if open && v < 0.5 { c } else { 0.0 };
+            }
+            for (a, b) in t.light.iter_mut().zip(lit) {
+                *a += b;
             }
             t.leak_hit += leak_hit;
             t.leak_miss += leak_miss;
             if dump.is_some() {
-                let q = s2.surfels.positions[j];
                 let w = wsum.max(1e-12);
-                rows.lock().unwrap().push(format!(
-                    "{j},{},{},{},{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4}",
-                    q.x,
-                    q.y,
-                    q.z,
-                    n.x,
-                    n.y,
-                    n.z,
-                    s2.surfels.opacity(j),
-                    e_mb / w,
-                    e_mesh / w,
-                    leak_miss / w,
-                    leak_hit / w,
-                    n_mesh.dot(n),
-                    lv / lw.max(1e-12),
-                    lm / lw.max(1e-12)
-                ));
+                let lw = lit[0].max(1e-12);
+                let cols =
+                    [e_mb / w, e_mesh / w, leak_miss / w, leak_hit / w, n_mesh.dot(n) as f64, lit[1] / lw, lit[2] / lw];
+                rows.lock().unwrap().push(csv_row(j, p, n, s2.surfels.opacity(j), &cols));
             }
             t.w += wsum;
             t.vis_mb += e_mb;
