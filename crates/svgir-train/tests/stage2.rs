@@ -66,11 +66,18 @@ fn stage2_raises_pbr_psnr_and_resumes_bit_identically() {
 }
 
 /// `materials_from`: the light warm-up holds albedo, roughness and normal offsets at their initial
-/// values while the light trains, then releases them all.
+/// values while the light trains, then releases them all; `env_lr_after_warm_up` 0 then freezes
+/// the light.
 #[test]
 fn light_warm_up_holds_the_materials_then_releases_them() {
     let Some(ds) = scene() else { return };
-    let cfg = Stage2Config { iterations: 20, directions: 16, materials_from: 10, ..Stage2Config::default() };
+    let cfg = Stage2Config {
+        iterations: 20,
+        directions: 16,
+        materials_from: 10,
+        env_lr_after_warm_up: 0.0,
+        ..Stage2Config::default()
+    };
     let mut t = Stage2::new(cfg, stage1(&ds), &ds).expect("stage 2 set-up");
     let (m0, e0) = (t.materials.clone(), t.env.clone());
     for _ in 0..10 {
@@ -78,7 +85,9 @@ fn light_warm_up_holds_the_materials_then_releases_them() {
     }
     assert_eq!(t.materials, m0, "materials held during the warm-up");
     assert_ne!(t.env, e0, "the light trains during the warm-up");
+    let e10 = t.env.clone();
     t.step(&ds).unwrap();
+    assert_eq!(t.env, e10, "light frozen after the warm-up");
     assert_ne!(t.materials.albedo_raw, m0.albedo_raw);
     assert_ne!(t.materials.roughness_raw, m0.roughness_raw);
     assert_ne!(t.materials.normal_offset, m0.normal_offset);

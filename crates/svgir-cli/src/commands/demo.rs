@@ -80,6 +80,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         rho_lr: 0.01,
         albedo_lr: 0.01,
         materials_from: 0,
+        env_lr_after_warm_up: 1.0,
         lights: 0,
         lights_every: 100,
         env_activation: inverse::EnvActivationArg::Softplus,

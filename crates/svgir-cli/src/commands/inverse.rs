@@ -105,6 +105,10 @@ pub struct InverseArgs {
     /// first (0: train them from the start, as SPEC 6).
     #[arg(long, default_value_t = 0)]
     pub materials_from: u64,
+    /// Factor on the light's learning rate after the warm-up (--materials-from): below 1 the
+    /// light mostly keeps what it learned while the materials were held.
+    #[arg(long, default_value_t = 1.0)]
+    pub env_lr_after_warm_up: f32,
     /// Shade this many of the learned map's brightest texels as directional lights with traced
     /// visibility and no clamp (re-selected every --lights-every iterations; relighting splits
     /// the new map by --relight-lights). For training lights with a sun; 0: SPEC 4's K samples alone.
@@ -248,6 +252,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         sun_at: args.sun_at,
         sun_radius_deg: args.sun_radius,
         materials_from: args.materials_from,
+        env_lr_after_warm_up: args.env_lr_after_warm_up,
         weights: super::loss_weights::<Stage2Weights>(&args.weights)?,
         ..Stage2Config::default()
     };

@@ -148,6 +148,15 @@ pub struct Stage2Config {
     /// so that the light has to explain shading and shadows before the materials can absorb them.
     #[serde(default)]
     pub materials_from: u64,
+    /// Factor on the light's learning rate once the warm-up has released the materials (1: the
+    /// same rate throughout, as SPEC 6). Below 1 the light mostly keeps what it learned alone,
+    /// instead of drifting with the materials along the light/albedo ambiguity.
+    #[serde(default = "one")]
+    pub env_lr_after_warm_up: f32,
+}
+
+fn one() -> f32 {
+    1.0
 }
 
 fn default_sun_radius_deg() -> f32 {
@@ -219,6 +228,7 @@ impl Default for Stage2Config {
             sun_at: 0,
             sun_radius_deg: default_sun_radius_deg(),
             materials_from: 0,
+            env_lr_after_warm_up: 1.0,
         }
     }
 }
