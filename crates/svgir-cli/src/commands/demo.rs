@@ -61,6 +61,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         data: None,
         iterations: iterations2,
         oracle_materials: false,
+        oracle_fit_epochs: 0,
         oracle_light: false,
         train_true_light: false,
         seed: args.seed,

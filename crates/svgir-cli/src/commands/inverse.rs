@@ -33,6 +33,11 @@ pub struct InverseArgs {
     /// of this geometry and shading with perfect materials). Not a result: it reads ground truth.
     #[arg(long)]
     pub oracle_materials: bool,
+    /// With --oracle-materials: passes over the training views fitting the vertex materials to
+    /// the ground-truth maps through the rasteriser after the per-Gaussian projection (0: the
+    /// projection alone, constant per Gaussian).
+    #[arg(long, default_value_t = 6)]
+    pub oracle_fit_epochs: usize,
     /// Diagnostic: before the evaluation, replace the learned light by the dataset's training
     /// light (its brightest texels as directional lights when --lights > 0), so NVS measures
     /// the model under the true light. Not a result: it reads ground truth.
@@ -316,6 +321,13 @@ pub fn run(args: InverseArgs) -> Result<()> {
             st.views, st.assigned, st.total
         );
         anyhow::ensure!(st.views > 0, "--oracle-materials: the training views have no albedo/roughness maps");
+        if args.oracle_fit_epochs > 0 {
+            let loss = super::oracle_materials::fit(&mut s2, &dataset, args.oracle_fit_epochs)?;
+            eprintln!(
+                "oracle materials: fitted to the training views' maps, {} epochs, last loss {loss:.5}",
+                args.oracle_fit_epochs
+            );
+        }
     }
     if args.oracle_light {
         set_true_light(&mut s2, &dataset)?;
