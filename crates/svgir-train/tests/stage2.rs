@@ -6,6 +6,7 @@ use std::path::PathBuf;
 use svgir_core::{Dataset, Rng, Surfels};
 use svgir_io::{load_dataset, LoadOptions};
 use svgir_pbr::EnvActivation;
+use svgir_train::stage2::Stage2Weights;
 use svgir_train::{checkpoint, init, BackgroundMode, Stage1, Stage1Config, Stage2, Stage2Config};
 
 fn scene() -> Option<Dataset> {
@@ -51,9 +52,11 @@ fn stage2_raises_pbr_psnr_and_resumes_bit_identically() {
     let surfels = stage1(&ds);
     let spec = Stage2Config { iterations: 120, directions: 16, ..Stage2Config::default() };
     // Directional lights, re-selected before and after the checkpoint (iterations 80 and 120),
-    // and the sun gathered into one texel after it (iteration 110), in the run and its resumption.
+    // and the sun gathered into one texel after it (iteration 110), in the run and its resumption;
+    // with the normal smoothness (our addition) on.
     let lit = Stage2Config {
         iterations: 130,
+        weights: Stage2Weights { smooth_normal: 0.1, ..Stage2Weights::default() },
         lights: 8,
         lights_every: 40,
         env_activation: EnvActivation::Exp,

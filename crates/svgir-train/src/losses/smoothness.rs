@@ -46,6 +46,22 @@ pub fn edge_aware_smoothness<F: Float>(
     F::from_f64(loss / n.to_f64())
 }
 
+/// Guide for [`edge_aware_smoothness`] of the splatted shading normals (our addition,
+/// `Stage2Weights::smooth_normal`): `sharpness * ln(depth)` where the render covers the pixel
+/// (opacity > 0.5), so a relative depth step of `1/sharpness` between neighbours halves their
+/// weight by e and a silhouette cuts it; [`BACKGROUND_GUIDE`] elsewhere, which no foreground pixel
+/// is smoothed towards. `depth_sum` is the rasteriser's `sum w_i z_i`.
+pub fn depth_guide(depth_sum: &[f32], alpha: &[f32], sharpness: f32) -> Vec<f32> {
+    depth_sum
+        .iter()
+        .zip(alpha)
+        .map(|(&d, &a)| if a > 0.5 { sharpness * (d / a).max(1e-6).ln() } else { BACKGROUND_GUIDE })
+        .collect()
+}
+
+/// Guide value of uncovered pixels: `exp(-|BACKGROUND_GUIDE - g|)` is 0 for any depth guide `g`.
+pub const BACKGROUND_GUIDE: f32 = 1e6;
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -79,5 +95,22 @@ mod tests {
         let l_flat = edge_aware_smoothness(&a2, 1, &flat, 1, 2, 1, 1.0, &mut s);
         let l_edge = edge_aware_smoothness(&a2, 1, &edged, 1, 2, 1, 1.0, &mut s);
         assert!(l_edge < 0.4 * l_flat);
+    }
+
+    #[test]
+    fn depth_guide_cuts_silhouettes_and_keeps_smooth_surfaces() {
+        // Pixels: surface at depth 2 (opacity 1), the same surface 0.2% further, an object behind
+        // at depth 3, and background.
+        let alpha = [1.0f32, 1.0, 1.0, 0.0];
+        let depth = [2.0f32, 2.004, 3.0, 0.0];
+        let g = depth_guide(&depth, &alpha, 100.0);
+        let a = [0.0f32, 1.0, 0.0, 1.0];
+        let pair = |p: usize, q: usize| {
+            let mut v = [0.0f32; 2];
+            edge_aware_smoothness(&[a[p], a[q]], 1, &[g[p], g[q]], 1, 2, 1, 1.0, &mut v)
+        };
+        assert!(pair(0, 1) > 0.3, "smooth surface: weight exp(-0.2)");
+        assert!(pair(1, 2) < 1e-10, "depth discontinuity");
+        assert_eq!(pair(0, 3), 0.0, "background");
     }
 }

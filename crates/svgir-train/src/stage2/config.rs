@@ -16,6 +16,11 @@ pub struct Stage2Weights {
     pub smooth_roughness: f32,
     pub normal_offset: f32,
     pub env_tv: f32,
+    /// Edge-aware smoothness of the splatted shading normals over a depth guide (our addition,
+    /// 0 = SPEC: stage 1's normals copy textures, tilting with the cup's stripes and the saucer's
+    /// checker; [`crate::losses::smoothness::depth_guide`]).
+    #[serde(default)]
+    pub smooth_normal: f32,
 }
 
 impl Default for Stage2Weights {
@@ -30,13 +35,23 @@ impl Default for Stage2Weights {
             smooth_roughness: 0.05,
             normal_offset: 0.01,
             env_tv: 0.02,
+            smooth_normal: 0.0,
         }
     }
 }
 
 impl NamedWeights for Stage2Weights {
-    const NAMES: &'static [&'static str] =
-        &["l1", "ssim", "consistency", "normal", "smooth_albedo", "smooth_roughness", "normal_offset", "env_tv"];
+    const NAMES: &'static [&'static str] = &[
+        "l1",
+        "ssim",
+        "consistency",
+        "normal",
+        "smooth_albedo",
+        "smooth_roughness",
+        "normal_offset",
+        "env_tv",
+        "smooth_normal",
+    ];
 
     fn set(&mut self, name: &str, value: f32) -> Option<()> {
         let w = match name {
@@ -48,6 +63,7 @@ impl NamedWeights for Stage2Weights {
             "smooth_roughness" => &mut self.smooth_roughness,
             "normal_offset" => &mut self.normal_offset,
             "env_tv" => &mut self.env_tv,
+            "smooth_normal" => &mut self.smooth_normal,
             _ => return None,
         };
         *w = value;

@@ -21,7 +21,9 @@ pub use render::{PbrRender, Shading};
 
 use crate::adam::AdamGroup;
 use crate::composite::{pbr_composite, pbr_composite_backward};
-use crate::losses::{depth_normal::depth_normal_loss, l1::l1_loss, smoothness::edge_aware_smoothness};
+use crate::losses::depth_normal::depth_normal_loss;
+use crate::losses::l1::l1_loss;
+use crate::losses::smoothness::{depth_guide, edge_aware_smoothness, BACKGROUND_GUIDE};
 use crate::orient::orient_normals;
 use crate::stage1::{psnr_of_mse, target_rgb, PhaseTimes};
 use glam::Vec3;
@@ -39,6 +41,9 @@ use svgir_trace::{brightest_texels, concentrate_lobe, BrightLights, Bvh, GatherP
 pub const EXTRA_CHANNELS: usize = 7;
 /// Opacity floor when turning composited sums into per-pixel values (SPEC 3).
 const MIN_OPACITY: f32 = crate::composite::MIN_OPACITY as f32;
+/// Depth guide of the normal smoothness: neighbours 1% apart in depth weigh e^-1. A pixel spans
+/// ~0.3% of the depth on our 256-px scenes at normal incidence, ~1.5% at 80 degrees.
+const NORMAL_SMOOTHING_SHARPNESS: f32 = 100.0;
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Stage2Step {
@@ -335,13 +340,21 @@ impl Stage2 {
         loss += wts.smooth_albedo * edge_aware_smoothness(&alb, 3, &gt, 3, w, h, wts.smooth_albedo, &mut v_alb);
         loss +=
             wts.smooth_roughness * edge_aware_smoothness(&rough, 1, &gt, 3, w, h, wts.smooth_roughness, &mut v_rough);
+        let mut v_nrm = vec![0.0f32; npix * 3];
+        if wts.smooth_normal > 0.0 {
+            let guide = depth_guide(&pbr_out.depth, &pbr_out.alpha, NORMAL_SMOOTHING_SHARPNESS);
+            let nrm: Vec<f32> = (0..npix * 3)
+                .map(|i| if guide[i / 3] == BACKGROUND_GUIDE { 0.0 } else { nsum[i] / pbr_out.alpha[i / 3] })
+                .collect();
+            loss += wts.smooth_normal * edge_aware_smoothness(&nrm, 3, &guide, 1, w, h, wts.smooth_normal, &mut v_nrm);
+        }
         let (ln, g_n) = depth_normal_loss(&pbr_out.depth, &pbr_out.alpha, &nsum, cam);
         loss += wts.normal * ln;
         for p in 0..npix {
             let inv = 1.0 / pbr_out.alpha[p].max(MIN_OPACITY);
             for c in 0..3 {
                 v_extra[EXTRA_CHANNELS * p + c] = v_alb[3 * p + c] * inv;
-                v_extra[EXTRA_CHANNELS * p + 4 + c] = wts.normal * g_n.v_normal[3 * p + c];
+                v_extra[EXTRA_CHANNELS * p + 4 + c] = wts.normal * g_n.v_normal[3 * p + c] + v_nrm[3 * p + c] * inv;
             }
             v_extra[EXTRA_CHANNELS * p + 3] = v_rough[p] * inv;
             v_alpha[p] += wts.normal * g_n.v_opacity[p];
