@@ -436,7 +436,7 @@ pub fn straight_colour(over_black: &[f32], alpha: &[f32]) -> Vec<f32> {
         .collect()
 }
 
-fn alpha_of(img: &Image) -> Vec<f32> {
+pub(super) fn alpha_of(img: &Image) -> Vec<f32> {
     img.data.chunks(img.channels as usize).map(|p| if img.channels == 4 { p[3] } else { 1.0 }).collect()
 }
 

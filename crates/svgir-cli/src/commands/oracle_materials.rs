@@ -78,12 +78,11 @@ pub fn fit(s2: &mut Stage2, ds: &Dataset, epochs: usize) -> Result<f64> {
     let rows = s2.materials.albedo_raw.len() / (3 * m);
     let mut g_albedo = AdamGroup::new("albedo", 0.05, 3 * m, rows);
     let mut g_rough = AdamGroup::new("roughness", 0.05, m, rows);
-    let views: Vec<_> = ds.train.iter().filter(|v| v.albedo.is_some() && v.roughness.is_some()).collect();
+    let views: Vec<_> = ds.train.iter().filter_map(|v| Some((v, v.albedo.as_ref()?, v.roughness.as_ref()?))).collect();
     let mut last = 0.0;
     for _ in 0..epochs {
         let mut sum = 0.0;
-        for v in &views {
-            let (Some(alb), Some(rough)) = (&v.albedo, &v.roughness) else { continue };
+        for &(v, alb, rough) in &views {
             let act = s2.materials.activated(&s2.normals)?;
             let feats: Vec<f32> = (0..rows * m)
                 .flat_map(|k| [act.albedo[3 * k], act.albedo[3 * k + 1], act.albedo[3 * k + 2], act.roughness[k]])
@@ -97,7 +96,7 @@ pub fn fit(s2: &mut Stage2, ds: &Dataset, epochs: usize) -> Result<f64> {
             };
             let (out, state) = render(&input, &s2.raster);
             let npix = out.alpha.len();
-            let mask: Vec<bool> = (0..npix).map(|p| v.image.data[4 * p + 3] > 0.5).collect();
+            let mask: Vec<bool> = super::inverse::alpha_of(&v.image).iter().map(|a| *a > 0.5).collect();
             let count = mask.iter().filter(|b| **b).count().max(1) as f32;
             let ac = alb.channels as usize;
             let mut v_extra = vec![0.0f32; npix * CH];

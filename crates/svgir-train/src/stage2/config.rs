@@ -167,11 +167,11 @@ pub struct Stage2Config {
     /// Factor on the light's learning rate once the warm-up has released the materials (1: the
     /// same rate throughout, as SPEC 6). Below 1 the light mostly keeps what it learned alone,
     /// instead of drifting with the materials along the light/albedo ambiguity.
-    #[serde(default = "one")]
+    #[serde(default = "default_env_lr_after_warm_up")]
     pub env_lr_after_warm_up: f32,
 }
 
-fn one() -> f32 {
+fn default_env_lr_after_warm_up() -> f32 {
     1.0
 }
 

@@ -438,8 +438,6 @@ impl Stage2 {
             g[2].step(&mut self.materials.albedo_raw, &mg.v_albedo_raw);
             g[3].step(&mut self.materials.roughness_raw, &mg.v_roughness_raw);
             g[4].step(&mut self.materials.normal_offset, &v_offset);
-        }
-        if self.iteration > cfg.materials_from {
             g[5].lr = cfg.lr.env * cfg.env_lr_after_warm_up;
         }
         g[5].step(bytemuck::cast_slice_mut(&mut self.env.param), bytemuck::cast_slice(&v_env));
