@@ -292,7 +292,7 @@ fn shade_px(px: &Px, lights: &[Light], quad: &Quad, p: &Params, bvh: Option<&Bvh
                 if c <= 0.0 || occluder(bvh, px, d).is_some() {
                     continue;
                 }
-                let f = brdf::ggx(nn, vv, d.to_array(), px.albedo, r);
+                let f = brdf::ggx(nn, vv, d.to_array(), px.albedo, r, svgir_shading::Diffuse::Added);
                 for (li, lt) in lights.iter().enumerate() {
                     let rad = lt.coarse.lookup(p.t * d);
                     for ch in 0..3 {

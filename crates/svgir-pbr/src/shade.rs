@@ -9,7 +9,7 @@
 //! one-bounce L1b of `svgir_trace::gather_all`, SPEC 7). Ablation switches: no visibility
 //! (V = 1), no indirect (`Indirect::Off`). Gaussians with `visible[i] == false` output 0.
 //!
-//! The BRDF `f = a/pi + S` has a grey specular S, so per vertex we accumulate the irradiance-like
+//! The BRDF `f = t a/pi + S` (t = 1 in SPEC 4, `1 - E(n.v, r)` with `Diffuse::Layered`) has a grey specular S, so per vertex we accumulate the irradiance-like
 //! sums `E_c = sum_k cos L_c` and `P_c = sum_k S cos L_c` and finish with `2pi/K (a_c/pi E_c + P_c)`;
 //! the per-(i,k) work (direction, env taps, V, L) is done once and shared by the M vertices.
 //! Direct (`V L_env`) and indirect parts are kept apart for the visualisation buffers.
@@ -36,7 +36,7 @@ use rayon::prelude::*;
 use svgir_core::envmap::Taps;
 use svgir_core::EnvMap;
 use svgir_shading::float::{dot, to_f};
-use svgir_shading::{tangent_frame, Float, MAX_VERTICES, MIN_ELEVATION_SIN};
+use svgir_shading::{tangent_frame, Diffuse, DiffuseWeight, Float, MAX_VERTICES, MIN_ELEVATION_SIN};
 use svgir_trace::{BrightLights, MicroBuffer, VertexMaterials};
 
 /// Upper clamp of the environment radiance in the rendering equation (SPEC 4).
@@ -62,11 +62,13 @@ pub struct ShadeParams {
     pub visibility: bool,
     /// Environment radiance clamp (SPEC 4: 64).
     pub env_max: f32,
+    /// How the diffuse lobe combines with the specular one (SPEC 4: added).
+    pub diffuse: Diffuse,
 }
 
 impl Default for ShadeParams {
     fn default() -> Self {
-        Self { visibility: true, env_max: ENV_MAX }
+        Self { visibility: true, env_max: ENV_MAX, diffuse: Diffuse::Added }
     }
 }
 
@@ -359,6 +361,20 @@ pub(crate) fn lobes<F: Float>(vx: &Vertices<F>, wo: [F; 3], m: usize) -> [Lobe<F
     })
 }
 
+/// The per-vertex diffuse weights of Gaussian i (`t = 1 - E(n.v, r)` when layered, else 1).
+#[inline]
+pub(crate) fn diffuse_weights<F: Float>(
+    vx: &Vertices<F>,
+    wo: [F; 3],
+    m: usize,
+    diffuse: Diffuse,
+) -> [DiffuseWeight<F>; MAX_VERTICES] {
+    std::array::from_fn(|mm| {
+        let mm = mm.min(m - 1);
+        diffuse.weight(dot(vx.n[mm], wo), vx.r[mm])
+    })
+}
+
 /// Shade Gaussian i into its M x 3 slices of colour / direct / indirect.
 fn shade_gaussian<F: Float>(
     inp: &ShadeInputs<F>,
@@ -373,6 +389,7 @@ fn shade_gaussian<F: Float>(
     let vx = vertices(&inp.mats, i);
     let wo = view_dir(inp, i);
     let lb = lobes(&vx, wo, m);
+    let dw = diffuse_weights(&vx, wo, m, inp.params.diffuse);
     let frame = Frame::new(inp.mb, i);
     let z = [[F::ZERO; 3]; MAX_VERTICES];
     // E: sum cos L; P: sum S cos L; split into direct (d) and indirect (i) light.
@@ -397,7 +414,7 @@ fn shade_gaussian<F: Float>(
     let inv_pi = F::from_f64(std::f64::consts::FRAC_1_PI);
     for mm in 0..m {
         for c in 0..3 {
-            let kd = vx.a[mm][c] * inv_pi;
+            let kd = vx.a[mm][c] * inv_pi * dw[mm].value;
             let d = scale * (kd * e_d[mm][c] + p_d[mm][c]);
             let ind = scale * (kd * e_i[mm][c] + p_i[mm][c]);
             direct[mm * 3 + c] = d;

@@ -6,7 +6,9 @@
 //! `cos = n_m.w_k > 0`, `f_c = a_c/pi + S` and upstream g = v_color[i, m]:
 //! `dL/da_c = C g_c E_c / pi` (E_c = sum_k cos Lin_c), `dL/dr += C cos dS/dr sum_c g_c Lin_c`,
 //! `dL/dn += C [cos dS/dn sum_c g_c Lin_c + w_k sum_c g_c f_c Lin_c]`,
-//! `dL/dLin_c = C sum_m g_c f_c cos`, which reaches the env texels through `V` and the four
+//! `dL/dLin_c = C sum_m g_c f_c cos`; with `Diffuse::Layered` (`f_c = t a_c/pi + S`,
+//! `t = 1 - E(n.v, r)`) dL/da_c carries the factor t, and `C q dt/dr`, `C q dt/d(n.v) w_o` with
+//! `q = sum_c g_c a_c E_c/pi` join dL/dr and dL/dn. dL/dLin reaches the env texels through `V` and the four
 //! bilinear taps (unless the clamp is active) and rho through `L_{i,k}`.
 //!
 //! Reductions without races (SPEC 9.4): rayon runs over fixed blocks of Gaussians; a block owns
@@ -16,7 +18,7 @@
 
 use crate::direction_cache::DirectionCache;
 use crate::grads::PbrGrads;
-use crate::shade::{lobes, samples, vertices, view_dir, FibTable, Frame, ShadeInputs};
+use crate::shade::{diffuse_weights, lobes, samples, vertices, view_dir, FibTable, Frame, ShadeInputs};
 use crate::specular::{half, spec_grad};
 use crate::{expect_len, PbrError};
 use rayon::prelude::*;
@@ -45,6 +47,7 @@ fn backward_gaussian<F: Float>(
     let vx = vertices(&inp.mats, i);
     let wo = view_dir(inp, i);
     let lb = lobes(&vx, wo, m);
+    let dw = diffuse_weights(&vx, wo, m, inp.params.diffuse);
     let frame = Frame::new(inp.mb, i);
     let scale = F::from_f64(std::f64::consts::TAU / inp.mb.k as f64);
     let inv_pi = F::from_f64(std::f64::consts::FRAC_1_PI);
@@ -68,7 +71,7 @@ fn backward_gaussian<F: Float>(
             let mut sum_gl = F::ZERO;
             let mut sum_glf = F::ZERO;
             for c in 0..3 {
-                let f = vx.a[mm][c] * inv_pi + sg.value;
+                let f = vx.a[mm][c] * inv_pi * dw[mm].value + sg.value;
                 let gl = gm[mm][c] * lin[c];
                 e[mm][c] += cos * lin[c];
                 sum_gl += gl;
@@ -93,11 +96,13 @@ fn backward_gaussian<F: Float>(
         *v_rho += scale * (v_lin[0] * s.traced[0] + v_lin[1] * s.traced[1] + v_lin[2] * s.traced[2]);
     }
     for mm in 0..m {
+        // Layered diffuse: `q = sum_c g_c a_c/pi E_c` times dt/dr and dt/d(n.v) w_o.
+        let q = (0..3).fold(F::ZERO, |acc, c| acc + gm[mm][c] * vx.a[mm][c] * inv_pi * e[mm][c]);
         for c in 0..3 {
-            v_alb[mm * 3 + c] = scale * gm[mm][c] * e[mm][c] * inv_pi;
-            v_nrm[mm * 3 + c] = scale * vn[mm][c];
+            v_alb[mm * 3 + c] = scale * gm[mm][c] * e[mm][c] * inv_pi * dw[mm].value;
+            v_nrm[mm * 3 + c] = scale * (vn[mm][c] + q * dw[mm].v_mu * wo[c]);
         }
-        v_rough[mm] = scale * vr[mm];
+        v_rough[mm] = scale * (vr[mm] + q * dw[mm].v_r);
     }
 }
 

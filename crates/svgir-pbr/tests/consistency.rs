@@ -10,7 +10,7 @@ use svgir_pbr::{
     ConsistencyInputs, EnvLight, SvgMaterials,
 };
 use svgir_shading::float::dot;
-use svgir_shading::{ggx, vertex_weights};
+use svgir_shading::{ggx, vertex_weights, Diffuse};
 use svgir_trace::pack::unorm16;
 use svgir_trace::scenes::object_scene;
 use svgir_trace::{Bvh, GatherParams, MicroBuffer, TraceParams, NO_HIT};
@@ -93,6 +93,7 @@ fn l1b_naive(
     geom: &EnvMap,
     env: &[[f64; 3]],
     env_max: f64,
+    diffuse: Diffuse,
     j: usize,
     k: usize,
 ) -> [f64; 3] {
@@ -116,7 +117,7 @@ fn l1b_naive(
         for mm in 0..m {
             let b = (h * m + mm) * 3;
             let n = [normals[b], normals[b + 1], normals[b + 2]];
-            let f = ggx(n, v, l, [albedo[b], albedo[b + 1], albedo[b + 2]], rough[h * m + mm]);
+            let f = ggx(n, v, l, [albedo[b], albedo[b + 1], albedo[b + 2]], rough[h * m + mm], diffuse);
             let cos = dot(n, l).max(1e-6);
             for c in 0..3 {
                 acc[c] += w[mm] * f[c] * cos * light[c];
@@ -128,7 +129,9 @@ fn l1b_naive(
 
 #[test]
 fn whole_loss_gradients_match_finite_differences() {
-    for (m, seed) in [(4usize, 1u64), (1, 2), (6, 3), (2, 4)] {
+    for (m, seed, diffuse) in
+        [(4usize, 1u64, Diffuse::Added), (1, 2, Diffuse::Layered), (6, 3, Diffuse::Added), (2, 4, Diffuse::Layered)]
+    {
         let surfels = object_scene(300, seed);
         let k = 8;
         let mb = MicroBuffer::trace(&Bvh::build(&surfels), &surfels, k, seed, &TraceParams::default()).unwrap();
@@ -141,7 +144,7 @@ fn whole_loss_gradients_match_finite_differences() {
         }
         let light = EnvLight::new(4, seed).unwrap();
         let env_max = 3.5f32; // some lookups are clamped
-        let params = GatherParams { env_max, lights: None };
+        let params = GatherParams { env_max, lights: None, diffuse };
         let rho = 0.8f32;
         let normals = mb.normals.clone();
 
@@ -176,7 +179,7 @@ fn whole_loss_gradients_match_finite_differences() {
                 .iter()
                 .map(|&(j, kk)| {
                     let (albedo, rough, nrm) = (&act.albedo, &act.roughness, &act.normals);
-                    l1b_naive(&mb, m, albedo, rough, nrm, &env, &rad, env_max as f64, j as usize, kk as usize)
+                    l1b_naive(&mb, m, albedo, rough, nrm, &env, &rad, env_max as f64, diffuse, j as usize, kk as usize)
                 })
                 .collect();
             let traced: Vec<[f64; 3]> = fwd.traced.iter().map(|t| t.map(|x| x as f64)).collect();
@@ -198,6 +201,7 @@ fn whole_loss_gradients_match_finite_differences() {
                     &env,
                     &rad,
                     env_max as f64,
+                    diffuse,
                     j as usize,
                     kk as usize,
                 );

@@ -9,7 +9,7 @@ use svgir_pbr::{
     activate, activate_backward, env_radiance, env_radiance_backward, shade, shade_backward, shade_backward_cached,
     shade_into_cached, DirectionCache, EnvLight, Indirect, ShadeInputs, ShadeOutput, ShadeParams,
 };
-use svgir_shading::ggx;
+use svgir_shading::{ggx, Diffuse};
 use svgir_trace::{brightest_texels, BrightLights, MicroBuffer, VertexMaterials};
 
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -118,16 +118,16 @@ fn inputs<'a>(
 #[test]
 fn gradients_match_finite_differences_f64() {
     let configs = [
-        (1usize, Mode::Traced, true, 64.0f32, 0usize),
-        (2, Mode::Off, true, 3.0, 0),
-        (4, Mode::Traced, true, 3.0, 0),
-        (4, Mode::Given, false, 64.0, 0),
-        (6, Mode::Traced, false, 3.5, 0),
-        (4, Mode::Traced, true, 3.0, 3),
-        (2, Mode::Off, false, 64.0, 4),
+        (1usize, Mode::Traced, true, 64.0f32, 0usize, Diffuse::Added),
+        (2, Mode::Off, true, 3.0, 0, Diffuse::Layered),
+        (4, Mode::Traced, true, 3.0, 0, Diffuse::Added),
+        (4, Mode::Given, false, 64.0, 0, Diffuse::Layered),
+        (6, Mode::Traced, false, 3.5, 0, Diffuse::Added),
+        (4, Mode::Traced, true, 3.0, 3, Diffuse::Layered),
+        (2, Mode::Off, false, 64.0, 4, Diffuse::Added),
     ];
-    for (ci, &(m, mode, visibility, env_max, lights)) in configs.iter().enumerate() {
-        let params = ShadeParams { visibility, env_max };
+    for (ci, &(m, mode, visibility, env_max, lights, diffuse)) in configs.iter().enumerate() {
+        let params = ShadeParams { visibility, env_max, diffuse };
         let mut c = case(5, m, 8, 10 + ci as u64);
         c.lights = random_lights(&c.geom, 5, lights, ci as u64);
         let act = activate(m, &c.albedo, &c.rough, &c.offset, &c.mb.normals).unwrap();
@@ -216,12 +216,12 @@ fn matches_naive_rendering_equation_f32() {
     // The K-sample part sees the light texels as black.
     let mut sampled = env.clone();
     lit.texels.iter().for_each(|&t| sampled.data[t as usize] = [0.0; 3]);
-    for (mode, visibility, env_max, with_lights) in [
-        (Mode::Traced, true, 64.0f32, false),
-        (Mode::Off, false, 64.0, false),
-        (Mode::Given, true, 3.0, false),
-        (Mode::Traced, true, 3.0, true),
-        (Mode::Off, false, 64.0, true),
+    for (mode, visibility, env_max, with_lights, diffuse) in [
+        (Mode::Traced, true, 64.0f32, false, Diffuse::Added),
+        (Mode::Off, false, 64.0, false, Diffuse::Layered),
+        (Mode::Given, true, 3.0, false, Diffuse::Added),
+        (Mode::Traced, true, 3.0, true, Diffuse::Layered),
+        (Mode::Off, false, 64.0, true, Diffuse::Added),
     ] {
         let rho = 0.8f32;
         let lights = with_lights.then_some(&lit);
@@ -238,7 +238,7 @@ fn matches_naive_rendering_equation_f32() {
                 Mode::Traced => Indirect::Traced { rho },
                 Mode::Given => Indirect::Given(&given),
             },
-            params: ShadeParams { visibility, env_max },
+            params: ShadeParams { visibility, env_max, diffuse },
             lights,
         };
         let out = shade(&inp).unwrap();
@@ -258,7 +258,7 @@ fn matches_naive_rendering_equation_f32() {
                         Mode::Traced => mb.radiance(i, kk).map(|x| rho * x),
                         Mode::Given => given[i * k + kk],
                     };
-                    let f = ggx(nm.to_array(), wo.to_array(), d.to_array(), a, act.roughness[i * m + mm]);
+                    let f = ggx(nm.to_array(), wo.to_array(), d.to_array(), a, act.roughness[i * m + mm], diffuse);
                     let cos = nm.dot(d).max(0.0);
                     for c in 0..3 {
                         want[c] += (f[c] * (v * le[c] + ind[c]) * cos) as f64 * std::f64::consts::TAU / k as f64;
@@ -271,7 +271,7 @@ fn matches_naive_rendering_equation_f32() {
                         true => lit.visibility(i, b),
                         false => (mb.normals[i].dot(d) > 0.0) as u8 as f32,
                     };
-                    let f = ggx(nm.to_array(), wo.to_array(), d.to_array(), a, act.roughness[i * m + mm]);
+                    let f = ggx(nm.to_array(), wo.to_array(), d.to_array(), a, act.roughness[i * m + mm], diffuse);
                     let cos = nm.dot(d).max(0.0);
                     for c in 0..3 {
                         want[c] += (f[c] * v * env.data[t as usize][c] * cos * lit.solid_angle[b]) as f64;
@@ -317,7 +317,7 @@ fn white_lambertian_under_constant_light_returns_the_light() {
                 env_geom: &env,
                 env: &env.data,
                 indirect: Indirect::Off,
-                params: ShadeParams { visibility: false, env_max: 64.0 },
+                params: ShadeParams { visibility: false, env_max: 64.0, ..ShadeParams::default() },
                 lights: None,
             };
             shade(&inp).unwrap().color
@@ -387,7 +387,9 @@ fn direction_cache_is_bit_identical_and_checked() {
     let mut rng = Rng::new(2);
     let g: Vec<f32> = (0..n * m * 3).map(|_| rng.normal()).collect();
     for mode in [Mode::Off, Mode::Traced, Mode::Given] {
-        for params in [ShadeParams::default(), ShadeParams { visibility: false, env_max: 1.5 }] {
+        for params in
+            [ShadeParams::default(), ShadeParams { visibility: false, env_max: 1.5, diffuse: Diffuse::Layered }]
+        {
             let inp = ShadeInputs {
                 mb: &c.mb,
                 positions: &c.positions,

@@ -12,6 +12,7 @@
 //! a clamp is active its derivative is zero. `v` and `l` are treated as constants.
 
 use crate::float::{dot, Float};
+use crate::layering::Diffuse;
 use std::f64::consts::PI;
 
 pub const F0: f64 = 0.04;
@@ -67,12 +68,13 @@ pub fn ggx_specular<F: Float>(n: [F; 3], v: [F; 3], l: [F; 3], r: F) -> F {
     fresnel(vh) * d * gv * gl / F::from_f64(4.0)
 }
 
-/// Full BRDF value per channel: `albedo/pi + S`.
+/// Full BRDF value per channel: `t albedo/pi + S`, with t = 1 for SPEC 4's [`Diffuse::Added`]
+/// and `1 - E(n.v, r)` for [`Diffuse::Layered`].
 #[inline]
-pub fn ggx<F: Float>(n: [F; 3], v: [F; 3], l: [F; 3], albedo: [F; 3], r: F) -> [F; 3] {
+pub fn ggx<F: Float>(n: [F; 3], v: [F; 3], l: [F; 3], albedo: [F; 3], r: F, diffuse: Diffuse) -> [F; 3] {
     let s = ggx_specular(n, v, l, r);
-    let inv_pi = F::from_f64(1.0 / PI);
-    albedo.map(|a| a * inv_pi + s)
+    let kd = F::from_f64(1.0 / PI) * diffuse.weight(dot(n, v), r).value;
+    albedo.map(|a| a * kd + s)
 }
 
 /// S together with dS/dr and dS/dn.
@@ -181,8 +183,8 @@ mod tests {
         }
         // Albedo: f_c = a_c/pi + S, so df_c/da_c = 1/pi exactly.
         let n = [0.0, 0.6, 0.8];
-        let f1 = ggx(n, n, n, [0.3, 0.4, 0.5], 0.5f64);
-        let f2 = ggx(n, n, n, [0.3 + 1e-3, 0.4, 0.5], 0.5f64);
+        let f1 = ggx(n, n, n, [0.3, 0.4, 0.5], 0.5f64, Diffuse::Added);
+        let f2 = ggx(n, n, n, [0.3 + 1e-3, 0.4, 0.5], 0.5f64, Diffuse::Added);
         assert!(((f2[0] - f1[0]) / 1e-3 - 1.0 / PI).abs() < 1e-9 && f2[1] == f1[1]);
     }
 
@@ -207,7 +209,7 @@ mod tests {
                         let l = [st * phi.cos(), st * phi.sin(), ct];
                         let w = ct * (1.0 / nt as f64) * (2.0 * PI / np as f64);
                         spec += ggx_specular(n, v, l, r) * w;
-                        total += ggx(n, v, l, [1.0; 3], r)[0] * w;
+                        total += ggx(n, v, l, [1.0; 3], r, Diffuse::Added)[0] * w;
                     }
                 }
                 let diffuse = total - spec;

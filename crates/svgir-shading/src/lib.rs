@@ -8,9 +8,11 @@
 pub mod brdf;
 pub use svgir_core::float;
 pub mod hemisphere;
+pub mod layering;
 pub mod vertex;
 
 pub use brdf::{ggx, ggx_specular, ggx_specular_grad, SpecularGrad, DOT_EPS, F0};
 pub use float::Float;
 pub use hemisphere::{fibonacci_local, gaussian_xi, hemisphere_dir, tangent_frame, MIN_ELEVATION_SIN};
+pub use layering::{Diffuse, DiffuseWeight};
 pub use vertex::{vertex_weights, vertex_weights_grad, MAX_VERTICES};

@@ -22,7 +22,7 @@ use rayon::prelude::*;
 use svgir_core::envmap::Taps;
 use svgir_core::EnvMap;
 use svgir_shading::float::{dot, to_f};
-use svgir_shading::{ggx, vertex_weights, Float, DOT_EPS};
+use svgir_shading::{ggx, vertex_weights, Diffuse, Float, DOT_EPS};
 
 /// Per-vertex materials of all Gaussians, structure of arrays: `albedo[(i*M + m)*3 + c]`,
 /// `roughness[i*M + m]`, `normals[(i*M + m)*3 + c]` (unit shading normals, already activated).
@@ -60,11 +60,13 @@ pub struct GatherParams<'a> {
     /// Texels of the map that act as directional lights ([`BrightLights`]): the hit Gaussian
     /// also reflects each of them, weighted by its solid angle and its traced visibility.
     pub lights: Option<&'a BrightLights>,
+    /// How the hit Gaussian's diffuse lobe combines with its specular one.
+    pub diffuse: Diffuse,
 }
 
 impl Default for GatherParams<'_> {
     fn default() -> Self {
-        Self { env_max: 64.0, lights: None }
+        Self { env_max: 64.0, lights: None, diffuse: Diffuse::Added }
     }
 }
 
@@ -75,11 +77,12 @@ pub(crate) struct LightIn<'a, F> {
     pub env: &'a [[F; 3]],
     pub env_max: F,
     pub lights: Option<&'a BrightLights>,
+    pub diffuse: Diffuse,
 }
 
 impl<'a> LightIn<'a, f32> {
     pub fn new(env: &'a EnvMap, p: &GatherParams<'a>) -> Self {
-        Self { geom: env, env: &env.data, env_max: p.env_max, lights: p.lights }
+        Self { geom: env, env: &env.data, env_max: p.env_max, lights: p.lights, diffuse: p.diffuse }
     }
 }
 
@@ -153,6 +156,7 @@ pub(crate) fn shade_pair<F: Float>(
     mb: &MicroBuffer,
     mats: &VertexMaterials<F>,
     esc: &Escapes<F>,
+    diffuse: Diffuse,
     j: usize,
     k: usize,
 ) -> [F; 3] {
@@ -169,7 +173,7 @@ pub(crate) fn shade_pair<F: Float>(
             let b = (h * m + mm) * 3;
             let n = [mats.normals[b], mats.normals[b + 1], mats.normals[b + 2]];
             let a = [mats.albedo[b], mats.albedo[b + 1], mats.albedo[b + 2]];
-            let f = ggx(n, v, *l, a, mats.roughness[h * m + mm]);
+            let f = ggx(n, v, *l, a, mats.roughness[h * m + mm], diffuse);
             let cw = dot(n, *l).maxf(eps) * w[mm];
             for c in 0..3 {
                 f_cos[c] += f[c] * cw;
@@ -221,7 +225,7 @@ pub(crate) fn gather_one_generic<F: Float>(
         Some(h) => {
             let mut esc = Escapes::new();
             esc.fill(mb, light, h);
-            shade_pair(mb, mats, &esc, j, k)
+            shade_pair(mb, mats, &esc, light.diffuse, j, k)
         }
     }
 }
@@ -259,7 +263,7 @@ pub fn gather_all(
         for (k, o) in row.iter_mut().enumerate() {
             if let Some(h) = mb.hit(j, k) {
                 esc.fill(mb, &light, h);
-                *o = shade_pair(mb, mats, esc, j, k);
+                *o = shade_pair(mb, mats, esc, light.diffuse, j, k);
             }
         }
     });
@@ -284,7 +288,7 @@ pub fn gather_pairs(
             None => [0.0; 3],
             Some(h) => {
                 esc.fill(mb, &light, h);
-                shade_pair(mb, mats, esc, j as usize, k as usize)
+                shade_pair(mb, mats, esc, light.diffuse, j as usize, k as usize)
             }
         })
         .collect())

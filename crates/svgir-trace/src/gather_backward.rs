@@ -7,6 +7,9 @@
 //! `dL/dn_m += (sum_c g_c C w_m L_c)(cos dS/dn) + (sum_c g_c C w_m L_c f_c) [n.l > 1e-6] l`,
 //! `dL/dL_c = sum_m g_c C w_m f_c cos`, passed to the four bilinear taps unless the [0, env_max]
 //! clamp is active. Normal gradients are with respect to the unit normals passed in.
+//! With [`Diffuse::Layered`] the diffuse lobe is `t a_c/pi`, `t = 1 - E(n.v, r)` per vertex:
+//! `a_c/pi` above becomes `t a_c/pi`, and `q_m = sum_s sum_c g_c C w_m L_c cos a_c/pi` adds
+//! `q_m dt/dr` to dL/dr_m and `q_m dt/d(n.v) v` to dL/dn_m.
 //!
 //! Reductions without races (SPEC 9.4): the (j, k) entries are bucketed by their hit Gaussian h
 //! (a counting sort), and rayon runs over fixed blocks of h. Each block owns its h's slices of the
@@ -20,7 +23,7 @@ use crate::TraceError;
 use rayon::prelude::*;
 use svgir_core::EnvMap;
 use svgir_shading::float::{dot, to_f};
-use svgir_shading::{ggx_specular_grad, vertex_weights, Float, DOT_EPS};
+use svgir_shading::{ggx_specular_grad, vertex_weights, Diffuse, DiffuseWeight, Float, DOT_EPS, MAX_VERTICES};
 
 /// Gradients, laid out like [`VertexMaterials`] and `EnvMap::data`.
 #[derive(Clone, Debug, PartialEq)]
@@ -48,6 +51,7 @@ pub(crate) fn backward_pair<F: Float>(
     mb: &MicroBuffer,
     mats: &VertexMaterials<F>,
     esc: &Escapes<F>,
+    diffuse: Diffuse,
     j: usize,
     k: usize,
     g: [F; 3],
@@ -64,25 +68,37 @@ pub(crate) fn backward_pair<F: Float>(
     let cscale = F::from_f64(std::f64::consts::TAU / mb.k as f64);
     let inv_pi = F::from_f64(std::f64::consts::FRAC_1_PI);
     let eps = F::from_f64(DOT_EPS);
+    let vertex = |mm: usize| {
+        let b = (h * m + mm) * 3;
+        let n = [mats.normals[b], mats.normals[b + 1], mats.normals[b + 2]];
+        let a = [mats.albedo[b], mats.albedo[b + 1], mats.albedo[b + 2]];
+        (n, a, mats.roughness[h * m + mm])
+    };
+    // Diffuse weight t(n.v, r) per vertex (1 for SPEC 4's added lobes) and, per vertex,
+    // `q = sum_s sum_c g_c C w_m L_c cos a_c/pi`, the factor of dt/dr and dt/dn.
+    let dw: [DiffuseWeight<F>; MAX_VERTICES] = std::array::from_fn(|mm| {
+        let (n, _, r) = vertex(mm.min(m - 1));
+        diffuse.weight(dot(n, v), r)
+    });
+    let mut q = [F::ZERO; MAX_VERTICES];
     for s in 0..esc.dirs.len() {
         let l = esc.dirs[s];
         let light = esc.light[s];
         let mut v_light = [F::ZERO; 3];
         for mm in 0..m {
-            let b = (h * m + mm) * 3;
-            let n = [mats.normals[b], mats.normals[b + 1], mats.normals[b + 2]];
-            let a = [mats.albedo[b], mats.albedo[b + 1], mats.albedo[b + 2]];
-            let r = mats.roughness[h * m + mm];
+            let (n, a, r) = vertex(mm);
             let sg = ggx_specular_grad(n, v, l, r);
             let ndl = dot(n, l);
             let cos = ndl.maxf(eps);
             let gw = cscale * w[mm];
+            let kd = inv_pi * dw[mm].value;
             let mut sum_gl = F::ZERO;
             let mut sum_glf = F::ZERO;
             for c in 0..3 {
-                let f = a[c] * inv_pi + sg.value;
+                let f = a[c] * kd + sg.value;
                 let gl = g[c] * gw * light[c];
-                alb[mm * 3 + c] += gl * cos * inv_pi;
+                alb[mm * 3 + c] += gl * cos * kd;
+                q[mm] += gl * cos * a[c] * inv_pi;
                 sum_gl += gl;
                 sum_glf += gl * f;
                 v_light[c] += g[c] * gw * f * cos;
@@ -104,6 +120,12 @@ pub(crate) fn backward_pair<F: Float>(
                     v_env[taps.index[t] as usize][c] += F::from_f32(taps.weight[t]) * v_light[c];
                 }
             }
+        }
+    }
+    for mm in 0..m {
+        rough[mm] += q[mm] * dw[mm].v_r;
+        for i in 0..3 {
+            nrm[mm * 3 + i] += q[mm] * dw[mm].v_mu * v[i];
         }
     }
 }
@@ -164,6 +186,7 @@ pub(crate) fn backward_generic<F: Float>(
                         mb,
                         mats,
                         &esc,
+                        light.diffuse,
                         jk / kk,
                         jk % kk,
                         v_out[up],
@@ -248,6 +271,7 @@ pub fn gather_one_backward(
             mb,
             mats,
             &esc,
+            p.diffuse,
             j,
             k,
             v,
@@ -280,6 +304,7 @@ mod tests {
         env: EnvMap,
         env64: Vec<[f64; 3]>,
         lights: Option<BrightLights>,
+        diffuse: Diffuse,
     }
 
     /// A scene with random materials and map; `lights` of its texels act as directional lights.
@@ -307,11 +332,11 @@ mod tests {
             let texels = brightest_texels(&env, lights);
             BrightLights::trace(&bvh, &surfels, &mb.normals, &env, &texels, &TraceParams::default(), None).unwrap()
         });
-        Case { surfels, mb, albedo, rough, normals, env, env64, lights }
+        Case { surfels, mb, albedo, rough, normals, env, env64, lights, diffuse: Diffuse::Added }
     }
 
     fn light_in<'a>(c: &'a Case, env: &'a [[f64; 3]], env_max: f64) -> LightIn<'a, f64> {
-        LightIn { geom: &c.env, env, env_max, lights: c.lights.as_ref() }
+        LightIn { geom: &c.env, env, env_max, lights: c.lights.as_ref(), diffuse: c.diffuse }
     }
 
     fn mats64(c: &Case, m: usize) -> VertexMaterials<'_, f64> {
@@ -333,8 +358,12 @@ mod tests {
 
     #[test]
     fn gradients_match_finite_differences_f64() {
-        for (m, seed, lights) in [(4usize, 1u64, 0usize), (6, 2, 0), (1, 3, 0), (4, 4, 6), (2, 5, 3)] {
+        use Diffuse::{Added, Layered};
+        for (m, seed, lights, diffuse) in
+            [(4usize, 1u64, 0usize, Added), (6, 2, 0, Layered), (1, 3, 0, Added), (4, 4, 6, Layered), (2, 5, 3, Added)]
+        {
             let mut c = case(m, seed, lights);
+            c.diffuse = diffuse;
             let env_max = 2.5; // some bilinear lookups exceed it: exercises the clamp
             let mut rng = Rng::new(seed + 10);
             let g: Vec<[f64; 3]> = (0..c.mb.len() * c.mb.k)
@@ -358,7 +387,7 @@ mod tests {
                 let fd = (plus - minus) / (2.0 * h);
                 assert!(
                     (fd - analytic).abs() <= 1e-6 * (1.0 + fd.abs()),
-                    "M={m} lights={lights} {name}[{i}]: fd {fd} vs {analytic}"
+                    "M={m} lights={lights} {diffuse:?} {name}[{i}]: fd {fd} vs {analytic}"
                 );
             };
             for i in pick(&grads.v_albedo, &mut rng) {
@@ -421,19 +450,19 @@ mod tests {
 
     #[test]
     fn f32_paths_agree_with_naive_formula_and_each_other() {
-        for lights in [0, 5] {
-            f32_paths_agree(lights);
+        for (lights, diffuse) in [(0, Diffuse::Added), (5, Diffuse::Layered)] {
+            f32_paths_agree(lights, diffuse);
         }
     }
 
-    fn f32_paths_agree(lights: usize) {
+    fn f32_paths_agree(lights: usize, diffuse: Diffuse) {
         let m = 4;
         let c = case(m, 7, lights);
         let alb: Vec<f32> = c.albedo.iter().map(|&x| x as f32).collect();
         let rough: Vec<f32> = c.rough.iter().map(|&x| x as f32).collect();
         let nrm: Vec<f32> = c.normals.iter().map(|&x| x as f32).collect();
         let mats = VertexMaterials { m, albedo: &alb, roughness: &rough, normals: &nrm };
-        let p = GatherParams { lights: c.lights.as_ref(), ..GatherParams::default() };
+        let p = GatherParams { lights: c.lights.as_ref(), diffuse, ..GatherParams::default() };
         let all = gather_all(&c.mb, &mats, &c.env, &p).unwrap();
         // The K-sample part sees the light texels as black.
         let mut sampled = c.env.clone();
@@ -477,6 +506,7 @@ mod tests {
                                 l.to_array(),
                                 [alb[b], alb[b + 1], alb[b + 2]],
                                 rough[h * 4 + mm],
+                                diffuse,
                             );
                             let cos = Vec3::from_array(nv).dot(l).max(1e-6);
                             for ch in 0..3 {

@@ -101,7 +101,7 @@ impl Relighter {
             return Ok(PreparedLight { env, one_bounce: None, lights });
         }
         let act = s2.materials.activated(&s2.normals)?;
-        let p = GatherParams { env_max: f32::INFINITY, lights: lights.as_ref() };
+        let p = GatherParams { env_max: f32::INFINITY, lights: lights.as_ref(), diffuse: s2.config.diffuse };
         let mut one_bounce = svgir_trace::gather_all(&self.mb, &act.view(), &env, &p)?;
         svgir_trace::add_bounces(&self.mb, &act.view(), &mut one_bounce, self.bounces)?;
         Ok(PreparedLight { env, one_bounce: Some(one_bounce), lights })
@@ -121,7 +121,11 @@ impl Relighter {
             cache: Some(&self.cache),
             env: &light.env,
             indirect: light.one_bounce.as_deref().map_or(Indirect::Off, Indirect::Given),
-            params: ShadeParams { visibility: s2.config.visibility, env_max: f32::INFINITY },
+            params: ShadeParams {
+                visibility: s2.config.visibility,
+                env_max: f32::INFINITY,
+                diffuse: s2.config.diffuse,
+            },
             lights: light.lights.as_ref(),
         };
         s2.render_shaded(camera, bg, &shading, albedo_scale)

@@ -82,6 +82,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         albedo_lr: 0.01,
         materials_from: 0,
         env_lr_after_warm_up: 1.0,
+        diffuse: None,
         lights: 0,
         lights_every: 100,
         env_activation: inverse::EnvActivationArg::Softplus,

@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 use svgir_core::{Dataset, Image, LightInfo};
 use svgir_metrics::{evaluate_pair, ImageMetrics, Lpips, SsimVariant};
 use svgir_pbr::EnvActivation;
+use svgir_shading::Diffuse;
 use svgir_train::relight::{RelightSampling, Relighter};
 use svgir_train::stage2::{EnvInit, Stage2Rates, Stage2Weights};
 use svgir_train::{checkpoint, Stage2, Stage2Config};
@@ -114,6 +115,11 @@ pub struct InverseArgs {
     /// light mostly keeps what it learned while the materials were held.
     #[arg(long, default_value_t = 1.0)]
     pub env_lr_after_warm_up: f32,
+    /// BRDF diffuse lobe: SPEC 4 adds it to the specular one; `layered` dims it by the specular
+    /// layer's albedo, as Cycles' Principled BSDF (which renders the synthetic scenes) does.
+    /// Default: added. With --resume it replaces the checkpoint's model (e.g. to re-evaluate).
+    #[arg(long, value_enum)]
+    pub diffuse: Option<DiffuseArg>,
     /// Shade this many of the learned map's brightest texels as directional lights with traced
     /// visibility and no clamp (re-selected every --lights-every iterations; relighting splits
     /// the new map by --relight-lights). For training lights with a sun; 0: SPEC 4's K samples alone.
@@ -160,6 +166,21 @@ pub struct InverseArgs {
     /// normal_offset or env_tv (defaults: SPEC 6, Eqn 15).
     #[arg(long = "weight", value_name = "NAME=VALUE")]
     pub weights: Vec<String>,
+}
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum DiffuseArg {
+    Added,
+    Layered,
+}
+
+impl DiffuseArg {
+    fn model(self) -> Diffuse {
+        match self {
+            DiffuseArg::Added => Diffuse::Added,
+            DiffuseArg::Layered => Diffuse::Layered,
+        }
+    }
 }
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -258,6 +279,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         sun_radius_deg: args.sun_radius,
         materials_from: args.materials_from,
         env_lr_after_warm_up: args.env_lr_after_warm_up,
+        diffuse: args.diffuse.map_or(Diffuse::Added, DiffuseArg::model),
         weights: super::loss_weights::<Stage2Weights>(&args.weights)?,
         ..Stage2Config::default()
     };
@@ -270,6 +292,10 @@ pub fn run(args: InverseArgs) -> Result<()> {
         if args.iterations != s2.config.iterations {
             eprintln!("stage 2: iterations {} -> {}", s2.config.iterations, args.iterations);
             s2.config.iterations = args.iterations;
+        }
+        if let Some(d) = args.diffuse.map(DiffuseArg::model).filter(|&d| d != s2.config.diffuse) {
+            eprintln!("stage 2: diffuse lobe {:?} -> {d:?}", s2.config.diffuse);
+            s2.config.diffuse = d;
         }
         s2
     } else {

@@ -4,6 +4,7 @@
 use crate::config::{BackgroundMode, NamedWeights};
 use serde::{Deserialize, Serialize};
 use svgir_pbr::EnvActivation;
+use svgir_shading::Diffuse;
 use svgir_trace::TraceParams;
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -169,6 +170,11 @@ pub struct Stage2Config {
     /// instead of drifting with the materials along the light/albedo ambiguity.
     #[serde(default = "default_env_lr_after_warm_up")]
     pub env_lr_after_warm_up: f32,
+    /// How the BRDF's diffuse lobe combines with the specular one, in training, the one-bounce
+    /// gather and relighting (SPEC 4: added; `layered` dims it by the specular layer's albedo,
+    /// as Cycles' Principled BSDF does; `svgir_shading::layering`).
+    #[serde(default)]
+    pub diffuse: Diffuse,
 }
 
 fn default_env_lr_after_warm_up() -> f32 {
@@ -245,6 +251,7 @@ impl Default for Stage2Config {
             sun_radius_deg: default_sun_radius_deg(),
             materials_from: 0,
             env_lr_after_warm_up: 1.0,
+            diffuse: Diffuse::Added,
         }
     }
 }

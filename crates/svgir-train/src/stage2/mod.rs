@@ -204,7 +204,7 @@ impl Stage2 {
     }
 
     fn shade_params(&self) -> ShadeParams {
-        ShadeParams { visibility: self.config.visibility, ..ShadeParams::default() }
+        ShadeParams { visibility: self.config.visibility, diffuse: self.config.diffuse, ..ShadeParams::default() }
     }
 
     /// +1 or -1 per Gaussian: whether its oriented normal faces `camera`. Splatted normals are
@@ -370,7 +370,11 @@ impl Stage2 {
             mats: act.view(),
             env: &env_rad,
             rho: self.rho,
-            params: GatherParams { lights: self.active_lights(), ..GatherParams::default() },
+            params: GatherParams {
+                lights: self.active_lights(),
+                diffuse: self.config.diffuse,
+                ..GatherParams::default()
+            },
         };
         let mut cons_loss = 0.0;
         let cons_grads = if cfg.consistency && cfg.indirect {
