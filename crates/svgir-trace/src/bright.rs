@@ -35,7 +35,8 @@ pub struct BrightLights {
     pub height: u32,
     /// Texel index (`row * width + col`) of each light.
     pub texels: Vec<u32>,
-    /// Unit direction of each light (the texel's grid direction).
+    /// Unit direction of each light: the texel's grid direction unless moved by
+    /// [`BrightLights::with_direction`] (the texel then only holds the light's radiance).
     pub dirs: Vec<Vec3>,
     /// Weight of each light: the texel's solid angle.
     pub solid_angle: Vec<f32>,
@@ -116,6 +117,27 @@ pub fn concentrate_lobe(env: &EnvMap, radius: f32) -> (EnvMap, u32) {
     (out, peak)
 }
 
+/// Visibility of direction `dir` from every Gaussian (0 below its hemisphere), u16 unorm.
+fn trace_column<S: HitSource + Sync>(
+    src: &S,
+    surfels: &Surfels,
+    normals: &[Vec3],
+    dir: Vec3,
+    p: &TraceParams,
+) -> Vec<u16> {
+    (0..surfels.len())
+        .into_par_iter()
+        .with_min_len(256)
+        .map(|j| {
+            if normals[j].dot(dir) <= 0.0 {
+                return 0;
+            }
+            let ray = Ray::from_gaussian(surfels, j, dir, p);
+            unorm16(march(src, &surfels.sh, surfels.sh_degree, &ray, p).visibility)
+        })
+        .collect()
+}
+
 impl BrightLights {
     /// No lights: every texel is sampled as in SPEC 4.
     pub fn empty(width: u32, height: u32) -> Self {
@@ -131,8 +153,8 @@ impl BrightLights {
     }
 
     /// Lights at `texels` of a `geom`-sized map, seen from every Gaussian of `surfels` (hemisphere
-    /// axes `normals`, normally the micro-buffer's). Columns for texels that `reuse` already
-    /// traced (same map size and surfels) are copied instead of traced again.
+    /// axes `normals`, normally the micro-buffer's). Texels that `reuse` already holds (same map
+    /// size and surfels) keep its direction and visibility instead of being traced again.
     pub fn trace<S: HitSource + Sync>(
         src: &S,
         surfels: &Surfels,
@@ -151,43 +173,66 @@ impl BrightLights {
             .map(|&t| {
                 let reused = reuse
                     .filter(|r| r.width == geom.width && r.height == geom.height)
-                    .and_then(|r| r.texels.iter().position(|&x| x == t).map(|b| r.vis[b].clone()))
-                    .filter(|v| v.len() == n);
-                if let Some(v) = reused {
-                    return v;
+                    .and_then(|r| r.texels.iter().position(|&x| x == t).map(|b| (r.dirs[b], r.vis[b].clone())))
+                    .filter(|(_, v)| v.len() == n);
+                if let Some(c) = reused {
+                    return c;
                 }
                 if t >= geom.width * geom.height {
-                    return Vec::new(); // rejected by `assemble`
+                    return (Vec3::Z, Vec::new()); // rejected by `assemble`
                 }
                 let dir = geom.texel_dir(t / geom.width, t % geom.width).normalize();
-                (0..n)
-                    .into_par_iter()
-                    .with_min_len(256)
-                    .map(|j| {
-                        if normals[j].dot(dir) <= 0.0 {
-                            return 0;
-                        }
-                        let ray = Ray::from_gaussian(surfels, j, dir, p);
-                        unorm16(march(src, &surfels.sh, surfels.sh_degree, &ray, p).visibility)
-                    })
-                    .collect()
+                (dir, trace_column(src, surfels, normals, dir, p))
             })
             .collect();
         Self::assemble(geom, texels, columns)
     }
 
+    /// These lights with light b moved to the unit direction `dir` (its visibility traced again;
+    /// its radiance and solid angle stay its texel's): a sun need not sit at a texel centre.
+    #[allow(clippy::too_many_arguments)]
+    pub fn with_direction<S: HitSource + Sync>(
+        &self,
+        src: &S,
+        surfels: &Surfels,
+        normals: &[Vec3],
+        b: usize,
+        dir: Vec3,
+        p: &TraceParams,
+    ) -> Result<Self, TraceError> {
+        if b >= self.len() {
+            return Err(TraceError::InvalidParameter(format!("light {b} of {}", self.len())));
+        }
+        if normals.len() != surfels.len() || !dir.is_finite() || dir.length_squared() == 0.0 {
+            return Err(TraceError::InvalidParameter(format!("light direction {dir} or normals")));
+        }
+        let mut out = self.clone();
+        out.dirs[b] = dir.normalize();
+        out.vis[b] = trace_column(src, surfels, normals, out.dirs[b], p);
+        Ok(out)
+    }
+
     /// Lights at `texels` with given visibility columns (`columns[b][j]` in [0, 1], e.g. from
     /// another tracer or a test).
     pub fn from_visibility(geom: &EnvMap, texels: &[u32], columns: &[Vec<f32>]) -> Result<Self, TraceError> {
-        Self::assemble(geom, texels, columns.iter().map(|c| c.iter().map(|&v| unorm16(v)).collect()).collect())
+        let columns = texels
+            .iter()
+            .zip(columns)
+            .map(|(&t, c)| {
+                let dir = (t < geom.width * geom.height).then(|| geom.texel_dir(t / geom.width, t % geom.width));
+                (dir.unwrap_or(Vec3::Z).normalize(), c.iter().map(|&v| unorm16(v)).collect())
+            })
+            .collect();
+        Self::assemble(geom, texels, columns)
     }
 
-    fn assemble(geom: &EnvMap, texels: &[u32], columns: Vec<Vec<u16>>) -> Result<Self, TraceError> {
+    /// Lights at `texels` with their (direction, visibility column).
+    fn assemble(geom: &EnvMap, texels: &[u32], columns: Vec<(Vec3, Vec<u16>)>) -> Result<Self, TraceError> {
         if columns.len() != texels.len() {
             return Err(TraceError::SizeMismatch { what: "light columns", got: columns.len(), want: texels.len() });
         }
         let mut out = Self::empty(geom.width, geom.height);
-        for (&t, column) in texels.iter().zip(columns) {
+        for (&t, (dir, column)) in texels.iter().zip(columns) {
             if t >= geom.width * geom.height {
                 return Err(TraceError::InvalidParameter(format!(
                     "light texel {t} outside a {}x{} map",
@@ -209,7 +254,7 @@ impl BrightLights {
             let (row, col) = (t / geom.width, t % geom.width);
             out.mask[t as usize] = true;
             out.texels.push(t);
-            out.dirs.push(geom.texel_dir(row, col).normalize());
+            out.dirs.push(dir);
             out.solid_angle.push(geom.texel_solid_angle(row, col));
             out.vis.push(column);
         }
@@ -359,6 +404,25 @@ mod tests {
         let again = BrightLights::trace(&bvh, &s, &mb.normals, &geom, &[100, 3], &p, Some(&lights)).unwrap();
         assert_eq!(again.vis[0], lights.vis[3]);
         assert!(!again.is_light(17));
+        // A light moved off its texel centre: its visibility is the march along the new
+        // direction, the others are untouched, and re-selection keeps the move.
+        let d = (geom.texel_dir(40 / 16, 40 % 16).normalize() + Vec3::new(0.1, -0.05, 0.08)).normalize();
+        let moved = lights.with_direction(&bvh, &s, &mb.normals, 1, d, &p).unwrap();
+        assert_eq!((moved.dirs[1], moved.texels.clone()), (d, lights.texels.clone()));
+        for j in 0..s.len() {
+            let want = if mb.normals[j].dot(d) <= 0.0 {
+                0.0
+            } else {
+                march(&bvh, &s.sh, s.sh_degree, &Ray::from_gaussian(&s, j, d, &p), &p).visibility
+            };
+            assert!((moved.visibility(j, 1) - want).abs() < 2e-5);
+        }
+        assert_eq!((&moved.vis[0], &moved.vis[2]), (&lights.vis[0], &lights.vis[2]));
+        assert_ne!(moved.vis[1], lights.vis[1], "a different direction should change some visibility");
+        let kept = BrightLights::trace(&bvh, &s, &mb.normals, &geom, &[40, 3], &p, Some(&moved)).unwrap();
+        assert_eq!((kept.dirs[0], &kept.vis[0]), (d, &moved.vis[1]));
+        assert!(lights.with_direction(&bvh, &s, &mb.normals, 4, d, &p).is_err());
+        assert!(lights.with_direction(&bvh, &s, &mb.normals, 0, Vec3::ZERO, &p).is_err());
         assert!(BrightLights::trace(&bvh, &s, &mb.normals, &geom, &[128], &p, None).is_err());
         assert!(BrightLights::trace(&bvh, &s, &mb.normals, &geom, &[5, 5], &p, None).is_err());
         assert!(lights.check(s.len(), 16, 8).is_ok());

@@ -241,6 +241,9 @@ struct Header2 {
     /// Texels of the learned map that are directional lights (visibility is re-traced on load).
     #[serde(default)]
     light_texels: Vec<u32>,
+    /// Their directions (a searched sun sits off its texel's centre; absent in older checkpoints).
+    #[serde(default)]
+    light_dirs: Vec<[f32; 3]>,
     /// A `trace_opacity` array follows the Adam state (absent in older checkpoints).
     #[serde(default)]
     has_trace_opacity: bool,
@@ -274,6 +277,7 @@ pub fn save_stage2(t: &Stage2, path: &Path) -> Result<(), CheckpointError> {
         times: t.times.clone(),
         groups: strip(&t.groups),
         light_texels: t.lights.texels.clone(),
+        light_dirs: t.lights.dirs.iter().map(|d| d.to_array()).collect(),
         has_trace_opacity: true,
     };
     write_container(path, &header, &arrays)
@@ -327,5 +331,11 @@ pub fn load_stage2(path: &Path) -> Result<Stage2, CheckpointError> {
         t.trace_opacity = o;
     }
     t.set_lights(&h.light_texels).map_err(rebuild)?;
+    for (b, d) in h.light_dirs.iter().enumerate().take(t.lights.len()) {
+        let d = glam::Vec3::from_array(*d);
+        if d != t.lights.dirs[b] {
+            t.move_light(b, d).map_err(rebuild)?;
+        }
+    }
     Ok(t)
 }

@@ -52,15 +52,18 @@ fn stage2_raises_pbr_psnr_and_resumes_bit_identically() {
     let surfels = stage1(&ds);
     let spec = Stage2Config { iterations: 120, directions: 16, ..Stage2Config::default() };
     // Directional lights, re-selected before and after the checkpoint (iterations 80 and 120),
-    // and the sun gathered into one texel after it (iteration 110), in the run and its resumption;
-    // with the normal smoothness (our addition) on.
+    // the sun gathered into one texel before it (iteration 60) and its direction searched before
+    // and after it (60, 110: the checkpoint carries a sun off its texel centre), in the run and
+    // its resumption; with the normal smoothness (our addition) on.
     let lit = Stage2Config {
         iterations: 130,
         weights: Stage2Weights { smooth_normal: 0.1, ..Stage2Weights::default() },
         lights: 8,
         lights_every: 40,
         env_activation: EnvActivation::Exp,
-        sun_at: 110,
+        sun_at: 60,
+        sun_search_views: 3,
+        sun_search_every: 50,
         ..spec.clone()
     };
     for cfg in [spec, lit] {
@@ -106,6 +109,14 @@ fn run_and_resume(ds: &Dataset, mut t: Stage2) {
     eprintln!("stage-2 test ({tag}) PBR PSNR {start:.2} -> {mid:.2} dB");
     assert!(mid > start + 2.0, "{tag}: PBR PSNR {start:.2} -> {mid:.2}");
     assert_eq!(t.lights.len(), t.config.lights, "{tag}");
+    if t.config.sun_search_views > 0 {
+        let grid = svgir_core::EnvMap::constant(t.env.width, t.env.height, [0.0; 3]);
+        let off_centre = (0..t.lights.len()).any(|b| {
+            let tx = t.lights.texels[b];
+            t.lights.dirs[b].dot(grid.texel_dir(tx / grid.width, tx % grid.width).normalize()) < 0.99999
+        });
+        assert!(off_centre, "{tag}: the searched sun should sit off its texel centre");
+    }
 
     let path = std::env::temp_dir().join(format!("svgir_resume2_{}.bin", std::process::id()));
     checkpoint::save_stage2(&t, &path).unwrap();
@@ -171,4 +182,54 @@ fn relight_lights_conserve_the_light_integral() {
     );
     assert!((mean(&split) / mean(&reference) - 1.0).abs() < 0.02, "the split changes the image's mean");
     assert!(e_split < 2.0 * e_sampled && e_split < 0.01, "split error {e_split} (K = 64 alone: {e_sampled})");
+}
+
+/// The sun direction search (`stage2::sun_search`) finds a sun that sits off the texel grid:
+/// photos rendered by the model itself under a sun 3 degrees off a texel centre, the sun then
+/// displaced by 10 degrees, and the search must bring it back within 1.5 degrees.
+#[test]
+fn sun_search_recovers_a_displaced_sun() {
+    use glam::Vec3;
+    use svgir_core::{EnvMap, Image};
+    use svgir_pbr::EnvLight;
+    let Some(ds) = scene() else { return };
+    let cfg = Stage2Config {
+        iterations: 1,
+        directions: 16,
+        lights: 4,
+        env_activation: EnvActivation::Exp,
+        sun_at: 1,
+        sun_search_views: 6,
+        ..Stage2Config::default()
+    };
+    let mut s2 = Stage2::new(cfg, stage1(&ds), &ds).expect("stage 2 set-up");
+    let mut env = EnvMap::constant(64, 32, [0.3, 0.35, 0.4]);
+    let sun_texel = 8 * 64 + 20;
+    env.data[sun_texel as usize] = [400.0, 380.0, 350.0];
+    s2.env = EnvLight::from_radiance(&env).unwrap().with_activation(EnvActivation::Exp).unwrap();
+    s2.set_lights(&svgir_trace::brightest_texels(&env, 4)).unwrap();
+    let b = s2.sun_light().unwrap();
+    assert_eq!(s2.lights.texels[b], sun_texel);
+    let centre = s2.lights.dirs[b];
+    let (t1, t2) = svgir_shading::tangent_frame(centre);
+    let truth = (centre + 3f32.to_radians().tan() * t1).normalize();
+    s2.move_light(b, truth).unwrap();
+    let mut photos = ds.clone();
+    for v in photos.train.iter_mut() {
+        let r = s2.render_pbr(&v.camera, [0.0; 3], &env, None, [1.0; 3]).unwrap();
+        v.image = Image::from_data(r.width, r.height, 3, r.image);
+    }
+    let start = (truth + 10f32.to_radians().tan() * (0.6 * t1 + 0.8 * t2)).normalize();
+    s2.move_light(b, start).unwrap();
+    let deg = |a: Vec3| a.dot(truth).clamp(-1.0, 1.0).acos().to_degrees();
+    let found = s2.search_sun(&photos).unwrap().expect("a sun to search");
+    eprintln!("sun search: {found:?}; {:.2} deg from the truth", deg(s2.lights.dirs[b]));
+    assert_eq!(s2.lights.dirs[b].to_array(), found.to);
+    assert!(found.loss_after < found.loss_before);
+    assert!(
+        deg(s2.lights.dirs[b]) < 1.5,
+        "{:.2} deg from the true sun (started {:.2})",
+        deg(s2.lights.dirs[b]),
+        deg(start)
+    );
 }

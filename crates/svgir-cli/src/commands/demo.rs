@@ -83,6 +83,8 @@ pub fn run(args: DemoArgs) -> Result<()> {
         materials_from: 0,
         env_lr_after_warm_up: 1.0,
         diffuse: None,
+        sun_search_views: 0,
+        sun_search_every: 300,
         lights: 0,
         lights_every: 100,
         env_activation: inverse::EnvActivationArg::Softplus,

@@ -138,6 +138,13 @@ pub struct InverseArgs {
     pub sun_at: u64,
     #[arg(long, default_value_t = Stage2Config::default().sun_radius_deg)]
     pub sun_radius: f32,
+    /// Search the sun's direction off the map's texel grid at --sun-at and every
+    /// --sun-search-every iterations after, scoring directions on this many training views
+    /// (0: never; the sun stays at its texel's centre).
+    #[arg(long, default_value_t = 0)]
+    pub sun_search_views: usize,
+    #[arg(long, default_value_t = Stage2Config::default().sun_search_every)]
+    pub sun_search_every: u64,
     /// Tracing: continuation offset after a hit, world units (SPEC 5: 0.05, which lets light
     /// leak through surfaces made of overlapping surfels; see `DEFAULT_TRACE_EPS`).
     #[arg(long, default_value_t = Stage2Config::default().trace_eps)]
@@ -280,6 +287,8 @@ pub fn run(args: InverseArgs) -> Result<()> {
         materials_from: args.materials_from,
         env_lr_after_warm_up: args.env_lr_after_warm_up,
         diffuse: args.diffuse.map_or(Diffuse::Added, DiffuseArg::model),
+        sun_search_views: args.sun_search_views,
+        sun_search_every: args.sun_search_every,
         weights: super::loss_weights::<Stage2Weights>(&args.weights)?,
         ..Stage2Config::default()
     };
@@ -322,6 +331,12 @@ pub fn run(args: InverseArgs) -> Result<()> {
     while !s2.is_done() {
         let st = s2.step(&dataset)?;
         pb.set_position(st.iteration);
+        if let Some(s) = &st.sun_search {
+            pb.println(format!(
+                "sun search before iteration {}: moved {:.1} deg, photo L1 {:.5} -> {:.5} ({} directions scored)",
+                st.iteration, s.moved_deg, s.loss_before, s.loss_after, s.evaluations
+            ));
+        }
         pb.set_message(format!("loss {:.4} PBR PSNR {:.2} dB, rho {:.3}", st.loss, st.psnr_pbr, st.rho));
         if st.iteration % args.log_every == 0 {
             let mut v = serde_json::to_value(&st)?;

@@ -175,6 +175,17 @@ pub struct Stage2Config {
     /// as Cycles' Principled BSDF does; `svgir_shading::layering`).
     #[serde(default)]
     pub diffuse: Diffuse,
+    /// Search the sun's direction off the texel grid (`stage2::sun_search`) at `sun_at` and
+    /// every `sun_search_every` iterations after it, scoring candidates on this many training
+    /// views (0: never). Needs `lights > 0` and `sun_at > 0`.
+    #[serde(default)]
+    pub sun_search_views: usize,
+    #[serde(default = "default_sun_search_every")]
+    pub sun_search_every: u64,
+}
+
+fn default_sun_search_every() -> u64 {
+    300
 }
 
 fn default_env_lr_after_warm_up() -> f32 {
@@ -252,11 +263,23 @@ impl Default for Stage2Config {
             materials_from: 0,
             env_lr_after_warm_up: 1.0,
             diffuse: Diffuse::Added,
+            sun_search_views: 0,
+            sun_search_every: default_sun_search_every(),
         }
     }
 }
 
 impl Stage2Config {
+    /// Is a sun search due before step `iteration` + 1: at `sun_at`, then every
+    /// `sun_search_every` iterations (0: only at `sun_at`)?
+    pub fn sun_search_due(&self, iteration: u64) -> bool {
+        self.sun_at > 0
+            && (iteration == self.sun_at
+                || (self.sun_search_every > 0
+                    && iteration > self.sun_at
+                    && (iteration - self.sun_at).is_multiple_of(self.sun_search_every)))
+    }
+
     pub fn trace_params(&self) -> TraceParams {
         TraceParams {
             eps: self.trace_eps,

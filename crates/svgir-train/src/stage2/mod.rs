@@ -15,9 +15,11 @@
 
 mod config;
 mod render;
+mod sun_search;
 
 pub use config::{EnvInit, Stage2Config, Stage2Rates, Stage2Weights, DEFAULT_TRACE_EPS};
 pub use render::{PbrRender, Shading};
+pub use sun_search::SunSearch;
 
 use crate::adam::AdamGroup;
 use crate::composite::{pbr_composite, pbr_composite_backward};
@@ -53,6 +55,9 @@ pub struct Stage2Step {
     pub psnr_sh: f32,
     pub consistency: f32,
     pub rho: f32,
+    /// The sun direction search run before this step, if any.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub sun_search: Option<SunSearch>,
 }
 
 pub struct Stage2 {
@@ -162,13 +167,18 @@ impl Stage2 {
             return Ok(());
         }
         let t0 = Instant::now();
-        let occluders = Surfels { opacity_logits: self.trace_opacity.clone(), ..self.surfels.clone() };
+        let occluders = self.occluders();
         let bvh = self.bvh.get_or_insert_with(|| Bvh::build(&occluders));
         let geom = svgir_core::EnvMap::constant(self.env.width, self.env.height, [0.0; 3]);
         let p = self.config.trace_params();
         self.lights = BrightLights::trace(bvh, &occluders, &self.mb.normals, &geom, texels, &p, Some(&self.lights))?;
         self.trace_seconds += t0.elapsed().as_secs_f64();
         Ok(())
+    }
+
+    /// The surfels as the tracer sees them (opacity frozen at stage 2's start).
+    fn occluders(&self) -> Surfels {
+        Surfels { opacity_logits: self.trace_opacity.clone(), ..self.surfels.clone() }
     }
 
     /// Gather the learned map's brightest lobe into its peak texel and make that texel a light
@@ -241,6 +251,11 @@ impl Stage2 {
         if cfg.lights > 0 && self.iteration.is_multiple_of(cfg.lights_every.max(1)) {
             self.set_lights(&brightest_texels(&self.env.radiance(), cfg.lights))?;
         }
+        let sun_search = if cfg.lights > 0 && cfg.sun_search_views > 0 && cfg.sun_search_due(self.iteration) {
+            self.search_sun(dataset)?
+        } else {
+            None
+        };
         self.iteration += 1;
         let view = &dataset.train[self.rng.below(dataset.train.len())];
         let bg = cfg
@@ -468,6 +483,7 @@ impl Stage2 {
             psnr_sh: psnr_of_mse(mse(&sh_out.color)),
             consistency: cons_loss,
             rho: self.rho,
+            sun_search,
         })
     }
 }

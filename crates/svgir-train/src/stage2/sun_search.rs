@@ -1,0 +1,120 @@
+//! Sun direction search (our addition, off by default; `Stage2Config::sun_search_views`).
+//!
+//! The learned sun is a directional light sitting on a texel of the 32 x 64 map (`sun_at`), so its
+//! direction is quantised to ~6 degrees, and the lobe it was gathered from forms where the K
+//! samples put it, not necessarily where the sun is: on bowl_fruit_128, whose training sun stands
+//! 4 degrees from the zenith, the gathered sun sat 31 degrees away. Texels near the pole own tiny
+//! solid angles, and a sun there needs a radiance the map reaches last. The sun's direction is
+//! not differentiable through its traced shadows, so we search it: a compass (pattern) search on
+//! the sphere around the current direction, steps of `FIRST_STEP_DEG` halving to
+//! `LAST_STEP_DEG`, each candidate scored by the mean L1 of the PBR renders of a fixed, evenly
+//! spaced set of training views (shadows traced again per candidate). The light keeps its
+//! texel's radiance and solid angle; only its direction moves (`BrightLights::with_direction`).
+//! Deterministic: no random numbers, so a resumed run repeats it exactly.
+
+use super::Stage2;
+use crate::stage1::target_rgb;
+use glam::Vec3;
+use serde::{Deserialize, Serialize};
+use svgir_core::Dataset;
+use svgir_pbr::PbrError;
+use svgir_shading::tangent_frame;
+
+/// First and last step of the compass search, degrees.
+pub const FIRST_STEP_DEG: f32 = 8.0;
+pub const LAST_STEP_DEG: f32 = 0.5;
+/// Renders per search at most (each of `sun_search_views` views).
+pub const MAX_EVALUATIONS: usize = 40;
+
+/// What one search did (logged in `metrics.jsonl`).
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+pub struct SunSearch {
+    pub from: [f32; 3],
+    pub to: [f32; 3],
+    /// Angle between `from` and `to`, degrees.
+    pub moved_deg: f32,
+    pub loss_before: f32,
+    pub loss_after: f32,
+    /// Candidate directions scored, the start included.
+    pub evaluations: usize,
+}
+
+impl Stage2 {
+    /// The light with the most power (luminance x solid angle): the sun.
+    pub fn sun_light(&self) -> Option<usize> {
+        let env = self.env.radiance();
+        (0..self.lights.len())
+            .map(|b| {
+                let t = env.data[self.lights.texels[b] as usize];
+                (b, (0.2126 * t[0] + 0.7152 * t[1] + 0.0722 * t[2]) * self.lights.solid_angle[b])
+            })
+            .max_by(|a, b| a.1.total_cmp(&b.1).then(b.0.cmp(&a.0)))
+            .map(|(b, _)| b)
+    }
+
+    /// Move light `b` to the unit direction `dir`, tracing its shadows again.
+    pub fn move_light(&mut self, b: usize, dir: Vec3) -> Result<(), PbrError> {
+        let occluders = self.occluders();
+        let bvh = self.bvh.get_or_insert_with(|| svgir_trace::Bvh::build(&occluders));
+        let p = self.config.trace_params();
+        self.lights = self.lights.with_direction(bvh, &occluders, &self.mb.normals, b, dir, &p)?;
+        Ok(())
+    }
+
+    /// Mean absolute error of the PBR renders of training views `views` against their photos.
+    fn photo_loss(&self, dataset: &Dataset, views: &[usize]) -> Result<f32, PbrError> {
+        let bg = self.config.background.fixed_color().unwrap_or([0.0; 3]);
+        let env = self.env.radiance();
+        let (mut sum, mut count) = (0.0f64, 0usize);
+        for &v in views {
+            let view = &dataset.train[v];
+            let r = self.render_pbr(&view.camera, bg, &env, None, [1.0; 3])?;
+            let gt = target_rgb(&view.image, bg);
+            sum += r.image.iter().zip(&gt).map(|(a, b)| (a.clamp(0.0, 1.0) - b).abs() as f64).sum::<f64>();
+            count += gt.len();
+        }
+        Ok((sum / count.max(1) as f64) as f32)
+    }
+
+    /// Search the sun's direction (see the module note); `None` without lights or views.
+    pub fn search_sun(&mut self, dataset: &Dataset) -> Result<Option<SunSearch>, PbrError> {
+        let n_views = self.config.sun_search_views.min(dataset.train.len());
+        let Some(b) = self.sun_light().filter(|_| n_views > 0) else {
+            return Ok(None);
+        };
+        let views: Vec<usize> = (0..n_views).map(|i| i * dataset.train.len() / n_views).collect();
+        let from = self.lights.dirs[b];
+        let loss_before = self.photo_loss(dataset, &views)?;
+        let (mut best, mut best_loss, mut evaluations) = (from, loss_before, 1);
+        let mut step = FIRST_STEP_DEG.to_radians();
+        while step >= LAST_STEP_DEG.to_radians() * 0.999 && evaluations < MAX_EVALUATIONS {
+            let (t1, t2) = tangent_frame(best);
+            let mut improved = false;
+            for offset in [t1, -t1, t2, -t2] {
+                if evaluations >= MAX_EVALUATIONS {
+                    break;
+                }
+                let candidate = (best + step.tan() * offset).normalize();
+                self.move_light(b, candidate)?;
+                let loss = self.photo_loss(dataset, &views)?;
+                evaluations += 1;
+                if loss < best_loss {
+                    (best, best_loss, improved) = (candidate, loss, true);
+                    break;
+                }
+            }
+            if !improved {
+                step *= 0.5;
+            }
+        }
+        self.move_light(b, best)?;
+        Ok(Some(SunSearch {
+            from: from.to_array(),
+            to: best.to_array(),
+            moved_deg: from.dot(best).clamp(-1.0, 1.0).acos().to_degrees(),
+            loss_before,
+            loss_after: best_loss,
+            evaluations,
+        }))
+    }
+}
