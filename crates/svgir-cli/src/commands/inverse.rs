@@ -332,13 +332,15 @@ pub fn run(args: InverseArgs) -> Result<()> {
         let st = s2.step(&dataset)?;
         pb.set_position(st.iteration);
         if let Some(s) = &st.sun_search {
-            pb.println(format!(
-                "sun search before iteration {}: moved {:.1} deg, photo L1 {:.5} -> {:.5} ({} directions scored)",
-                st.iteration, s.moved_deg, s.loss_before, s.loss_after, s.evaluations
-            ));
+            pb.suspend(|| {
+                eprintln!(
+                    "sun search before iteration {}: moved {:.1} deg, photo L1 {:.5} -> {:.5} ({} directions scored)",
+                    st.iteration, s.moved_deg, s.loss_before, s.loss_after, s.evaluations
+                )
+            });
         }
         pb.set_message(format!("loss {:.4} PBR PSNR {:.2} dB, rho {:.3}", st.loss, st.psnr_pbr, st.rho));
-        if st.iteration % args.log_every == 0 {
+        if st.iteration % args.log_every == 0 || st.sun_search.is_some() {
             let mut v = serde_json::to_value(&st)?;
             v["elapsed_s"] = json!(start.elapsed().as_secs_f64());
             writeln!(log, "{v}")?;
