@@ -85,6 +85,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         diffuse: None,
         sun_search_views: 0,
         sun_search_every: 300,
+        sun_search_cone: 0.0,
         lights: 0,
         lights_every: 100,
         env_activation: inverse::EnvActivationArg::Softplus,

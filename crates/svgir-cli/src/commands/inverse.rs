@@ -145,6 +145,10 @@ pub struct InverseArgs {
     pub sun_search_views: usize,
     #[arg(long, default_value_t = Stage2Config::default().sun_search_every)]
     pub sun_search_every: u64,
+    /// The first sun search first scans a cone of this half-angle (degrees) around the gathered
+    /// sun on rings 15 degrees apart (0: compass search alone).
+    #[arg(long, default_value_t = 0.0)]
+    pub sun_search_cone: f32,
     /// Tracing: continuation offset after a hit, world units (SPEC 5: 0.05, which lets light
     /// leak through surfaces made of overlapping surfels; see `DEFAULT_TRACE_EPS`).
     #[arg(long, default_value_t = Stage2Config::default().trace_eps)]
@@ -289,6 +293,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         diffuse: args.diffuse.map_or(Diffuse::Added, DiffuseArg::model),
         sun_search_views: args.sun_search_views,
         sun_search_every: args.sun_search_every,
+        sun_search_cone_deg: args.sun_search_cone,
         weights: super::loss_weights::<Stage2Weights>(&args.weights)?,
         ..Stage2Config::default()
     };

@@ -182,6 +182,10 @@ pub struct Stage2Config {
     pub sun_search_views: usize,
     #[serde(default = "default_sun_search_every")]
     pub sun_search_every: u64,
+    /// The first search (at `sun_at`) first scans a cone of this half-angle around the gathered
+    /// sun, degrees (0: the compass search alone).
+    #[serde(default)]
+    pub sun_search_cone_deg: f32,
 }
 
 fn default_sun_search_every() -> u64 {
@@ -265,6 +269,7 @@ impl Default for Stage2Config {
             diffuse: Diffuse::Added,
             sun_search_views: 0,
             sun_search_every: default_sun_search_every(),
+            sun_search_cone_deg: 0.0,
         }
     }
 }

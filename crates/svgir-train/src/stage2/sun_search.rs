@@ -14,6 +14,8 @@
 //! even the *true* light with uniform materials scored best with the sun tilted 30 degrees, while
 //! scaled it scored best within 10 degrees of the true sun (`examples/sun_probe`). The light keeps its
 //! texel's radiance and solid angle; only its direction moves (`BrightLights::with_direction`).
+//! Optionally (`sun_search_cone_deg`) the first search scans a cone around the gathered sun on
+//! rings `CONE_SPACING_DEG` apart before the compass starts from the best of them.
 //! Deterministic: no random numbers, so a resumed run repeats it exactly.
 
 use super::Stage2;
@@ -27,8 +29,10 @@ use svgir_shading::tangent_frame;
 /// First and last step of the compass search, degrees.
 pub const FIRST_STEP_DEG: f32 = 8.0;
 pub const LAST_STEP_DEG: f32 = 0.5;
-/// Renders per search at most (each of `sun_search_views` views).
+/// Compass candidates per search at most (each rendering `sun_search_views` views).
 pub const MAX_EVALUATIONS: usize = 40;
+/// Ring and azimuth spacing of the first search's cone scan (`sun_search_cone_deg`), degrees.
+pub const CONE_SPACING_DEG: f32 = 15.0;
 
 /// What one search did (logged in `metrics.jsonl`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
@@ -108,12 +112,36 @@ impl Stage2 {
         let from = self.lights.dirs[b];
         let loss_before = self.photo_loss(dataset, &views, true)?;
         let (mut best, mut best_loss, mut evaluations) = (from, loss_before, 1);
+        // First search: a coarse scan of the cone first, so that the compass starts near the
+        // best basin (its steps move at most FIRST_STEP_DEG each).
+        let cone = self.config.sun_search_cone_deg;
+        if cone > 0.0 && self.iteration == self.config.sun_at {
+            let (t1, t2) = tangent_frame(from);
+            let mut ring = CONE_SPACING_DEG;
+            while ring <= cone + 1e-3 {
+                let th = ring.to_radians();
+                let count =
+                    ((std::f32::consts::TAU * th.sin() / CONE_SPACING_DEG.to_radians()).round() as usize).max(6);
+                for a in 0..count {
+                    let ph = std::f32::consts::TAU * a as f32 / count as f32;
+                    let candidate = (th.cos() * from + th.sin() * (ph.cos() * t1 + ph.sin() * t2)).normalize();
+                    self.move_light(b, candidate)?;
+                    let loss = self.photo_loss(dataset, &views, true)?;
+                    evaluations += 1;
+                    if loss < best_loss {
+                        (best, best_loss) = (candidate, loss);
+                    }
+                }
+                ring += CONE_SPACING_DEG;
+            }
+        }
+        let compass_start = evaluations;
         let mut step = FIRST_STEP_DEG.to_radians();
-        while step >= LAST_STEP_DEG.to_radians() * 0.999 && evaluations < MAX_EVALUATIONS {
+        while step >= LAST_STEP_DEG.to_radians() * 0.999 && evaluations - compass_start < MAX_EVALUATIONS {
             let (t1, t2) = tangent_frame(best);
             let mut improved = false;
             for offset in [t1, -t1, t2, -t2] {
-                if evaluations >= MAX_EVALUATIONS {
+                if evaluations - compass_start >= MAX_EVALUATIONS {
                     break;
                 }
                 let candidate = (best + step.tan() * offset).normalize();
