@@ -200,17 +200,10 @@ mod tests {
             for &theta_v in &[0.0f64, 0.5, 1.0, 1.4] {
                 let v = [theta_v.sin(), 0.0, theta_v.cos()];
                 let (mut spec, mut total) = (0.0, 0.0);
-                for it in 0..nt {
-                    // Stratified in cos(theta): dl = d(cos) dphi.
-                    let ct = (it as f64 + 0.5) / nt as f64;
-                    let st = (1.0 - ct * ct).sqrt();
-                    for ip in 0..np {
-                        let phi = 2.0 * PI * (ip as f64 + 0.5) / np as f64;
-                        let l = [st * phi.cos(), st * phi.sin(), ct];
-                        let w = ct * (1.0 / nt as f64) * (2.0 * PI / np as f64);
-                        spec += ggx_specular(n, v, l, r) * w;
-                        total += ggx(n, v, l, [1.0; 3], r, Diffuse::Added)[0] * w;
-                    }
+                for (l, dl) in crate::quadrature::stratified_hemisphere(nt, np) {
+                    let w = l[2] * dl;
+                    spec += ggx_specular(n, v, l, r) * w;
+                    total += ggx(n, v, l, [1.0; 3], r, Diffuse::Added)[0] * w;
                 }
                 let diffuse = total - spec;
                 assert!((diffuse - 1.0).abs() < 1e-4, "r={r} theta={theta_v}: diffuse albedo {diffuse}");

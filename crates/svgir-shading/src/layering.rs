@@ -148,18 +148,7 @@ mod tests {
     fn brute(mu: f64, r: f64) -> f64 {
         let n = [0.0, 0.0, 1.0];
         let v = [(1.0 - mu * mu).sqrt(), 0.0, mu];
-        let (nt, np) = (1500, 600);
-        let mut e = 0.0;
-        for it in 0..nt {
-            let ct = (it as f64 + 0.5) / nt as f64;
-            let st = (1.0 - ct * ct).sqrt();
-            for ip in 0..np {
-                let phi = 2.0 * PI * (ip as f64 + 0.5) / np as f64;
-                let l = [st * phi.cos(), st * phi.sin(), ct];
-                e += ggx_specular(n, v, l, r) * ct;
-            }
-        }
-        e * 2.0 * PI / (nt * np) as f64
+        crate::quadrature::stratified_hemisphere(1500, 600).map(|(l, w)| ggx_specular(n, v, l, r) * l[2] * w).sum()
     }
 
     #[test]

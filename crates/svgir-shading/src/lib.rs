@@ -9,6 +9,8 @@ pub mod brdf;
 pub use svgir_core::float;
 pub mod hemisphere;
 pub mod layering;
+#[cfg(test)]
+mod quadrature;
 pub mod vertex;
 
 pub use brdf::{ggx, ggx_specular, ggx_specular_grad, SpecularGrad, DOT_EPS, F0};
