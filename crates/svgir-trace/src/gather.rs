@@ -22,7 +22,7 @@ use rayon::prelude::*;
 use svgir_core::envmap::Taps;
 use svgir_core::EnvMap;
 use svgir_shading::float::{dot, to_f};
-use svgir_shading::{ggx, vertex_weights, Diffuse, Float, DOT_EPS};
+use svgir_shading::{ggx_specular, vertex_weights, Diffuse, Float, DOT_EPS, MAX_VERTICES};
 
 /// Per-vertex materials of all Gaussians, structure of arrays: `albedo[(i*M + m)*3 + c]`,
 /// `roughness[i*M + m]`, `normals[(i*M + m)*3 + c]` (unit shading normals, already activated).
@@ -167,13 +167,22 @@ pub(crate) fn shade_pair<F: Float>(
     let w = vertex_weights(m, F::from_f32(uv[0]), F::from_f32(uv[1]));
     let mut acc = [F::ZERO; 3];
     let eps = F::from_f64(DOT_EPS);
+    // Per vertex of h: normal, roughness and the diffuse term `t a/pi` (`t` depends on the view,
+    // not on the escape direction), so the loop below evaluates only the specular lobe.
+    let inv_pi = F::from_f64(std::f64::consts::FRAC_1_PI);
+    let vx: [([F; 3], F, [F; 3]); MAX_VERTICES] = std::array::from_fn(|mm| {
+        let mm = mm.min(m - 1);
+        let b = (h * m + mm) * 3;
+        let n = [mats.normals[b], mats.normals[b + 1], mats.normals[b + 2]];
+        let r = mats.roughness[h * m + mm];
+        let kd = inv_pi * diffuse.weight(dot(n, v), r).value;
+        (n, r, [mats.albedo[b] * kd, mats.albedo[b + 1] * kd, mats.albedo[b + 2] * kd])
+    });
     for (l, light) in esc.dirs.iter().zip(&esc.light) {
         let mut f_cos = [F::ZERO; 3];
-        for mm in 0..m {
-            let b = (h * m + mm) * 3;
-            let n = [mats.normals[b], mats.normals[b + 1], mats.normals[b + 2]];
-            let a = [mats.albedo[b], mats.albedo[b + 1], mats.albedo[b + 2]];
-            let f = ggx(n, v, *l, a, mats.roughness[h * m + mm], diffuse);
+        for (mm, &(n, r, diffuse_part)) in vx.iter().enumerate().take(m) {
+            let s = ggx_specular(n, v, *l, r);
+            let f = diffuse_part.map(|d| d + s);
             let cw = dot(n, *l).maxf(eps) * w[mm];
             for c in 0..3 {
                 f_cos[c] += f[c] * cw;

@@ -251,11 +251,8 @@ impl Stage2 {
         if cfg.lights > 0 && self.iteration.is_multiple_of(cfg.lights_every.max(1)) {
             self.set_lights(&brightest_texels(&self.env.radiance(), cfg.lights))?;
         }
-        let sun_search = if cfg.lights > 0 && cfg.sun_search_views > 0 && cfg.sun_search_due(self.iteration) {
-            self.search_sun(dataset)?
-        } else {
-            None
-        };
+        // `search_sun` itself returns None without lights or views.
+        let sun_search = if cfg.sun_search_due(self.iteration) { self.search_sun(dataset)? } else { None };
         self.iteration += 1;
         let view = &dataset.train[self.rng.below(dataset.train.len())];
         let bg = cfg
