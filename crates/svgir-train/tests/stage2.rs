@@ -99,6 +99,33 @@ fn light_warm_up_holds_the_materials_then_releases_them() {
     assert_ne!(t.materials.normal_offset, m0.normal_offset);
 }
 
+/// `grey_warm_up`: the learned light stays grey (equal channels per texel, including the
+/// random start) while the materials are held, and takes colour once they are released.
+#[test]
+fn grey_warm_up_keeps_the_light_grey_until_the_materials_train() {
+    let Some(ds) = scene() else { return };
+    let cfg = Stage2Config {
+        iterations: 20,
+        directions: 16,
+        materials_from: 10,
+        grey_warm_up: true,
+        ..Stage2Config::default()
+    };
+    let mut t = Stage2::new(cfg, stage1(&ds), &ds).expect("stage 2 set-up");
+    let grey = |t: &Stage2| t.env.param.iter().all(|p| p[0] == p[1] && p[1] == p[2]);
+    assert!(!grey(&t), "SPEC 4's random start is coloured");
+    let e0 = t.env.clone();
+    for _ in 0..10 {
+        t.step(&ds).unwrap();
+        assert!(grey(&t), "grey during the warm-up (iteration {})", t.iteration);
+    }
+    assert_ne!(t.env, e0, "the light trains during the warm-up");
+    for _ in 0..10 {
+        t.step(&ds).unwrap();
+    }
+    assert!(!grey(&t), "the light takes colour after the warm-up");
+}
+
 fn run_and_resume(ds: &Dataset, mut t: Stage2) {
     let tag = format!("lights={}", t.config.lights);
     let start = pbr_psnr(&t, ds);

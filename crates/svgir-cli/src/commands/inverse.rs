@@ -115,6 +115,10 @@ pub struct InverseArgs {
     /// light mostly keeps what it learned while the materials were held.
     #[arg(long, default_value_t = 1.0)]
     pub env_lr_after_warm_up: f32,
+    /// Keep the learned light grey during the warm-up (`--materials-from`): its colour is learned
+    /// only once the albedo can take the objects' colours.
+    #[arg(long)]
+    pub grey_warm_up: bool,
     /// BRDF diffuse lobe: SPEC 4 adds it to the specular one; `layered` dims it by the specular
     /// layer's albedo, as Cycles' Principled BSDF (which renders the synthetic scenes) does.
     /// Default: added. With --resume it replaces the checkpoint's model (e.g. to re-evaluate).
@@ -290,6 +294,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         sun_radius_deg: args.sun_radius,
         materials_from: args.materials_from,
         env_lr_after_warm_up: args.env_lr_after_warm_up,
+        grey_warm_up: args.grey_warm_up,
         diffuse: args.diffuse.map_or(Diffuse::Added, DiffuseArg::model),
         sun_search_views: args.sun_search_views,
         sun_search_every: args.sun_search_every,

@@ -170,6 +170,13 @@ pub struct Stage2Config {
     /// instead of drifting with the materials along the light/albedo ambiguity.
     #[serde(default = "default_env_lr_after_warm_up")]
     pub env_lr_after_warm_up: f32,
+    /// During the warm-up (`materials_from`) the learned light is grey: each texel's three
+    /// parameters are tied to their mean (start and gradient). With the materials still uniform,
+    /// a coloured light would take the objects' colours by direction (the cup's orange stripes
+    /// became an orange glow above the horizon, which the albedo then had to undo); a grey one
+    /// can learn only where the light comes from and how strong it is. Colour is free after it.
+    #[serde(default)]
+    pub grey_warm_up: bool,
     /// How the BRDF's diffuse lobe combines with the specular one, in training, the one-bounce
     /// gather and relighting (SPEC 4: added; `layered` dims it by the specular layer's albedo,
     /// as Cycles' Principled BSDF does; `svgir_shading::layering`).
@@ -266,6 +273,7 @@ impl Default for Stage2Config {
             sun_radius_deg: default_sun_radius_deg(),
             materials_from: 0,
             env_lr_after_warm_up: 1.0,
+            grey_warm_up: false,
             diffuse: Diffuse::Added,
             sun_search_views: 0,
             sun_search_every: default_sun_search_every(),

@@ -253,6 +253,9 @@ impl Stage2 {
         }
         // `search_sun` itself returns None without lights or views.
         let sun_search = if cfg.sun_search_due(self.iteration) { self.search_sun(dataset)? } else { None };
+        if cfg.grey_warm_up && self.iteration < cfg.materials_from {
+            grey_texels(&mut self.env.param);
+        }
         self.iteration += 1;
         let view = &dataset.train[self.rng.below(dataset.train.len())];
         let bg = cfg
@@ -455,6 +458,8 @@ impl Stage2 {
             g[3].step(&mut self.materials.roughness_raw, &mg.v_roughness_raw);
             g[4].step(&mut self.materials.normal_offset, &v_offset);
             g[5].lr = cfg.lr.env * cfg.env_lr_after_warm_up;
+        } else if cfg.grey_warm_up {
+            grey_texels(&mut v_env);
         }
         g[5].step(bytemuck::cast_slice_mut(&mut self.env.param), bytemuck::cast_slice(&v_env));
         if cfg.indirect {
@@ -482,5 +487,12 @@ impl Stage2 {
             rho: self.rho,
             sun_search,
         })
+    }
+}
+
+/// Tie each texel's three channels to their mean (`Stage2Config::grey_warm_up`).
+fn grey_texels(texels: &mut [[f32; 3]]) {
+    for t in texels {
+        *t = [(t[0] + t[1] + t[2]) / 3.0; 3];
     }
 }
