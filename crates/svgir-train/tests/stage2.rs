@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use svgir_core::{Dataset, Rng, Surfels};
 use svgir_io::{load_dataset, LoadOptions};
 use svgir_pbr::EnvActivation;
-use svgir_train::stage2::Stage2Weights;
+use svgir_train::stage2::{GreyLight, Stage2Weights};
 use svgir_train::{checkpoint, init, BackgroundMode, Stage1, Stage1Config, Stage2, Stage2Config};
 
 fn scene() -> Option<Dataset> {
@@ -99,19 +99,20 @@ fn light_warm_up_holds_the_materials_then_releases_them() {
     assert_ne!(t.materials.normal_offset, m0.normal_offset);
 }
 
-/// `grey_warm_up`: the learned light stays grey (equal channels per texel, including the
-/// random start) while the materials are held, and takes colour once they are released.
+/// `GreyLight::WarmUp`: the learned light stays grey (equal channels per texel, including the
+/// random start) while the materials are held, and takes colour once they are released;
+/// `GreyLight::Always` keeps it grey.
 #[test]
-fn grey_warm_up_keeps_the_light_grey_until_the_materials_train() {
+fn grey_light_holds_during_the_warm_up_or_always() {
     let Some(ds) = scene() else { return };
     let cfg = Stage2Config {
         iterations: 20,
         directions: 16,
         materials_from: 10,
-        grey_warm_up: true,
+        grey_light: GreyLight::WarmUp,
         ..Stage2Config::default()
     };
-    let mut t = Stage2::new(cfg, stage1(&ds), &ds).expect("stage 2 set-up");
+    let mut t = Stage2::new(cfg.clone(), stage1(&ds), &ds).expect("stage 2 set-up");
     let grey = |t: &Stage2| t.env.param.iter().all(|p| p[0] == p[1] && p[1] == p[2]);
     assert!(!grey(&t), "SPEC 4's random start is coloured");
     let e0 = t.env.clone();
@@ -124,6 +125,13 @@ fn grey_warm_up_keeps_the_light_grey_until_the_materials_train() {
         t.step(&ds).unwrap();
     }
     assert!(!grey(&t), "the light takes colour after the warm-up");
+
+    let mut t = Stage2::new(Stage2Config { grey_light: GreyLight::Always, ..cfg }, stage1(&ds), &ds).unwrap();
+    let e0 = t.env.clone();
+    for _ in 0..20 {
+        t.step(&ds).unwrap();
+    }
+    assert!(grey(&t) && t.env != e0, "always grey, and trained");
 }
 
 fn run_and_resume(ds: &Dataset, mut t: Stage2) {

@@ -82,7 +82,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         albedo_lr: 0.01,
         materials_from: 0,
         env_lr_after_warm_up: 1.0,
-        grey_warm_up: false,
+        grey_light: inverse::GreyLightArg::Off,
         diffuse: None,
         sun_search_views: 0,
         sun_search_every: 300,

@@ -16,7 +16,7 @@ use svgir_metrics::{evaluate_pair, ImageMetrics, Lpips, SsimVariant};
 use svgir_pbr::EnvActivation;
 use svgir_shading::Diffuse;
 use svgir_train::relight::{RelightSampling, Relighter};
-use svgir_train::stage2::{EnvInit, Stage2Rates, Stage2Weights};
+use svgir_train::stage2::{EnvInit, GreyLight, Stage2Rates, Stage2Weights};
 use svgir_train::{checkpoint, Stage2, Stage2Config};
 
 #[derive(Args)]
@@ -115,10 +115,10 @@ pub struct InverseArgs {
     /// light mostly keeps what it learned while the materials were held.
     #[arg(long, default_value_t = 1.0)]
     pub env_lr_after_warm_up: f32,
-    /// Keep the learned light grey during the warm-up (`--materials-from`): its colour is learned
-    /// only once the albedo can take the objects' colours.
-    #[arg(long)]
-    pub grey_warm_up: bool,
+    /// Hold the learned light grey: `warm-up` while the materials are held (`--materials-from`),
+    /// `always`, or `off` (SPEC 6). A grey light leaves the objects' colours to the albedo.
+    #[arg(long, value_enum, default_value_t = GreyLightArg::Off)]
+    pub grey_light: GreyLightArg,
     /// BRDF diffuse lobe: SPEC 4 adds it to the specular one; `layered` dims it by the specular
     /// layer's albedo, as Cycles' Principled BSDF (which renders the synthetic scenes) does.
     /// Default: added. With --resume it replaces the checkpoint's model (e.g. to re-evaluate).
@@ -181,6 +181,23 @@ pub struct InverseArgs {
     /// normal_offset or env_tv (defaults: SPEC 6, Eqn 15).
     #[arg(long = "weight", value_name = "NAME=VALUE")]
     pub weights: Vec<String>,
+}
+
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+pub enum GreyLightArg {
+    Off,
+    WarmUp,
+    Always,
+}
+
+impl GreyLightArg {
+    fn model(self) -> GreyLight {
+        match self {
+            GreyLightArg::Off => GreyLight::Off,
+            GreyLightArg::WarmUp => GreyLight::WarmUp,
+            GreyLightArg::Always => GreyLight::Always,
+        }
+    }
 }
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -294,7 +311,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         sun_radius_deg: args.sun_radius,
         materials_from: args.materials_from,
         env_lr_after_warm_up: args.env_lr_after_warm_up,
-        grey_warm_up: args.grey_warm_up,
+        grey_light: args.grey_light.model(),
         diffuse: args.diffuse.map_or(Diffuse::Added, DiffuseArg::model),
         sun_search_views: args.sun_search_views,
         sun_search_every: args.sun_search_every,

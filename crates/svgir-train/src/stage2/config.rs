@@ -170,13 +170,10 @@ pub struct Stage2Config {
     /// instead of drifting with the materials along the light/albedo ambiguity.
     #[serde(default = "default_env_lr_after_warm_up")]
     pub env_lr_after_warm_up: f32,
-    /// During the warm-up (`materials_from`) the learned light is grey: each texel's three
-    /// parameters are tied to their mean (start and gradient). With the materials still uniform,
-    /// a coloured light would take the objects' colours by direction (the cup's orange stripes
-    /// became an orange glow above the horizon, which the albedo then had to undo); a grey one
-    /// can learn only where the light comes from and how strong it is. Colour is free after it.
+    /// Keep the learned light grey (each texel's three parameters tied to their mean, start and
+    /// gradient): during the warm-up (`materials_from`) or always. SPEC 6 lets it take any colour.
     #[serde(default)]
-    pub grey_warm_up: bool,
+    pub grey_light: GreyLight,
     /// How the BRDF's diffuse lobe combines with the specular one, in training, the one-bounce
     /// gather and relighting (SPEC 4: added; `layered` dims it by the specular layer's albedo,
     /// as Cycles' Principled BSDF does; `svgir_shading::layering`).
@@ -233,6 +230,36 @@ fn default_trace_start_scale() -> f32 {
     TraceParams::default().t_min_scale
 }
 
+/// When the learned light is held grey (`Stage2Config::grey_light`).
+///
+/// Why: with the materials still uniform (the warm-up), a coloured light takes the objects'
+/// colours by direction; on cup_and_ball the learned map holds an orange glow round the sun and
+/// twice the true sky-to-sun ratio in red, which the albedo then offsets per region. A grey light
+/// can only say where light comes from and how strong it is, and the albedo takes the colour.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum GreyLight {
+    /// SPEC 6: coloured throughout.
+    #[default]
+    Off,
+    /// Grey while the materials are held (`materials_from`), coloured after.
+    WarmUp,
+    /// Grey throughout (the evaluation's per-channel albedo scale absorbs the light's tint).
+    Always,
+}
+
+impl GreyLight {
+    /// Is the light grey at step `iteration` (1-based, as `Stage2::iteration` after the step's
+    /// increment) when the materials train from `materials_from`?
+    pub fn holds(self, iteration: u64, materials_from: u64) -> bool {
+        match self {
+            GreyLight::Off => false,
+            GreyLight::WarmUp => iteration <= materials_from,
+            GreyLight::Always => true,
+        }
+    }
+}
+
 /// The learned environment map's initial parameters.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 pub enum EnvInit {
@@ -273,7 +300,7 @@ impl Default for Stage2Config {
             sun_radius_deg: default_sun_radius_deg(),
             materials_from: 0,
             env_lr_after_warm_up: 1.0,
-            grey_warm_up: false,
+            grey_light: GreyLight::Off,
             diffuse: Diffuse::Added,
             sun_search_views: 0,
             sun_search_every: default_sun_search_every(),

@@ -17,7 +17,7 @@ mod config;
 mod render;
 mod sun_search;
 
-pub use config::{EnvInit, Stage2Config, Stage2Rates, Stage2Weights, DEFAULT_TRACE_EPS};
+pub use config::{EnvInit, GreyLight, Stage2Config, Stage2Rates, Stage2Weights, DEFAULT_TRACE_EPS};
 pub use render::{PbrRender, Shading};
 pub use sun_search::SunSearch;
 
@@ -253,7 +253,8 @@ impl Stage2 {
         }
         // `search_sun` itself returns None without lights or views.
         let sun_search = if cfg.sun_search_due(self.iteration) { self.search_sun(dataset)? } else { None };
-        if cfg.grey_warm_up && self.iteration < cfg.materials_from {
+        let grey = cfg.grey_light.holds(self.iteration + 1, cfg.materials_from);
+        if grey {
             grey_texels(&mut self.env.param);
         }
         self.iteration += 1;
@@ -458,7 +459,8 @@ impl Stage2 {
             g[3].step(&mut self.materials.roughness_raw, &mg.v_roughness_raw);
             g[4].step(&mut self.materials.normal_offset, &v_offset);
             g[5].lr = cfg.lr.env * cfg.env_lr_after_warm_up;
-        } else if cfg.grey_warm_up {
+        }
+        if grey {
             grey_texels(&mut v_env);
         }
         g[5].step(bytemuck::cast_slice_mut(&mut self.env.param), bytemuck::cast_slice(&v_env));
@@ -490,7 +492,7 @@ impl Stage2 {
     }
 }
 
-/// Tie each texel's three channels to their mean (`Stage2Config::grey_warm_up`).
+/// Tie each texel's three channels to their mean (`Stage2Config::grey_light`).
 fn grey_texels(texels: &mut [[f32; 3]]) {
     for t in texels {
         *t = [(t[0] + t[1] + t[2]) / 3.0; 3];
