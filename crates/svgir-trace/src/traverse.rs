@@ -66,6 +66,11 @@ pub struct TraceParams {
     /// most of their transmittance; a gain treats surfaces as more opaque for shadowing while
     /// the traced radiance stays SPEC 5's composite.
     pub visibility_alpha_gain: f32,
+    /// Highest SH degree evaluated for the traced radiance (SPEC 5: the model's, 3). Stage 1's
+    /// view-dependent terms are fitted only from the cameras' directions; the rays of the
+    /// micro-buffers look at surfaces from anywhere (from below, from the saucer), where those
+    /// terms extrapolate. 0 takes the mean colour (DC) alone.
+    pub radiance_sh_degree: u32,
 }
 
 impl Default for TraceParams {
@@ -82,6 +87,7 @@ impl Default for TraceParams {
             cull_backfaces: false,
             visibility_alpha_gain: 1.0,
             linear_radiance: false,
+            radiance_sh_degree: 3,
         }
     }
 }
@@ -332,6 +338,7 @@ pub fn march<S: HitSource>(src: &S, sh: &[ShCoeffs], degree: u32, ray: &Ray, p: 
     let mut tv = 1.0f32;
     let mut first = None;
     let mut hits = 0;
+    let degree = degree.min(p.radiance_sh_degree);
     src.for_each_hit(ray, p, |h| {
         if first.is_none() {
             first = Some(*h);

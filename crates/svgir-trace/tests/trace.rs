@@ -178,6 +178,41 @@ fn stack_of_disks_gives_product_transmittance() {
     assert_eq!(r4.hits, 3);
 }
 
+/// `radiance_sh_degree` caps the SH degree of the traced radiance: 0 gives each hit's mean
+/// (DC) colour in every direction, a cap at or above the model's degree changes nothing.
+#[test]
+fn radiance_sh_degree_caps_the_traced_colour() {
+    let mut s = stack(&[0.6, 0.5], 0.1);
+    s.sh_degree = 3;
+    let mut rng = svgir_core::Rng::new(7);
+    for c in &mut s.sh {
+        for k in 1..16 {
+            for ch in 0..3 {
+                c.0[k][ch] = 0.2 * (rng.uniform() - 0.5);
+            }
+        }
+    }
+    let bvh = Bvh::build(&s);
+    let p = TraceParams { t_stop: 1e-6, v_cut: 0.0, ..TraceParams::default() };
+    let dc = |d: Vec3| {
+        let ray = Ray { origin: Vec3::new(0.0, 0.0, -1.0), dir: d.normalize(), t_start: 0.0, ignore: NO_ID };
+        let full = march(&bvh, &s.sh, 3, &ray, &p).radiance;
+        let capped = march(&bvh, &s.sh, 3, &ray, &TraceParams { radiance_sh_degree: 0, ..p }).radiance;
+        let as_zero = march(&bvh, &s.sh, 0, &ray, &p).radiance;
+        let as_four = march(&bvh, &s.sh, 3, &ray, &TraceParams { radiance_sh_degree: 4, ..p }).radiance;
+        assert_eq!(capped, as_zero);
+        assert_eq!(as_four, full);
+        (full, capped)
+    };
+    let (fa, ca) = dc(Vec3::new(0.05, 0.0, 1.0));
+    // The same distance from the disks' centres (so the same alphas), another azimuth.
+    let (fb, cb) = dc(Vec3::new(0.0, 0.05, 1.0));
+    assert_ne!(fa, fb, "the full SH colour depends on the direction");
+    for ch in 0..3 {
+        assert!((ca[ch] - cb[ch]).abs() < 1e-6, "DC alone does not: {ca:?} vs {cb:?}");
+    }
+}
+
 #[test]
 fn coincident_hits_are_ordered_by_id() {
     let mut s = stack(&[0.5, 0.5], 0.0);

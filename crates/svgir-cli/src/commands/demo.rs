@@ -97,6 +97,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         trace_start_scale: trace.trace_start_scale,
         visibility_cut: trace.trace_visibility_cut,
         visibility_alpha_gain: trace.trace_visibility_alpha_gain,
+        traced_sh_degree: trace.trace_radiance_sh_degree,
         traced_radiance: inverse::TracedRadianceArg::from_config(&trace),
         weights: Vec::new(),
         // The quick demo (a CI test) keeps its 16 training directions; the full demo relights

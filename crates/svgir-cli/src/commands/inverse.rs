@@ -177,6 +177,10 @@ pub struct InverseArgs {
     /// `srgb` uses it as it is, as the reference code does.
     #[arg(long, value_enum, default_value_t = TracedRadianceArg::from_config(&Stage2Config::default()))]
     pub traced_radiance: TracedRadianceArg,
+    /// Highest SH degree of the traced radiance used as indirect light (SPEC 5: 3); 0 uses each
+    /// hit's mean colour, since the micro-buffer rays see surfaces from directions no camera did.
+    #[arg(long, default_value_t = Stage2Config::default().trace_radiance_sh_degree)]
+    pub traced_sh_degree: u32,
     /// Loss weight, repeatable: l1, ssim, consistency, normal, smooth_albedo, smooth_roughness,
     /// normal_offset or env_tv (defaults: SPEC 6, Eqn 15).
     #[arg(long = "weight", value_name = "NAME=VALUE")]
@@ -306,6 +310,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         trace_start_scale: args.trace_start_scale,
         trace_visibility_cut: args.visibility_cut,
         trace_visibility_alpha_gain: args.visibility_alpha_gain,
+        trace_radiance_sh_degree: args.traced_sh_degree,
         trace_linear_radiance: args.traced_radiance == TracedRadianceArg::Linear,
         sun_at: args.sun_at,
         sun_radius_deg: args.sun_radius,

@@ -136,6 +136,10 @@ pub struct Stage2Config {
     /// SPEC 5: 1).
     #[serde(default = "default_visibility_alpha_gain")]
     pub trace_visibility_alpha_gain: f32,
+    /// Highest SH degree of the traced radiance (`TraceParams::radiance_sh_degree`; SPEC 5:
+    /// the model's own, 3). 0: each hit's mean colour, whatever the ray's direction.
+    #[serde(default = "default_trace_radiance_sh_degree")]
+    pub trace_radiance_sh_degree: u32,
     /// L_rc is a mean over visible Gaussians; estimate it on at most this many, drawn at random
     /// each iteration (unbiased for the mean, and it keeps the loss cheap on the CPU).
     pub consistency_samples: usize,
@@ -194,6 +198,10 @@ pub struct Stage2Config {
 
 fn default_sun_search_every() -> u64 {
     300
+}
+
+fn default_trace_radiance_sh_degree() -> u32 {
+    TraceParams::default().radiance_sh_degree
 }
 
 fn default_env_lr_after_warm_up() -> f32 {
@@ -291,6 +299,7 @@ impl Default for Stage2Config {
             trace_linear_radiance: true,
             trace_visibility_cut: default_visibility_cut(),
             trace_visibility_alpha_gain: default_visibility_alpha_gain(),
+            trace_radiance_sh_degree: default_trace_radiance_sh_degree(),
             consistency_samples: 8192,
             env_init: EnvInit::Random,
             lights: 0,
@@ -329,6 +338,7 @@ impl Stage2Config {
             linear_radiance: self.trace_linear_radiance,
             v_cut: self.trace_visibility_cut,
             visibility_alpha_gain: self.trace_visibility_alpha_gain,
+            radiance_sh_degree: self.trace_radiance_sh_degree,
             ..TraceParams::default()
         }
     }
