@@ -240,10 +240,11 @@ fn default_trace_start_scale() -> f32 {
 
 /// When the learned light is held grey (`Stage2Config::grey_light`).
 ///
-/// Why: with the materials still uniform (the warm-up), a coloured light takes the objects'
-/// colours by direction; on cup_and_ball the learned map holds an orange glow round the sun and
-/// twice the true sky-to-sun ratio in red, which the albedo then offsets per region. A grey light
-/// can only say where light comes from and how strong it is, and the albedo takes the colour.
+/// Why: on cup_and_ball the learned map holds an orange glow round the sun and twice the true
+/// sky-to-sun ratio in red, which the albedo then offsets region by region. A grey light can only
+/// say where light comes from and how strong it is, and the albedo takes the colour. Measured
+/// (README): grey during the warm-up only, the glow returns once the materials train (no change);
+/// grey throughout helps cup (nearly grey overcast sky) and hurts bowl (blue sky, green grass).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum GreyLight {
