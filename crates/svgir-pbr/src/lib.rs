@@ -2,6 +2,7 @@
 //!
 //! - [`material`]: spatially-varying Gaussian materials, M vertices per surfel (SPEC 3).
 //! - [`env`]: the learnable lat-long environment light (SPEC 4).
+//! - [`env_colour`]: holding that light grey or its colour smooth (our option).
 //! - [`shade`] / [`shade_backward`]: the per-vertex rendering equation with visibility and
 //!   indirect light from the micro-buffers (SPEC 4, 5) and its gradients.
 //! - [`direction_cache`]: the frozen micro-buffer directions' env-map lookups, computed once
@@ -27,6 +28,7 @@ pub mod bench;
 pub mod consistency;
 pub mod direction_cache;
 pub mod env;
+pub mod env_colour;
 pub mod grads;
 pub mod material;
 pub mod shade;
@@ -40,6 +42,7 @@ pub use consistency::{
 };
 pub use direction_cache::DirectionCache;
 pub use env::{env_radiance, env_radiance_backward, EnvActivation, EnvLight, ENV_HEIGHT};
+pub use env_colour::ColourProjector;
 pub use grads::PbrGrads;
 pub use material::{activate, activate_backward, ActivatedMaterials, MaterialGrads, SvgMaterials};
 pub use shade::{shade, shade_into, shade_into_cached, Indirect, ShadeInputs, ShadeOutput, ShadeParams, ENV_MAX};

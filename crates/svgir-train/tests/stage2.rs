@@ -5,7 +5,7 @@
 use std::path::PathBuf;
 use svgir_core::{Dataset, Rng, Surfels};
 use svgir_io::{load_dataset, LoadOptions};
-use svgir_pbr::EnvActivation;
+use svgir_pbr::{ColourProjector, EnvActivation};
 use svgir_train::stage2::{GreyLight, Stage2Weights};
 use svgir_train::{checkpoint, init, BackgroundMode, Stage1, Stage1Config, Stage2, Stage2Config};
 
@@ -101,7 +101,7 @@ fn light_warm_up_holds_the_materials_then_releases_them() {
 
 /// `GreyLight::WarmUp`: the learned light stays grey (equal channels per texel, including the
 /// random start) while the materials are held, and takes colour once they are released;
-/// `GreyLight::Always` keeps it grey.
+/// `GreyLight::Always` keeps it grey, or with `light_colour_degree` its colour smooth.
 #[test]
 fn grey_light_holds_during_the_warm_up_or_always() {
     let Some(ds) = scene() else { return };
@@ -126,12 +126,25 @@ fn grey_light_holds_during_the_warm_up_or_always() {
     }
     assert!(!grey(&t), "the light takes colour after the warm-up");
 
-    let mut t = Stage2::new(Stage2Config { grey_light: GreyLight::Always, ..cfg }, stage1(&ds), &ds).unwrap();
+    let mut t = Stage2::new(Stage2Config { grey_light: GreyLight::Always, ..cfg.clone() }, stage1(&ds), &ds).unwrap();
     let e0 = t.env.clone();
     for _ in 0..20 {
         t.step(&ds).unwrap();
     }
     assert!(grey(&t) && t.env != e0, "always grey, and trained");
+
+    // With a colour degree the light keeps a smooth colour: not grey, and already in the span.
+    let smooth = Stage2Config { grey_light: GreyLight::Always, light_colour_degree: Some(1), ..cfg };
+    let mut t = Stage2::new(smooth, stage1(&ds), &ds).unwrap();
+    for _ in 0..20 {
+        t.step(&ds).unwrap();
+    }
+    assert!(!grey(&t), "a degree-1 colour is kept");
+    let mut p = t.env.param.clone();
+    ColourProjector::new(t.env.width, t.env.height, Some(1)).unwrap().apply(&mut p).unwrap();
+    let off =
+        p.iter().zip(&t.env.param).flat_map(|(a, b)| (0..3).map(move |c| (a[c] - b[c]).abs())).fold(0.0, f32::max);
+    assert!(off < 1e-4, "the trained light's colour lies within SH degree 1 (off by {off})");
 }
 
 fn run_and_resume(ds: &Dataset, mut t: Stage2) {

@@ -83,6 +83,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         materials_from: 0,
         env_lr_after_warm_up: 1.0,
         grey_light: inverse::GreyLightArg::Off,
+        light_colour_degree: None,
         diffuse: None,
         sun_search_views: 0,
         sun_search_every: 300,

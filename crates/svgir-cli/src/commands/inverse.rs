@@ -119,6 +119,11 @@ pub struct InverseArgs {
     /// `always`, or `off` (SPEC 6). A grey light leaves the objects' colours to the albedo.
     #[arg(long, value_enum, default_value_t = GreyLightArg::Off)]
     pub grey_light: GreyLightArg,
+    /// With --grey-light: instead of grey, keep the light's colour within spherical harmonics of
+    /// this degree (0-3) and each texel's brightness free (a blue sky over green ground, but no
+    /// coloured glow round the sun).
+    #[arg(long)]
+    pub light_colour_degree: Option<u32>,
     /// BRDF diffuse lobe: SPEC 4 adds it to the specular one; `layered` dims it by the specular
     /// layer's albedo, as Cycles' Principled BSDF (which renders the synthetic scenes) does.
     /// Default: added. With --resume it replaces the checkpoint's model (e.g. to re-evaluate).
@@ -187,7 +192,7 @@ pub struct InverseArgs {
     pub weights: Vec<String>,
 }
 
-#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum GreyLightArg {
     Off,
     WarmUp,
@@ -258,6 +263,15 @@ pub fn run(args: InverseArgs) -> Result<()> {
         "--visibility-alpha-gain {} must be at least 1",
         args.visibility_alpha_gain
     );
+    anyhow::ensure!(
+        args.light_colour_degree.is_none() || args.grey_light != GreyLightArg::Off,
+        "--light-colour-degree needs --grey-light warm-up or always (it says how the light's colour is held)"
+    );
+    anyhow::ensure!(
+        args.light_colour_degree.is_none_or(|d| d <= 3),
+        "--light-colour-degree {} is above 3",
+        args.light_colour_degree.unwrap_or(0)
+    );
     let cfg_path = args.run.join("config.json");
     let run_cfg: serde_json::Value = serde_json::from_str(
         &std::fs::read_to_string(&cfg_path).with_context(|| format!("{}: cannot read", cfg_path.display()))?,
@@ -317,6 +331,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         materials_from: args.materials_from,
         env_lr_after_warm_up: args.env_lr_after_warm_up,
         grey_light: args.grey_light.model(),
+        light_colour_degree: args.light_colour_degree,
         diffuse: args.diffuse.map_or(Diffuse::Added, DiffuseArg::model),
         sun_search_views: args.sun_search_views,
         sun_search_every: args.sun_search_every,

@@ -178,6 +178,11 @@ pub struct Stage2Config {
     /// gradient): during the warm-up (`materials_from`) or always. SPEC 6 lets it take any colour.
     #[serde(default)]
     pub grey_light: GreyLight,
+    /// While `grey_light` holds: `None` ties the channels (grey); `Some(d)` keeps the light's
+    /// colour (channel ratios under `EnvActivation::Exp`) within SH degree d and leaves each
+    /// texel's brightness free (`svgir_pbr::env_colour`).
+    #[serde(default)]
+    pub light_colour_degree: Option<u32>,
     /// How the BRDF's diffuse lobe combines with the specular one, in training, the one-bounce
     /// gather and relighting (SPEC 4: added; `layered` dims it by the specular layer's albedo,
     /// as Cycles' Principled BSDF does; `svgir_shading::layering`).
@@ -245,6 +250,7 @@ fn default_trace_start_scale() -> f32 {
 /// say where light comes from and how strong it is, and the albedo takes the colour. Measured
 /// (README): grey during the warm-up only, the glow returns once the materials train (no change);
 /// grey throughout helps cup (nearly grey overcast sky) and hurts bowl (blue sky, green grass).
+/// `Stage2Config::light_colour_degree` keeps a smooth colour instead of none.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum GreyLight {
@@ -311,6 +317,7 @@ impl Default for Stage2Config {
             materials_from: 0,
             env_lr_after_warm_up: 1.0,
             grey_light: GreyLight::Off,
+            light_colour_degree: None,
             diffuse: Diffuse::Added,
             sun_search_views: 0,
             sun_search_every: default_sun_search_every(),

@@ -33,8 +33,9 @@ use serde::{Deserialize, Serialize};
 use std::time::Instant;
 use svgir_core::{Camera, Dataset, Rng, Surfels};
 use svgir_pbr::{
-    radiance_consistency, radiance_consistency_backward, shade_backward_cached, shade_into_cached, ConsistencyInputs,
-    DirectionCache, EnvLight, Indirect, PbrError, PbrGrads, ShadeInputs, ShadeOutput, ShadeParams, SvgMaterials,
+    radiance_consistency, radiance_consistency_backward, shade_backward_cached, shade_into_cached, ColourProjector,
+    ConsistencyInputs, DirectionCache, EnvLight, Indirect, PbrError, PbrGrads, ShadeInputs, ShadeOutput, ShadeParams,
+    SvgMaterials,
 };
 use svgir_raster::{backward, render, Background, ColorSource, Features, OutputGrads, RasterConfig, RenderInput};
 use svgir_trace::{brightest_texels, concentrate_lobe, BrightLights, Bvh, GatherParams, MicroBuffer};
@@ -86,6 +87,8 @@ pub struct Stage2 {
     /// Opacity logits at the start of stage 2, when the micro-buffers were traced: light
     /// visibility is traced against the same frozen occluders (and so is reproducible on resume).
     pub trace_opacity: Vec<f32>,
+    /// Holds the light grey or its colour smooth while `config.grey_light` holds.
+    colour: ColourProjector,
 }
 
 /// Stage 2's rasteriser settings: no distortion output (no loss uses it).
@@ -125,6 +128,7 @@ impl Stage2 {
         }
         .with_activation(config.env_activation)?;
         let lights = BrightLights::empty(env.width, env.height);
+        let colour = ColourProjector::new(env.width, env.height, config.light_colour_degree)?;
         let surfels_opacity = surfels.opacity_logits.clone();
         let dir_cache = DirectionCache::new(&mb, &env.radiance())?;
         let lr = &config.lr;
@@ -157,6 +161,7 @@ impl Stage2 {
             lights,
             bvh: None,
             trace_opacity: surfels_opacity,
+            colour,
         })
     }
 
@@ -255,7 +260,7 @@ impl Stage2 {
         let sun_search = if cfg.sun_search_due(self.iteration) { self.search_sun(dataset)? } else { None };
         let grey = cfg.grey_light.holds(self.iteration + 1, cfg.materials_from);
         if grey {
-            grey_texels(&mut self.env.param);
+            self.colour.apply(&mut self.env.param)?;
         }
         self.iteration += 1;
         let view = &dataset.train[self.rng.below(dataset.train.len())];
@@ -461,9 +466,13 @@ impl Stage2 {
             g[5].lr = cfg.lr.env * cfg.env_lr_after_warm_up;
         }
         if grey {
-            grey_texels(&mut v_env);
+            self.colour.apply(&mut v_env)?;
         }
         g[5].step(bytemuck::cast_slice_mut(&mut self.env.param), bytemuck::cast_slice(&v_env));
+        if grey {
+            // Adam scales each parameter on its own, which leaves the constrained set.
+            self.colour.apply(&mut self.env.param)?;
+        }
         if cfg.indirect {
             let mut rho = [self.rho];
             g[6].step(&mut rho, &[pg.v_rho]);
@@ -489,12 +498,5 @@ impl Stage2 {
             rho: self.rho,
             sun_search,
         })
-    }
-}
-
-/// Tie each texel's three channels to their mean (`Stage2Config::grey_light`).
-fn grey_texels(texels: &mut [[f32; 3]]) {
-    for t in texels {
-        *t = [(t[0] + t[1] + t[2]) / 3.0; 3];
     }
 }
