@@ -143,6 +143,11 @@ mod tests {
         a.iter().zip(b).map(|(x, y)| (0..3).map(|c| x[c] as f64 * y[c] as f64).sum::<f64>()).sum()
     }
 
+    /// Largest absolute difference over texels and channels.
+    fn max_diff(a: &[[f32; 3]], b: &[[f32; 3]]) -> f32 {
+        a.iter().zip(b).flat_map(|(x, y)| (0..3).map(move |c| (x[c] - y[c]).abs())).fold(0.0, f32::max)
+    }
+
     #[test]
     fn grey_keeps_the_channel_mean() {
         let p = ColourProjector::new(16, 8, None).unwrap();
@@ -166,8 +171,7 @@ mod tests {
             p.apply(&mut py).unwrap();
             let mut ppx = px.clone();
             p.apply(&mut ppx).unwrap();
-            let err =
-                ppx.iter().zip(&px).flat_map(|(a, b)| (0..3).map(move |c| (a[c] - b[c]).abs())).fold(0.0, f32::max);
+            let err = max_diff(&ppx, &px);
             assert!(err < 1e-4, "{degree:?}: P(Px) != Px by {err}");
             let (a, b) = (dot(&px, &y), dot(&x, &py));
             assert!((a - b).abs() < 1e-3 * a.abs().max(1.0), "{degree:?}: <Px,y> {a} vs <x,Py> {b}");
@@ -195,7 +199,7 @@ mod tests {
         for degree in 1..=3 {
             let mut px = x.clone();
             ColourProjector::new(w, h, Some(degree)).unwrap().apply(&mut px).unwrap();
-            let err = px.iter().zip(&x).flat_map(|(a, b)| (0..3).map(move |c| (a[c] - b[c]).abs())).fold(0.0, f32::max);
+            let err = max_diff(&px, &x);
             assert!(err < 1e-4, "degree {degree}: smooth colour changed by {err}");
         }
         let mut spike = vec![[1.0f32; 3]; (w * h) as usize];
