@@ -1,7 +1,10 @@
 //! The PBR image (SPEC 3): the rasteriser composites linear HDR vertex colours into a sum `C`
 //! with opacity `O`; the image compared with the sRGB photo is
-//! `I = srgb(C / max(O, eps)) * O + bg * (1 - O)`: divide out the coverage, tone-map after
-//! compositing, then blend with the background by coverage.
+//! `I = srgb(C / max(O, eps)) * m + bg * (1 - m)`: divide out the coverage, tone-map after
+//! compositing, then blend with the background by a coverage `m`. SPEC 3 takes the render's own
+//! `m = O`; [`Coverage::Photo`] takes the photo's alpha, as SPEC 8's evaluation composites the
+//! prediction (its straight colour under the ground-truth mask), so that training cannot darken a
+//! surface by thinning it over a black background, which the evaluation would then divide out.
 //!
 //! Per pixel and independent, so forward and backward are plain loops; computed in f64 so the
 //! same per-pixel functions are the finite-difference oracle.
@@ -9,23 +12,29 @@
 /// Opacity floor of the division (SPEC 3).
 pub const MIN_OPACITY: f64 = 1e-5;
 
+use serde::{Deserialize, Serialize};
 use svgir_core::color::{linear_to_srgb as srgb, linear_to_srgb_grad as srgb_grad};
 
-/// One pixel's image value.
-pub fn composite_px(c: [f64; 3], o: f64, bg: [f32; 3]) -> [f64; 3] {
+/// One pixel's image value; `cover`: the photo's alpha ([`Coverage::Photo`]), `None` for the
+/// render's own opacity `o` (SPEC 3).
+pub fn composite_px(c: [f64; 3], o: f64, cover: Option<f64>, bg: [f32; 3]) -> [f64; 3] {
     let oc = o.max(MIN_OPACITY);
-    [0, 1, 2].map(|k| srgb(c[k] / oc) * o + bg[k] as f64 * (1.0 - o))
+    let m = cover.unwrap_or(o);
+    [0, 1, 2].map(|k| srgb(c[k] / oc) * m + bg[k] as f64 * (1.0 - m))
 }
 
 /// Gradients of one pixel: `(dL/dC, dL/dO)` given `dL/dI`.
-pub fn composite_px_backward(c: [f64; 3], o: f64, bg: [f32; 3], v_i: [f64; 3]) -> ([f64; 3], f64) {
+pub fn composite_px_backward(c: [f64; 3], o: f64, cover: Option<f64>, bg: [f32; 3], v_i: [f64; 3]) -> ([f64; 3], f64) {
     let oc = o.max(MIN_OPACITY);
+    let m = cover.unwrap_or(o);
     let mut v_c = [0.0; 3];
     let mut v_o = 0.0;
     for k in 0..3 {
         let lin = c[k] / oc;
-        v_o += v_i[k] * (srgb(lin) - bg[k] as f64);
-        let v_lin = v_i[k] * o * srgb_grad(lin);
+        if cover.is_none() {
+            v_o += v_i[k] * (srgb(lin) - bg[k] as f64);
+        }
+        let v_lin = v_i[k] * m * srgb_grad(lin);
         v_c[k] = v_lin / oc;
         if o > MIN_OPACITY {
             v_o -= v_lin * c[k] / (o * o);
@@ -38,17 +47,46 @@ fn px(v: &[f32], p: usize) -> [f64; 3] {
     [v[3 * p] as f64, v[3 * p + 1] as f64, v[3 * p + 2] as f64]
 }
 
-/// The whole image (RGB, 3 per pixel).
-pub fn pbr_composite(color: &[f32], alpha: &[f32], bg: [f32; 3]) -> Vec<f32> {
-    (0..alpha.len()).flat_map(|p| composite_px(px(color, p), alpha[p] as f64, bg).map(|v| v as f32)).collect()
+/// Which coverage blends the PBR image with the background in training.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Coverage {
+    /// SPEC 3: the render's own opacity.
+    #[default]
+    Render,
+    /// The photo's alpha where the view has one (SPEC 8's evaluation composites so).
+    Photo,
+}
+
+/// The per-pixel coverage `mode` blends by for a view whose photo is `image`: its alpha under
+/// [`Coverage::Photo`] (none for a photo without alpha), else `None` (the render's opacity).
+pub fn photo_coverage(mode: Coverage, image: &svgir_core::Image) -> Option<Vec<f32>> {
+    (mode == Coverage::Photo && image.channels == 4).then(|| image.data.chunks_exact(4).map(|p| p[3]).collect())
+}
+
+fn cover_of(cover: Option<&[f32]>, p: usize) -> Option<f64> {
+    cover.map(|c| c[p] as f64)
+}
+
+/// The whole image (RGB, 3 per pixel); `cover`: one alpha per pixel, or `None` for the render's.
+pub fn pbr_composite(color: &[f32], alpha: &[f32], cover: Option<&[f32]>, bg: [f32; 3]) -> Vec<f32> {
+    (0..alpha.len())
+        .flat_map(|p| composite_px(px(color, p), alpha[p] as f64, cover_of(cover, p), bg).map(|v| v as f32))
+        .collect()
 }
 
 /// `(dL/dC, dL/dO)` for the whole image.
-pub fn pbr_composite_backward(color: &[f32], alpha: &[f32], bg: [f32; 3], v_image: &[f32]) -> (Vec<f32>, Vec<f32>) {
+pub fn pbr_composite_backward(
+    color: &[f32],
+    alpha: &[f32],
+    cover: Option<&[f32]>,
+    bg: [f32; 3],
+    v_image: &[f32],
+) -> (Vec<f32>, Vec<f32>) {
     let mut v_color = vec![0.0; color.len()];
     let mut v_alpha = vec![0.0; alpha.len()];
     for p in 0..alpha.len() {
-        let (vc, vo) = composite_px_backward(px(color, p), alpha[p] as f64, bg, px(v_image, p));
+        let (vc, vo) = composite_px_backward(px(color, p), alpha[p] as f64, cover_of(cover, p), bg, px(v_image, p));
         for k in 0..3 {
             v_color[3 * p + k] = vc[k] as f32;
         }
@@ -72,8 +110,11 @@ mod tests {
             // Away from the clamp at 0, where a central difference straddles the kink.
             let c = [0, 1, 2].map(|_| o * (1e-4 + 2.0 * rng.uniform_f64().powi(3)));
             let v_i = [0, 1, 2].map(|_| rng.normal() as f64);
-            let loss = |c: [f64; 3], o: f64| composite_px(c, o, bg).iter().zip(&v_i).map(|(a, b)| a * b).sum::<f64>();
-            let (vc, vo) = composite_px_backward(c, o, bg, v_i);
+            // Every third case blends by a photo's alpha instead of the render's opacity.
+            let cover = (case % 3 == 1).then(|| rng.uniform_f64());
+            let loss =
+                |c: [f64; 3], o: f64| composite_px(c, o, cover, bg).iter().zip(&v_i).map(|(a, b)| a * b).sum::<f64>();
+            let (vc, vo) = composite_px_backward(c, o, cover, bg, v_i);
             let h = 1e-7;
             for k in 0..3 {
                 let (mut cp, mut cm) = (c, c);
@@ -91,8 +132,25 @@ mod tests {
 
     #[test]
     fn empty_pixels_show_the_background_and_opaque_ones_the_tone_mapped_colour() {
-        let img = pbr_composite(&[0.0, 0.0, 0.0, 0.18, 0.18, 0.18], &[0.0, 1.0], [0.1, 0.2, 0.3]);
+        let img = pbr_composite(&[0.0, 0.0, 0.0, 0.18, 0.18, 0.18], &[0.0, 1.0], None, [0.1, 0.2, 0.3]);
         assert_eq!(&img[..3], &[0.1, 0.2, 0.3]);
         assert!((img[3] - svgir_core::color::linear_to_srgb(0.18)).abs() < 1e-6);
+    }
+
+    #[test]
+    fn photo_coverage_ignores_how_thin_the_render_is() {
+        // The same straight colour at opacity 0.3 and 1: SPEC 3's image darkens the thin one over
+        // black, the photo's coverage does not, and its opacity gradient is only the division's.
+        let black = [0.0; 3];
+        let thin = pbr_composite(&[0.054, 0.054, 0.054], &[0.3], None, black);
+        let full = pbr_composite(&[0.18, 0.18, 0.18], &[1.0], None, black);
+        assert!(thin[0] < 0.5 * full[0]);
+        let cover = [1.0];
+        let thin = pbr_composite(&[0.054, 0.054, 0.054], &[0.3], Some(&cover), black);
+        assert!((thin[0] - full[0]).abs() < 1e-5, "{} vs {}", thin[0], full[0]);
+        // Scaling C and O together leaves the image, so the gradients are orthogonal to (C, O).
+        let (vc, vo) = pbr_composite_backward(&[0.054; 3], &[0.3], Some(&cover), black, &[1.0; 3]);
+        let along = vc.iter().map(|g| g * 0.054).sum::<f32>() + vo[0] * 0.3;
+        assert!(along.abs() < 1e-5, "{along}");
     }
 }

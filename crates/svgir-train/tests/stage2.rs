@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use svgir_core::{Dataset, Rng, Surfels};
 use svgir_io::{load_dataset, LoadOptions};
 use svgir_pbr::{ColourProjector, EnvActivation};
-use svgir_train::stage2::{GreyLight, Stage2Weights};
+use svgir_train::stage2::{Coverage, GreyLight, Stage2Weights};
 use svgir_train::{checkpoint, init, BackgroundMode, Stage1, Stage1Config, Stage2, Stage2Config};
 
 fn scene() -> Option<Dataset> {
@@ -54,9 +54,11 @@ fn stage2_raises_pbr_psnr_and_resumes_bit_identically() {
     // Directional lights, re-selected before and after the checkpoint (iterations 80 and 120),
     // the sun gathered into one texel before it (iteration 60) and its direction searched before
     // and after it (60, 110: the checkpoint carries a sun off its texel centre), in the run and
-    // its resumption; with the normal smoothness (our addition) on.
+    // its resumption; with the normal smoothness (our addition) on and the PBR image blended by
+    // the photos' alpha.
     let lit = Stage2Config {
         iterations: 130,
+        pbr_coverage: Coverage::Photo,
         weights: Stage2Weights { smooth_normal: 0.1, ..Stage2Weights::default() },
         lights: 8,
         lights_every: 40,

@@ -85,6 +85,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         grey_light: inverse::GreyLightArg::Off,
         light_colour_degree: None,
         diffuse: None,
+        pbr_coverage: inverse::CoverageArg::Render,
         sun_search_views: 0,
         sun_search_every: 300,
         sun_search_cone: 0.0,

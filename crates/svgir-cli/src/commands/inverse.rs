@@ -16,7 +16,7 @@ use svgir_metrics::{evaluate_pair, ImageMetrics, Lpips, SsimVariant};
 use svgir_pbr::EnvActivation;
 use svgir_shading::Diffuse;
 use svgir_train::relight::{RelightSampling, Relighter};
-use svgir_train::stage2::{EnvInit, GreyLight, Stage2Rates, Stage2Weights};
+use svgir_train::stage2::{Coverage, EnvInit, GreyLight, Stage2Rates, Stage2Weights};
 use svgir_train::{checkpoint, Stage2, Stage2Config};
 
 #[derive(Args)]
@@ -129,6 +129,12 @@ pub struct InverseArgs {
     /// Default: added. With --resume it replaces the checkpoint's model (e.g. to re-evaluate).
     #[arg(long, value_enum)]
     pub diffuse: Option<DiffuseArg>,
+    /// What blends the PBR image with the background in the photo loss: SPEC 3's `render`
+    /// opacity, or the `photo`'s alpha, as the evaluation composites the prediction. With the
+    /// render's, a surface can look darker by being thinner over the black background, which the
+    /// evaluation divides out again.
+    #[arg(long, value_enum, default_value_t = CoverageArg::Render)]
+    pub pbr_coverage: CoverageArg,
     /// Shade this many of the learned map's brightest texels as directional lights with traced
     /// visibility and no clamp (re-selected every --lights-every iterations; relighting splits
     /// the new map by --relight-lights). For training lights with a sun; 0: SPEC 4's K samples alone.
@@ -222,6 +228,12 @@ impl DiffuseArg {
             DiffuseArg::Layered => Diffuse::Layered,
         }
     }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum CoverageArg {
+    Render,
+    Photo,
 }
 
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
@@ -333,6 +345,10 @@ pub fn run(args: InverseArgs) -> Result<()> {
         grey_light: args.grey_light.model(),
         light_colour_degree: args.light_colour_degree,
         diffuse: args.diffuse.map_or(Diffuse::Added, DiffuseArg::model),
+        pbr_coverage: match args.pbr_coverage {
+            CoverageArg::Render => Coverage::Render,
+            CoverageArg::Photo => Coverage::Photo,
+        },
         sun_search_views: args.sun_search_views,
         sun_search_every: args.sun_search_every,
         sun_search_cone_deg: args.sun_search_cone,

@@ -1,6 +1,7 @@
 //! Stage 2's configuration: loss weights (Eqn 15), learning rates (SPEC 6), ablation switches
 //! and our tracing and lighting options, all recorded in the run's `config.json`.
 
+use crate::composite::Coverage;
 use crate::config::{BackgroundMode, NamedWeights};
 use serde::{Deserialize, Serialize};
 use svgir_pbr::EnvActivation;
@@ -183,6 +184,10 @@ pub struct Stage2Config {
     /// texel's brightness free (`svgir_pbr::env_colour`).
     #[serde(default)]
     pub light_colour_degree: Option<u32>,
+    /// What blends the PBR image with the background in the photo loss (`crate::composite`):
+    /// SPEC 3's render opacity, or the photo's alpha as the evaluation composites.
+    #[serde(default)]
+    pub pbr_coverage: Coverage,
     /// How the BRDF's diffuse lobe combines with the specular one, in training, the one-bounce
     /// gather and relighting (SPEC 4: added; `layered` dims it by the specular layer's albedo,
     /// as Cycles' Principled BSDF does; `svgir_shading::layering`).
@@ -318,6 +323,7 @@ impl Default for Stage2Config {
             env_lr_after_warm_up: 1.0,
             grey_light: GreyLight::Off,
             light_colour_degree: None,
+            pbr_coverage: Coverage::Render,
             diffuse: Diffuse::Added,
             sun_search_views: 0,
             sun_search_every: default_sun_search_every(),

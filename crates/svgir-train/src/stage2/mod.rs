@@ -17,12 +17,13 @@ mod config;
 mod render;
 mod sun_search;
 
+pub use crate::composite::Coverage;
 pub use config::{EnvInit, GreyLight, Stage2Config, Stage2Rates, Stage2Weights, DEFAULT_TRACE_EPS};
 pub use render::{PbrRender, Shading};
 pub use sun_search::SunSearch;
 
 use crate::adam::AdamGroup;
-use crate::composite::{pbr_composite, pbr_composite_backward};
+use crate::composite::{pbr_composite, pbr_composite_backward, photo_coverage};
 use crate::losses::depth_normal::depth_normal_loss;
 use crate::losses::l1::l1_loss;
 use crate::losses::smoothness::{depth_guide, edge_aware_smoothness, BACKGROUND_GUIDE};
@@ -325,7 +326,8 @@ impl Stage2 {
         let t1 = Instant::now();
 
         // 3. Losses on the PBR image (see `composite`) and the SH image.
-        let image = pbr_composite(&pbr_out.color, &pbr_out.alpha, bg);
+        let cover = photo_coverage(cfg.pbr_coverage, &view.image);
+        let image = pbr_composite(&pbr_out.color, &pbr_out.alpha, cover.as_deref(), bg);
         let mut v_image = vec![0.0f32; npix * 3];
         let l1_pbr = l1_loss(&image, &gt, wts.l1, &mut v_image);
         let shape = svgir_metrics::Shape::new(w, h, 3);
@@ -339,7 +341,8 @@ impl Stage2 {
         v_sh_color.iter_mut().zip(&g).for_each(|(v, g)| *v -= wts.ssim * g);
         loss += wts.l1 * l1_sh + wts.ssim * (1.0 - ssim_sh);
 
-        let (v_color, mut v_alpha) = pbr_composite_backward(&pbr_out.color, &pbr_out.alpha, bg, &v_image);
+        let (v_color, mut v_alpha) =
+            pbr_composite_backward(&pbr_out.color, &pbr_out.alpha, cover.as_deref(), bg, &v_image);
 
         // Material buffers (opacity detached in the division) with edge-aware smoothness
         // (Eqn 17) against the photo, and the shading-normal / depth-normal loss (Eqn 18).

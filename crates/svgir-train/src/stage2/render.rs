@@ -24,6 +24,19 @@ pub struct PbrRender {
     pub normal: Vec<f32>,
 }
 
+impl PbrRender {
+    /// Blend the image with `bg` by `cover` (one alpha per pixel, e.g. the photo's) instead of
+    /// the render's own opacity: its straight colour, `(I - bg (1 - O)) / O`, re-blended.
+    pub fn recomposite(&mut self, cover: &[f32], bg: [f32; 3]) {
+        for ((px, &o), &m) in self.image.chunks_exact_mut(3).zip(&self.alpha).zip(cover) {
+            for (c, b) in px.iter_mut().zip(bg) {
+                let straight = if o > MIN_OPACITY { (*c - b * (1.0 - o)) / o } else { 0.0 };
+                *c = straight * m + b * (1.0 - m);
+            }
+        }
+    }
+}
+
 /// What a PBR render shades with: micro-buffers (and their direction cache), the light, the
 /// indirect term and the shading parameters.
 pub struct Shading<'a> {
@@ -112,7 +125,7 @@ impl Stage2 {
             roughness: vec![0.0; npix],
             normal: vec![0.0; npix * 3],
         };
-        r.image = pbr_composite(&out.color, &out.alpha, bg);
+        r.image = pbr_composite(&out.color, &out.alpha, None, bg);
         for p in 0..npix {
             let inv = 1.0 / out.alpha[p].max(MIN_OPACITY);
             let e = &out.extra[EXTRA_CHANNELS * p..EXTRA_CHANNELS * (p + 1)];
@@ -124,5 +137,33 @@ impl Stage2 {
             r.roughness[p] = e[3] * inv;
         }
         Ok(r)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn recomposite_keeps_the_straight_colour_and_swaps_the_coverage() {
+        let bg = [0.2, 0.4, 0.6];
+        let (straight, o) = ([0.9f32, 0.5, 0.1], [0.25f32, 1.0, 0.0]);
+        let image = o.iter().flat_map(|&o| (0..3).map(move |c| straight[c] * o + bg[c] * (1.0 - o))).collect();
+        let mut r = PbrRender {
+            width: 3,
+            height: 1,
+            image,
+            alpha: o.to_vec(),
+            albedo: vec![0.0; 9],
+            roughness: vec![0.0; 3],
+            normal: vec![0.0; 9],
+        };
+        r.recomposite(&[1.0, 0.5, 1.0], bg);
+        let want = [straight, [0, 1, 2].map(|c| 0.5 * straight[c] + 0.5 * bg[c]), [0.0; 3]];
+        for (got, want) in r.image.chunks(3).zip(want) {
+            for (g, w) in got.iter().zip(want) {
+                assert!((g - w).abs() < 1e-6, "{got:?} vs {want:?}");
+            }
+        }
     }
 }

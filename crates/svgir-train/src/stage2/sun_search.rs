@@ -19,6 +19,7 @@
 //! Deterministic: no random numbers, so a resumed run repeats it exactly.
 
 use super::Stage2;
+use crate::composite::photo_coverage;
 use crate::stage1::target_rgb;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
@@ -78,7 +79,10 @@ impl Stage2 {
         let (mut sum, mut count) = (0.0f64, 0usize);
         for &v in views {
             let view = &dataset.train[v];
-            let r = self.render_pbr(&view.camera, bg, &env, None, [1.0; 3])?;
+            let mut r = self.render_pbr(&view.camera, bg, &env, None, [1.0; 3])?;
+            if let Some(cover) = photo_coverage(self.config.pbr_coverage, &view.image) {
+                r.recomposite(&cover, bg);
+            }
             let gt = target_rgb(&view.image, bg);
             let mut scale = [1.0f64; 3];
             if scale_invariant {
