@@ -58,12 +58,6 @@ pub enum Coverage {
     Photo,
 }
 
-/// The per-pixel coverage `mode` blends by for a view whose photo is `image`: its alpha under
-/// [`Coverage::Photo`] (none for a photo without alpha), else `None` (the render's opacity).
-pub fn photo_coverage(mode: Coverage, image: &svgir_core::Image) -> Option<Vec<f32>> {
-    (mode == Coverage::Photo && image.channels == 4).then(|| image.data.chunks_exact(4).map(|p| p[3]).collect())
-}
-
 fn cover_of(cover: Option<&[f32]>, p: usize) -> Option<f64> {
     cover.map(|c| c[p] as f64)
 }

@@ -79,7 +79,8 @@ pub fn target_rgb(image: &Image, bg: [f32; 3]) -> Vec<f32> {
     }
 }
 
-fn alpha_of(image: &Image) -> Vec<f32> {
+/// The photo's alpha per pixel (1 for a photo without alpha).
+pub fn alpha_of(image: &Image) -> Vec<f32> {
     if image.channels == 4 {
         image.data.chunks_exact(4).map(|p| p[3]).collect()
     } else {

@@ -16,6 +16,7 @@ use svgir_metrics::{evaluate_pair, ImageMetrics, Lpips, SsimVariant};
 use svgir_pbr::EnvActivation;
 use svgir_shading::Diffuse;
 use svgir_train::relight::{RelightSampling, Relighter};
+use svgir_train::stage1::alpha_of;
 use svgir_train::stage2::{Coverage, EnvInit, GreyLight, Stage2Rates, Stage2Weights};
 use svgir_train::{checkpoint, Stage2, Stage2Config};
 
@@ -236,6 +237,15 @@ pub enum CoverageArg {
     Photo,
 }
 
+impl CoverageArg {
+    fn model(self) -> Coverage {
+        match self {
+            CoverageArg::Render => Coverage::Render,
+            CoverageArg::Photo => Coverage::Photo,
+        }
+    }
+}
+
 #[derive(Clone, Copy, Debug, clap::ValueEnum)]
 pub enum EnvActivationArg {
     Softplus,
@@ -345,10 +355,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         grey_light: args.grey_light.model(),
         light_colour_degree: args.light_colour_degree,
         diffuse: args.diffuse.map_or(Diffuse::Added, DiffuseArg::model),
-        pbr_coverage: match args.pbr_coverage {
-            CoverageArg::Render => Coverage::Render,
-            CoverageArg::Photo => Coverage::Photo,
-        },
+        pbr_coverage: args.pbr_coverage.model(),
         sun_search_views: args.sun_search_views,
         sun_search_every: args.sun_search_every,
         sun_search_cone_deg: args.sun_search_cone,
@@ -540,10 +547,6 @@ pub fn straight_colour(over_black: &[f32], alpha: &[f32]) -> Vec<f32> {
             c.iter().map(move |x| (x * inv).clamp(0.0, 1.0))
         })
         .collect()
-}
-
-pub(super) fn alpha_of(img: &Image) -> Vec<f32> {
-    img.data.chunks(img.channels as usize).map(|p| if img.channels == 4 { p[3] } else { 1.0 }).collect()
 }
 
 fn png(path: &Path, w: u32, h: u32, data: Vec<f32>) -> Result<()> {

@@ -96,7 +96,7 @@ pub fn fit(s2: &mut Stage2, ds: &Dataset, epochs: usize) -> Result<f64> {
             };
             let (out, state) = render(&input, &s2.raster);
             let npix = out.alpha.len();
-            let mask: Vec<bool> = super::inverse::alpha_of(&v.image).iter().map(|a| *a > 0.5).collect();
+            let mask: Vec<bool> = svgir_train::stage1::alpha_of(&v.image).iter().map(|a| *a > 0.5).collect();
             let count = mask.iter().filter(|b| **b).count().max(1) as f32;
             let ac = alb.channels as usize;
             let mut v_extra = vec![0.0f32; npix * CH];

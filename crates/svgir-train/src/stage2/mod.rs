@@ -23,16 +23,16 @@ pub use render::{PbrRender, Shading};
 pub use sun_search::SunSearch;
 
 use crate::adam::AdamGroup;
-use crate::composite::{pbr_composite, pbr_composite_backward, photo_coverage};
+use crate::composite::{pbr_composite, pbr_composite_backward};
 use crate::losses::depth_normal::depth_normal_loss;
 use crate::losses::l1::l1_loss;
 use crate::losses::smoothness::{depth_guide, edge_aware_smoothness, BACKGROUND_GUIDE};
 use crate::orient::orient_normals;
-use crate::stage1::{psnr_of_mse, target_rgb, PhaseTimes};
+use crate::stage1::{alpha_of, psnr_of_mse, target_rgb, PhaseTimes};
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
-use svgir_core::{Camera, Dataset, Rng, Surfels};
+use svgir_core::{Camera, Dataset, Image, Rng, Surfels};
 use svgir_pbr::{
     radiance_consistency, radiance_consistency_backward, shade_backward_cached, shade_into_cached, ColourProjector,
     ConsistencyInputs, DirectionCache, EnvLight, Indirect, PbrError, PbrGrads, ShadeInputs, ShadeOutput, ShadeParams,
@@ -95,6 +95,13 @@ pub struct Stage2 {
 /// Stage 2's rasteriser settings: no distortion output (no loss uses it).
 fn raster_config() -> RasterConfig {
     RasterConfig { distortion: false, ..RasterConfig::default() }
+}
+
+/// The per-pixel coverage `mode` blends the PBR image by for a view whose photo is `image`: its
+/// alpha under [`Coverage::Photo`] (none for a photo without alpha), else `None` (the render's
+/// opacity; `crate::composite`).
+fn photo_coverage(mode: Coverage, image: &Image) -> Option<Vec<f32>> {
+    (mode == Coverage::Photo && image.channels == 4).then(|| alpha_of(image))
 }
 
 fn visible_of(max_radius: &[f32]) -> Vec<bool> {

@@ -18,8 +18,7 @@
 //! rings `CONE_SPACING_DEG` apart before the compass starts from the best of them.
 //! Deterministic: no random numbers, so a resumed run repeats it exactly.
 
-use super::Stage2;
-use crate::composite::photo_coverage;
+use super::{photo_coverage, Stage2};
 use crate::stage1::target_rgb;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
