@@ -5,6 +5,7 @@
 //! - [`env_colour`]: holding that light grey or its colour smooth (our option).
 //! - [`shade`] / [`shade_backward`]: the per-vertex rendering equation with visibility and
 //!   indirect light from the micro-buffers (SPEC 4, 5) and its gradients.
+//! - [`two_sided`]: shading each Gaussian on the side its camera sees (our option).
 //! - [`direction_cache`]: the frozen micro-buffer directions' env-map lookups, computed once
 //!   per stage 2 (`shade_into_cached` / `shade_backward_cached`; bit-identical, ~8 B / sample).
 //! - [`consistency`]: the radiance consistency loss (SPEC 6, Eqn 14/16; 9.3, 9.6).
@@ -34,6 +35,7 @@ pub mod material;
 pub mod shade;
 pub mod shade_backward;
 pub(crate) mod specular;
+pub mod two_sided;
 
 pub use activation::Real;
 pub use consistency::{
@@ -47,6 +49,7 @@ pub use grads::PbrGrads;
 pub use material::{activate, activate_backward, ActivatedMaterials, MaterialGrads, SvgMaterials};
 pub use shade::{shade, shade_into, shade_into_cached, Indirect, ShadeInputs, ShadeOutput, ShadeParams, ENV_MAX};
 pub use shade_backward::{shade_backward, shade_backward_cached};
+pub use two_sided::{negated, shade_sides_backward, shade_sides_into, split_by_side, Side};
 
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum PbrError {

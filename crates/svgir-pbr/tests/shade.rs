@@ -6,8 +6,9 @@ use glam::Vec3;
 use svgir_core::{EnvMap, Rng};
 use svgir_pbr::bench::{synthetic_materials, synthetic_microbuffer, synthetic_positions};
 use svgir_pbr::{
-    activate, activate_backward, env_radiance, env_radiance_backward, shade, shade_backward, shade_backward_cached,
-    shade_into_cached, DirectionCache, EnvLight, Indirect, ShadeInputs, ShadeOutput, ShadeParams,
+    activate, activate_backward, env_radiance, env_radiance_backward, negated, shade, shade_backward,
+    shade_backward_cached, shade_into_cached, shade_sides_backward, shade_sides_into, split_by_side, DirectionCache,
+    EnvLight, Indirect, ShadeInputs, ShadeOutput, ShadeParams, Side,
 };
 use svgir_shading::{ggx, Diffuse};
 use svgir_trace::{brightest_texels, BrightLights, MicroBuffer, VertexMaterials};
@@ -430,4 +431,130 @@ fn direction_cache_is_bit_identical_and_checked() {
     assert!(shade_backward_cached(&inp, Some(&stale), &c.g).is_err());
     let resized = DirectionCache::new(&c.mb, &EnvMap::constant(16, 8, [1.0; 3])).unwrap();
     assert!(shade_into_cached(&inp, Some(&resized), &mut ShadeOutput::new()).is_err());
+}
+
+/// Two-sided shading: every gradient against f64 finite differences with a mix of Gaussians seen
+/// from the front and from the back, and a Gaussian seen from its back shades exactly as the
+/// flipped Gaussian (normal and offsets negated, the back micro-buffer as its own) seen from its
+/// front.
+#[test]
+fn two_sided_gradients_match_finite_differences_f64_and_flip_the_surfel() {
+    let (n, m, k) = (6, 4, 8);
+    for (ci, (mode, lights)) in [(Mode::Traced, 0usize), (Mode::Given, 3)].into_iter().enumerate() {
+        let params = ShadeParams { diffuse: Diffuse::Layered, ..ShadeParams::default() };
+        let mut c = case(n, m, k, 40 + ci as u64);
+        c.lights = random_lights(&c.geom, n, lights, 7 + ci as u64);
+        // Gaussians 2 and 5 are seen from behind.
+        for i in [2, 5] {
+            c.positions[i] = -c.positions[i];
+        }
+        let mut back_mb = synthetic_microbuffer(n, k, 90 + ci as u64);
+        back_mb.normals = c.mb.normals.iter().map(|a| -*a).collect();
+        let back_lights = random_lights(&c.geom, n, lights, 17 + ci as u64);
+        let (front_vis, back_vis) = split_by_side(&c.mb.normals, &c.positions, Vec3::ZERO, &c.visible);
+        assert_eq!(back_vis, (0..n).map(|i| i == 2 || i == 5).collect::<Vec<_>>());
+        let sides = |c: &Case, act: &VertexMaterials<'_, f64>, env: &[[f64; 3]], rho: f64| -> Vec<f64> {
+            let back_n = negated(act.normals);
+            let front = Side {
+                inputs: ShadeInputs { visible: &front_vis, ..inputs(c, act, mode, params, env, rho) },
+                cache: None,
+            };
+            let mut bi = inputs(c, act, mode, params, env, rho);
+            bi = ShadeInputs {
+                mb: &back_mb,
+                visible: &back_vis,
+                lights: back_lights.as_ref(),
+                mats: VertexMaterials { normals: &back_n, ..*act },
+                ..bi
+            };
+            let (mut out, mut scratch) = (ShadeOutput::new(), ShadeOutput::new());
+            shade_sides_into(&front, Some(&Side { inputs: bi, cache: None }), &mut out, &mut scratch).unwrap();
+            out.color
+        };
+        let loss2 = |c: &Case, env: &[[f64; 3]], rho: f64, raw: [&[f64]; 3]| -> f64 {
+            let act = activate(m, raw[0], raw[1], raw[2], &c.mb.normals).unwrap();
+            sides(c, &act.view(), &env_radiance(env), rho).iter().zip(&c.g).map(|(a, b)| a * b).sum()
+        };
+        let act = activate(m, &c.albedo, &c.rough, &c.offset, &c.mb.normals).unwrap();
+        let rad = env_radiance(&c.env);
+        let back_n = negated(act.normals.as_slice());
+        let view = act.view();
+        let front = Side {
+            inputs: ShadeInputs { visible: &front_vis, ..inputs(&c, &view, mode, params, &rad, c.rho) },
+            cache: None,
+        };
+        let bi = ShadeInputs {
+            mb: &back_mb,
+            visible: &back_vis,
+            lights: back_lights.as_ref(),
+            mats: VertexMaterials { normals: &back_n, ..view },
+            ..inputs(&c, &view, mode, params, &rad, c.rho)
+        };
+        let grads = shade_sides_backward(&front, Some(&Side { inputs: bi, cache: None }), &c.g).unwrap();
+        let raw_g = activate_backward(
+            m,
+            &c.albedo,
+            &c.rough,
+            &c.offset,
+            &c.mb.normals,
+            &grads.v_albedo,
+            &grads.v_roughness,
+            &grads.v_normals,
+        )
+        .unwrap();
+        let v_param = env_radiance_backward(&c.env, &grads.v_env);
+        let h = 1e-6;
+        let check = |what: &str, i: usize, fd: f64, an: f64| {
+            assert!((fd - an).abs() <= 2e-7 * (1.0 + fd.abs()), "{mode:?} {what}[{i}]: fd {fd} vs analytic {an}");
+        };
+        let mut back_nonzero = 0;
+        for p in 0..3 {
+            let len = [c.albedo.len(), c.rough.len(), c.offset.len()][p];
+            for i in 0..len {
+                let an = [&raw_g.v_albedo_raw, &raw_g.v_roughness_raw, &raw_g.v_normal_offset][p][i];
+                let x = *field(&mut c, p, i);
+                *field(&mut c, p, i) = x + h;
+                let lp = loss2(&c, &c.env, c.rho, [&c.albedo, &c.rough, &c.offset]);
+                *field(&mut c, p, i) = x - h;
+                let lm = loss2(&c, &c.env, c.rho, [&c.albedo, &c.rough, &c.offset]);
+                *field(&mut c, p, i) = x;
+                check(["albedo_raw", "roughness_raw", "normal_offset"][p], i, (lp - lm) / (2.0 * h), an);
+                let gaussian = i / ([3, 1, 3][p] * m);
+                back_nonzero += (back_vis[gaussian] && an != 0.0) as usize;
+            }
+        }
+        assert!(back_nonzero >= 2 * m * 5, "{mode:?}: back-side gradients {back_nonzero}");
+        let mut env = c.env.clone();
+        for t in 0..env.len() {
+            for ch in 0..3 {
+                let x = env[t][ch];
+                env[t][ch] = x + h;
+                let lp = loss2(&c, &env, c.rho, [&c.albedo, &c.rough, &c.offset]);
+                env[t][ch] = x - h;
+                let lm = loss2(&c, &env, c.rho, [&c.albedo, &c.rough, &c.offset]);
+                env[t][ch] = x;
+                check("env_param", 3 * t + ch, (lp - lm) / (2.0 * h), v_param[t][ch]);
+            }
+        }
+        let lp = loss2(&c, &c.env, c.rho + h, [&c.albedo, &c.rough, &c.offset]);
+        let lm = loss2(&c, &c.env, c.rho - h, [&c.albedo, &c.rough, &c.offset]);
+        check("rho", 0, (lp - lm) / (2.0 * h), grads.v_rho);
+
+        // The flipped model: normals and offsets negated, the back micro-buffer and lights its own.
+        let two = sides(&c, &view, &rad, c.rho);
+        let neg_offset: Vec<f64> = c.offset.iter().map(|x| -x).collect();
+        let flipped = activate(m, &c.albedo, &c.rough, &neg_offset, &back_mb.normals).unwrap();
+        let mut fc = case(n, m, k, 40 + ci as u64);
+        fc.positions = c.positions.clone();
+        fc.mb = back_mb.clone();
+        fc.lights = back_lights.clone();
+        let fv = flipped.view();
+        let one = shade(&ShadeInputs { visible: &back_vis, ..inputs(&fc, &fv, mode, params, &rad, c.rho) }).unwrap();
+        for i in [2, 5] {
+            for x in i * m * 3..(i + 1) * m * 3 {
+                assert!((two[x] - one.color[x]).abs() <= 1e-12 * (1.0 + one.color[x].abs()), "{mode:?} [{x}]");
+            }
+        }
+        assert!(two[2 * m * 3..3 * m * 3].iter().any(|&x| x > 0.0));
+    }
 }

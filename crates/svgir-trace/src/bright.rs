@@ -212,6 +212,23 @@ impl BrightLights {
         Ok(out)
     }
 
+    /// The same lights (texels, directions, weights) seen from the hemispheres of other axes,
+    /// e.g. every Gaussian's back side `-n` (two-sided shading): every column traced again.
+    pub fn for_normals<S: HitSource + Sync>(
+        &self,
+        src: &S,
+        surfels: &Surfels,
+        normals: &[Vec3],
+        p: &TraceParams,
+    ) -> Result<Self, TraceError> {
+        if normals.len() != surfels.len() {
+            return Err(TraceError::SizeMismatch { what: "normals", got: normals.len(), want: surfels.len() });
+        }
+        let mut out = self.clone();
+        out.vis = self.dirs.iter().map(|&d| trace_column(src, surfels, normals, d, p)).collect();
+        Ok(out)
+    }
+
     /// Lights at `texels` with given visibility columns (`columns[b][j]` in [0, 1], e.g. from
     /// another tracer or a test).
     pub fn from_visibility(geom: &EnvMap, texels: &[u32], columns: &[Vec<f32>]) -> Result<Self, TraceError> {
@@ -421,6 +438,26 @@ mod tests {
         assert_ne!(moved.vis[1], lights.vis[1], "a different direction should change some visibility");
         let kept = BrightLights::trace(&bvh, &s, &mb.normals, &geom, &[40, 3], &p, Some(&moved)).unwrap();
         assert_eq!((kept.dirs[0], &kept.vis[0]), (d, &moved.vis[1]));
+        // The back side sees the lights behind each Gaussian: the same march, the other horizon.
+        let back_n: Vec<Vec3> = mb.normals.iter().map(|n| -*n).collect();
+        let back = moved.for_normals(&bvh, &s, &back_n, &p).unwrap();
+        assert_eq!((&back.dirs, &back.texels, &back.solid_angle), (&moved.dirs, &moved.texels, &moved.solid_angle));
+        let (mut lit_back, mut both) = (0, 0);
+        for b in 0..back.len() {
+            let d = back.dirs[b];
+            for j in 0..s.len() {
+                let want = if back_n[j].dot(d) <= 0.0 {
+                    0.0
+                } else {
+                    march(&bvh, &s.sh, s.sh_degree, &Ray::from_gaussian(&s, j, d, &p), &p).visibility
+                };
+                assert!((back.visibility(j, b) - want).abs() < 2e-5);
+                lit_back += (want > 0.0) as usize;
+                both += (want > 0.0 && moved.visibility(j, b) > 0.0) as usize;
+            }
+        }
+        assert!(lit_back > 0 && both == 0, "a light lights one side at most: {lit_back} {both}");
+        assert!(moved.for_normals(&bvh, &s, &back_n[1..], &p).is_err());
         assert!(lights.with_direction(&bvh, &s, &mb.normals, 4, d, &p).is_err());
         assert!(lights.with_direction(&bvh, &s, &mb.normals, 0, Vec3::ZERO, &p).is_err());
         assert!(BrightLights::trace(&bvh, &s, &mb.normals, &geom, &[128], &p, None).is_err());

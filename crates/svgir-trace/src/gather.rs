@@ -261,18 +261,41 @@ pub fn gather_all(
     env: &EnvMap,
     p: &GatherParams,
 ) -> Result<Vec<[f32; 3]>, TraceError> {
-    check(mb, mats, env)?;
-    check_lights(mb, env, p)?;
+    gather_from(mb, mb, mats, env, p)
+}
+
+/// Eqn 13 for the rays of `rays`, each reflected by its hit Gaussian h as lit in `hits` (h's
+/// escapes and `p.lights` index `hits`' Gaussians). Two-sided shading gathers its back-side rays
+/// (`MicroBuffer::trace_about` with `-n`) off the hit Gaussians' front sides; `gather_all(mb)` is
+/// `gather_from(mb, mb)`.
+pub fn gather_from(
+    rays: &MicroBuffer,
+    hits: &MicroBuffer,
+    mats: &VertexMaterials<f32>,
+    env: &EnvMap,
+    p: &GatherParams,
+) -> Result<Vec<[f32; 3]>, TraceError> {
+    check(hits, mats, env)?;
+    check_lights(hits, env, p)?;
+    if (rays.len(), rays.k) != (hits.len(), hits.k) {
+        return Err(TraceError::InvalidParameter(format!(
+            "rays for {} Gaussians x {} directions, hits for {} x {}",
+            rays.len(),
+            rays.k,
+            hits.len(),
+            hits.k
+        )));
+    }
     let light = LightIn::new(env, p);
-    let mut out = vec![[0.0f32; 3]; mb.len() * mb.k];
-    if mb.k == 0 {
+    let mut out = vec![[0.0f32; 3]; rays.len() * rays.k];
+    if rays.k == 0 {
         return Ok(out);
     }
-    out.par_chunks_mut(mb.k).enumerate().for_each_init(Escapes::new, |esc, (j, row)| {
+    out.par_chunks_mut(rays.k).enumerate().for_each_init(Escapes::new, |esc, (j, row)| {
         for (k, o) in row.iter_mut().enumerate() {
-            if let Some(h) = mb.hit(j, k) {
-                esc.fill(mb, &light, h);
-                *o = shade_pair(mb, mats, esc, light.diffuse, j, k);
+            if let Some(h) = rays.hit(j, k) {
+                esc.fill(hits, &light, h);
+                *o = shade_pair(rays, mats, esc, light.diffuse, j, k);
             }
         }
     });

@@ -288,7 +288,7 @@ pub fn gather_one_backward(
 mod tests {
     use super::*;
     use crate::bright::{brightest_texels, BrightLights};
-    use crate::gather::{gather_all, gather_one, gather_one_generic, gather_pairs};
+    use crate::gather::{gather_all, gather_from, gather_one, gather_one_generic, gather_pairs};
     use crate::scenes::object_scene;
     use crate::{Bvh, TraceParams};
     use glam::Vec3;
@@ -446,6 +446,48 @@ mod tests {
             }
             let _ = clamped_zero;
         }
+    }
+
+    /// `gather_from(back, front)` is the back rows of `gather_all` on one buffer stacking the
+    /// front rows over the back ones (whose hits index the front rows).
+    #[test]
+    fn gather_from_back_rays_reflects_off_the_front_sides() {
+        let m = 4;
+        let c = case(m, 5, 3);
+        let n = c.mb.len();
+        let back_axes = c.mb.normals.iter().map(|a| -*a).collect();
+        let back =
+            MicroBuffer::trace_about(&Bvh::build(&c.surfels), &c.surfels, back_axes, 16, 5, &TraceParams::default())
+                .unwrap();
+        let cat = |a: &MicroBuffer, b: &MicroBuffer| MicroBuffer {
+            k: a.k,
+            normals: [a.normals.clone(), b.normals.clone()].concat(),
+            xi: [a.xi.clone(), b.xi.clone()].concat(),
+            vis: [a.vis.clone(), b.vis.clone()].concat(),
+            radiance: [a.radiance.clone(), b.radiance.clone()].concat(),
+            first_hit: [a.first_hit.clone(), b.first_hit.clone()].concat(),
+            uv: [a.uv.clone(), b.uv.clone()].concat(),
+        };
+        let stacked = cat(&c.mb, &back);
+        let f32s = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
+        let (alb, rough, nrm) = (f32s(&c.albedo), f32s(&c.rough), f32s(&c.normals));
+        let twice = |v: &[f32]| [v, v].concat();
+        let (alb2, rough2, nrm2) = (twice(&alb), twice(&rough), twice(&nrm));
+        let mats = VertexMaterials { m, albedo: &alb, roughness: &rough, normals: &nrm };
+        let mats2 = VertexMaterials { m, albedo: &alb2, roughness: &rough2, normals: &nrm2 };
+        let lights = c.lights.as_ref().unwrap();
+        let cols: Vec<Vec<f32>> =
+            (0..lights.len()).map(|b| (0..2 * n).map(|j| lights.visibility(j % n, b)).collect()).collect();
+        let lights2 = BrightLights::from_visibility(&c.env, &lights.texels, &cols).unwrap();
+        let p = GatherParams { lights: Some(lights), diffuse: c.diffuse, ..GatherParams::default() };
+        let p2 = GatherParams { lights: Some(&lights2), ..p };
+        let got = gather_from(&back, &c.mb, &mats, &c.env, &p).unwrap();
+        let want = gather_all(&stacked, &mats2, &c.env, &p2).unwrap();
+        assert_eq!(got, want[n * 16..]);
+        assert!(got.iter().filter(|l| l[0] > 0.0).count() > 100, "the back rays should hit lit surfaces");
+        assert_ne!(got, gather_all(&c.mb, &mats, &c.env, &p).unwrap());
+        let short = MicroBuffer::trace(&Bvh::build(&c.surfels), &c.surfels, 8, 5, &TraceParams::default()).unwrap();
+        assert!(gather_from(&short, &c.mb, &mats, &c.env, &p).is_err());
     }
 
     #[test]

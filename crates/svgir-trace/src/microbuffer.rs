@@ -56,7 +56,30 @@ impl MicroBuffer {
         seed: u64,
         p: &TraceParams,
     ) -> Result<Self, TraceError> {
+        let normals = (0..surfels.len()).map(|j| surfels.normal(j)).collect();
+        Self::trace_about(src, surfels, normals, k, seed, p)
+    }
+
+    /// [`MicroBuffer::trace`] over the hemispheres of the given axes (one per Gaussian) instead
+    /// of the surfels' normals; `-n` gives each Gaussian's back side (two-sided shading). The
+    /// rays still start from, and ignore, the Gaussian's own disk, and the hits' (u~, v~) are
+    /// in the hit Gaussians' own frames.
+    pub fn trace_about<S: HitSource>(
+        src: &S,
+        surfels: &Surfels,
+        normals: Vec<Vec3>,
+        k: usize,
+        seed: u64,
+        p: &TraceParams,
+    ) -> Result<Self, TraceError> {
         surfels.check().map_err(TraceError::InvalidSurfels)?;
+        if normals.len() != surfels.len() || normals.iter().any(|n| !n.is_finite()) {
+            return Err(TraceError::InvalidParameter(format!(
+                "{} hemisphere axes for {} Gaussians, or not finite",
+                normals.len(),
+                surfels.len()
+            )));
+        }
         if k == 0 {
             return Err(TraceError::InvalidParameter("K must be positive".into()));
         }
@@ -64,7 +87,6 @@ impl MicroBuffer {
             return Err(TraceError::InvalidParameter("too many Gaussians for u32 indices".into()));
         }
         let n = surfels.len();
-        let normals: Vec<Vec3> = (0..n).map(|j| surfels.normal(j)).collect();
         let xi: Vec<f32> = (0..n).map(|j| gaussian_xi(seed, j)).collect();
         let mut vis = vec![0u16; n * k];
         let mut radiance = vec![[0u16; 3]; n * k];

@@ -102,6 +102,37 @@ fn micro_buffers_equal_brute_force_and_are_thread_independent() {
     }
 }
 
+/// The back side of every Gaussian (two-sided shading): K directions over the hemisphere of -n,
+/// each sample the march of its ray from the Gaussian's own disk; on a closed shell one side looks
+/// out and the other in; bad axes are rejected.
+#[test]
+fn back_micro_buffers_trace_the_other_hemisphere() {
+    let s = object_scene(1200, 5);
+    let bvh = Bvh::build(&s);
+    let p = TraceParams::default();
+    let front = MicroBuffer::trace(&bvh, &s, 16, 9, &p).unwrap();
+    let back_axes: Vec<Vec3> = front.normals.iter().map(|n| -*n).collect();
+    let back = MicroBuffer::trace_about(&bvh, &s, back_axes.clone(), 16, 9, &p).unwrap();
+    assert_eq!((back.normals.clone(), back.xi.clone()), (back_axes, front.xi.clone()));
+    let mut rng = Rng::new(8);
+    for _ in 0..300 {
+        let (j, k) = (rng.below(s.len()), rng.below(16));
+        let d = back.direction(j, k);
+        assert!(d.dot(front.normals[j]) < 0.0, "j={j} k={k}: {d} is not behind {}", front.normals[j]);
+        let r = march(&bvh, &s.sh, s.sh_degree, &Ray::from_gaussian(&s, j, d, &p), &p);
+        assert!((back.visibility(j, k) - r.visibility).abs() < 1e-4);
+        assert_eq!(back.hit(j, k), r.first.map(|h| h.id));
+    }
+    let mean_vis = |mb: &MicroBuffer| mb.vis.iter().map(|&v| v as f64).sum::<f64>() / mb.vis.len() as f64 / 65535.0;
+    // One side of the object's shell looks out, the other in.
+    let (vb, vf) = (mean_vis(&back), mean_vis(&front));
+    assert!((vb - vf).abs() > 0.2, "{vb} vs {vf}");
+    assert!(MicroBuffer::trace_about(&bvh, &s, vec![Vec3::Z; 3], 16, 9, &p).is_err());
+    let mut nan = front.normals.clone();
+    nan[0] = Vec3::NAN;
+    assert!(MicroBuffer::trace_about(&bvh, &s, nan, 16, 9, &p).is_err());
+}
+
 /// Disks facing -z stacked along the z axis, one ray up through their centres.
 fn stack(opacities: &[f32], spacing: f32) -> Surfels {
     let mut s = Surfels::with_capacity(opacities.len(), 0);

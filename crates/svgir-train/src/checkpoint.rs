@@ -330,6 +330,7 @@ pub fn load_stage2(path: &Path) -> Result<Stage2, CheckpointError> {
     if let Some(o) = trace_opacity {
         t.trace_opacity = o;
     }
+    t.trace_back_side().map_err(rebuild)?;
     t.set_lights(&h.light_texels).map_err(rebuild)?;
     for (b, d) in h.light_dirs.iter().enumerate().take(t.lights.len()) {
         let d = glam::Vec3::from_array(*d);

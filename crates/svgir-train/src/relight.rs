@@ -19,7 +19,7 @@
 //! hit only a few times each; [`RELIGHT_LIGHTS`] of them are traced exactly. (Measured on
 //! cup_and_ball the gain is small: 4 -> 64 lights, relighting +0.07 dB; README.)
 
-use crate::stage2::{PbrRender, Shading, Stage2};
+use crate::stage2::{BackShading, PbrRender, Shading, Stage2};
 use svgir_core::{Camera, EnvMap};
 use svgir_pbr::{DirectionCache, Indirect, PbrError, ShadeParams};
 use svgir_trace::{brightest_texels, BrightLights, Bvh, GatherParams, MicroBuffer};
@@ -50,6 +50,8 @@ pub struct RelightSampling {
 pub struct Relighter {
     pub mb: MicroBuffer,
     cache: DirectionCache,
+    /// The back sides' micro-buffers and cache, for a model trained two-sided.
+    back: Option<(MicroBuffer, DirectionCache)>,
     /// For tracing K directions and the directional lights; built only when one is needed.
     bvh: Option<Bvh>,
     /// Directional lights per new map.
@@ -67,6 +69,10 @@ pub struct PreparedLight {
     pub one_bounce: Option<Vec<[f32; 3]>>,
     /// The map's brightest texels as directional lights (`None` with `RelightSampling::lights = 0`).
     pub lights: Option<BrightLights>,
+    /// Two-sided models: the back sides' one-bounce light (their rays reflected off the hit
+    /// Gaussians' front sides, `svgir_trace::gather_from`) and light visibility.
+    pub back_one_bounce: Option<Vec<[f32; 3]>>,
+    pub back_lights: Option<BrightLights>,
 }
 
 impl Relighter {
@@ -76,14 +82,23 @@ impl Relighter {
         let t0 = std::time::Instant::now();
         let RelightSampling { directions, lights, bounces } = sampling;
         let bvh = (directions != s2.mb.k || lights > 0).then(|| Bvh::build(&s2.surfels));
+        let p = s2.config.trace_params();
         let mb = match &bvh {
-            Some(bvh) if directions != s2.mb.k => {
-                MicroBuffer::trace(bvh, &s2.surfels, directions, s2.config.seed, &s2.config.trace_params())?
-            }
+            Some(bvh) if directions != s2.mb.k => MicroBuffer::trace(bvh, &s2.surfels, directions, s2.config.seed, &p)?,
             _ => s2.mb.clone(),
         };
         let cache = DirectionCache::new(&mb, &s2.env.radiance())?;
-        Ok(Self { mb, cache, bvh, lights, bounces, trace_seconds: t0.elapsed().as_secs_f64() })
+        let back = match (&s2.back, &bvh) {
+            (None, _) => None,
+            (Some(b), Some(bvh)) if directions != b.mb.k => {
+                let axes = mb.normals.iter().map(|n| -*n).collect();
+                let back = MicroBuffer::trace_about(bvh, &s2.surfels, axes, directions, s2.config.seed, &p)?;
+                let cache = DirectionCache::new(&back, &s2.env.radiance())?;
+                Some((back, cache))
+            }
+            (Some(b), _) => Some((b.mb.clone(), b.dir_cache.clone())),
+        };
+        Ok(Self { mb, cache, back, bvh, lights, bounces, trace_seconds: t0.elapsed().as_secs_f64() })
     }
 
     /// Eqn 13 under `env` (unclamped) with the model's current materials; nothing for a model
@@ -97,14 +112,25 @@ impl Relighter {
             }
             _ => None,
         };
+        let back_lights = match (&self.back, &self.bvh, &lights) {
+            (Some((back, _)), Some(bvh), Some(l)) => {
+                Some(l.for_normals(bvh, &s2.surfels, &back.normals, &s2.config.trace_params())?)
+            }
+            _ => None,
+        };
         if !s2.config.indirect {
-            return Ok(PreparedLight { env, one_bounce: None, lights });
+            return Ok(PreparedLight { env, one_bounce: None, lights, back_one_bounce: None, back_lights });
         }
         let act = s2.materials.activated(&s2.normals)?;
         let p = GatherParams { env_max: f32::INFINITY, lights: lights.as_ref(), diffuse: s2.config.diffuse };
         let mut one_bounce = svgir_trace::gather_all(&self.mb, &act.view(), &env, &p)?;
         svgir_trace::add_bounces(&self.mb, &act.view(), &mut one_bounce, self.bounces)?;
-        Ok(PreparedLight { env, one_bounce: Some(one_bounce), lights })
+        // The back sides get Eqn 13's one bounce only: `add_bounces` follows the front sides' paths.
+        let back_one_bounce = match &self.back {
+            Some((back, _)) => Some(svgir_trace::gather_from(back, &self.mb, &act.view(), &env, &p)?),
+            None => None,
+        };
+        Ok(PreparedLight { env, one_bounce: Some(one_bounce), lights, back_one_bounce, back_lights })
     }
 
     /// The PBR render of `camera` under a prepared light (`albedo_scale` as in SPEC 8).
@@ -127,6 +153,12 @@ impl Relighter {
                 diffuse: s2.config.diffuse,
             },
             lights: light.lights.as_ref(),
+            back: self.back.as_ref().map(|(mb, cache)| BackShading {
+                mb,
+                cache: Some(cache),
+                indirect: light.back_one_bounce.as_deref().map_or(Indirect::Off, Indirect::Given),
+                lights: light.back_lights.as_ref(),
+            }),
         };
         s2.render_shaded(camera, bg, &shading, albedo_scale)
     }

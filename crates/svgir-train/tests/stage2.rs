@@ -37,7 +37,7 @@ fn pbr_psnr(t: &Stage2, ds: &Dataset) -> f32 {
     let env = t.env.radiance();
     let mut sum = 0.0;
     for v in &ds.test {
-        let r = t.render_pbr(&v.camera, [0.0; 3], &env, None, [1.0; 3]).unwrap();
+        let r = t.render_pbr(&v.camera, [0.0; 3], &env, [1.0; 3]).unwrap();
         let gt = svgir_train::stage1::target_rgb(&v.image, [0.0; 3]);
         let mse = r.image.iter().zip(&gt).map(|(a, b)| ((a.clamp(0.0, 1.0) - b) as f64).powi(2)).sum::<f64>()
             / gt.len() as f64;
@@ -54,10 +54,11 @@ fn stage2_raises_pbr_psnr_and_resumes_bit_identically() {
     // Directional lights, re-selected before and after the checkpoint (iterations 80 and 120),
     // the sun gathered into one texel before it (iteration 60) and its direction searched before
     // and after it (60, 110: the checkpoint carries a sun off its texel centre), in the run and
-    // its resumption; with the normal smoothness (our addition) on and the PBR image blended by
-    // the photos' alpha.
+    // its resumption; with the normal smoothness (our addition) on, the PBR image blended by
+    // the photos' alpha, and two-sided shading (back sides re-traced on load).
     let lit = Stage2Config {
         iterations: 130,
+        two_sided: true,
         pbr_coverage: Coverage::Photo,
         weights: Stage2Weights { smooth_normal: 0.1, ..Stage2Weights::default() },
         lights: 8,
@@ -174,6 +175,12 @@ fn run_and_resume(ds: &Dataset, mut t: Stage2) {
     std::fs::remove_file(&path).ok();
     assert!(u.mb == t.mb, "{tag}: restored micro-buffers differ");
     assert!(u.lights == t.lights, "{tag}: restored lights differ");
+    let back = |s: &Stage2| s.back.as_ref().map(|b| (b.mb.clone(), b.lights.clone()));
+    assert_eq!(back(&t).is_some(), t.config.two_sided, "{tag}");
+    assert!(back(&u) == back(&t), "{tag}: restored back sides differ");
+    if let Some(b) = &t.back {
+        assert_eq!(b.lights.dirs, t.lights.dirs, "{tag}: back-side lights follow the front's");
+    }
     while !t.is_done() {
         let a = t.step(ds).unwrap();
         let b = u.step(ds).unwrap();
@@ -189,15 +196,21 @@ fn run_and_resume(ds: &Dataset, mut t: Stage2) {
 /// samples resolve, 32 lights + K = 64 must agree with K = 1024 and no lights, as closely as
 /// K = 64 alone does. A double-counted or dropped light texel (the 32 brightest hold ~11% of this
 /// map's power) or a wrong solid angle breaks it. (On a smooth map the split does not reduce the
-/// noise: the hole it leaves has sharp edges. It pays off on compact lamps and suns.)
+/// noise: the hole it leaves has sharp edges. It pays off on compact lamps and suns.) One-sided
+/// and two-sided.
 #[test]
 fn relight_lights_conserve_the_light_integral() {
-    use svgir_core::EnvMap;
-    use svgir_train::relight::{RelightSampling, Relighter};
     let Some(ds) = scene() else { return };
     let surfels = stage1(&ds);
-    let cfg = Stage2Config { iterations: 1, directions: 16, ..Stage2Config::default() };
-    let s2 = Stage2::new(cfg, surfels, &ds).expect("stage 2 set-up");
+    for two_sided in [false, true] {
+        let cfg = Stage2Config { iterations: 1, directions: 16, two_sided, ..Stage2Config::default() };
+        relight_split_matches_dense_sampling(&ds, &Stage2::new(cfg, surfels.clone(), &ds).expect("stage 2 set-up"));
+    }
+}
+
+fn relight_split_matches_dense_sampling(ds: &Dataset, s2: &Stage2) {
+    use svgir_core::EnvMap;
+    use svgir_train::relight::{RelightSampling, Relighter};
     // A broad warm lobe over a dim blue sky: smooth, so dense sampling is a good reference.
     let mut env = EnvMap::constant(64, 32, [0.2, 0.3, 0.5]);
     let lobe = glam::Vec3::new(0.5, -0.3, 0.8).normalize();
@@ -209,12 +222,12 @@ fn relight_lights_conserve_the_light_integral() {
         }
     }
     let render = |directions, lights| {
-        let rl = Relighter::new(&s2, RelightSampling { directions, lights, bounces: 0 }).unwrap();
-        let lit = rl.prepare(&s2, env.clone()).unwrap();
+        let rl = Relighter::new(s2, RelightSampling { directions, lights, bounces: 0 }).unwrap();
+        let lit = rl.prepare(s2, env.clone()).unwrap();
         ds.test
             .iter()
             .take(3)
-            .flat_map(|v| rl.render(&s2, &v.camera, [0.0; 3], &lit, [1.0; 3]).unwrap().image)
+            .flat_map(|v| rl.render(s2, &v.camera, [0.0; 3], &lit, [1.0; 3]).unwrap().image)
             .collect::<Vec<f32>>()
     };
     let rmse = |a: &[f32], b: &[f32]| {
@@ -226,7 +239,8 @@ fn relight_lights_conserve_the_light_integral() {
     let (e_split, e_sampled) = (rmse(&split, &reference), rmse(&sampled, &reference));
     let mean = |a: &[f32]| a.iter().map(|x| *x as f64).sum::<f64>() / a.len() as f64;
     eprintln!(
-        "relight vs K=1024: 32 lights + K=64 rmse {e_split:.4}, K=64 alone {e_sampled:.4}; means {:.4} {:.4}",
+        "relight (two-sided: {}) vs K=1024: 32 lights + K=64 rmse {e_split:.4}, K=64 alone {e_sampled:.4}; means {:.4} {:.4}",
+        s2.config.two_sided,
         mean(&split),
         mean(&reference)
     );
@@ -267,7 +281,7 @@ fn sun_search_recovers_a_displaced_sun() {
     s2.move_light(b, truth).unwrap();
     let mut photos = ds.clone();
     for v in photos.train.iter_mut() {
-        let r = s2.render_pbr(&v.camera, [0.0; 3], &env, None, [1.0; 3]).unwrap();
+        let r = s2.render_pbr(&v.camera, [0.0; 3], &env, [1.0; 3]).unwrap();
         v.image = Image::from_data(r.width, r.height, 3, r.image);
     }
     let deg = |a: Vec3| a.dot(truth).clamp(-1.0, 1.0).acos().to_degrees();

@@ -86,6 +86,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         light_colour_degree: None,
         diffuse: None,
         pbr_coverage: inverse::CoverageArg::Render,
+        two_sided: false,
         sun_search_views: 0,
         sun_search_every: 300,
         sun_search_cone: 0.0,

@@ -136,6 +136,11 @@ pub struct InverseArgs {
     /// evaluation divides out again.
     #[arg(long, value_enum, default_value_t = CoverageArg::Render)]
     pub pbr_coverage: CoverageArg,
+    /// Shade every Gaussian on the side its camera sees (thin walls are one layer of surfels seen
+    /// from both sides), tracing a second set of micro-buffers over the back hemispheres: twice
+    /// the tracing time and micro-buffer memory. Default: SPEC 4's oriented side only.
+    #[arg(long)]
+    pub two_sided: bool,
     /// Shade this many of the learned map's brightest texels as directional lights with traced
     /// visibility and no clamp (re-selected every --lights-every iterations; relighting splits
     /// the new map by --relight-lights). For training lights with a sun; 0: SPEC 4's K samples alone.
@@ -356,6 +361,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         light_colour_degree: args.light_colour_degree,
         diffuse: args.diffuse.map_or(Diffuse::Added, DiffuseArg::model),
         pbr_coverage: args.pbr_coverage.model(),
+        two_sided: args.two_sided,
         sun_search_views: args.sun_search_views,
         sun_search_every: args.sun_search_every,
         sun_search_cone_deg: args.sun_search_cone,
@@ -579,7 +585,7 @@ fn evaluate(
     let mut normal_mae = svgir_metrics::NormalMae::new();
     let (mut rough_se, mut rough_n) = (0.0f64, 0u64);
     for v in &ds.test {
-        let r = s2.render_pbr(&v.camera, black, &env, None, [1.0; 3])?;
+        let r = s2.render_pbr(&v.camera, black, &env, [1.0; 3])?;
         let (w, h) = (r.width, r.height);
         let mask = alpha_of(&v.image);
         let pred = Image::from_data(w, h, 3, r.image.clone());

@@ -188,6 +188,10 @@ pub struct Stage2Config {
     /// SPEC 3's render opacity, or the photo's alpha as the evaluation composites.
     #[serde(default)]
     pub pbr_coverage: Coverage,
+    /// Shade each Gaussian on the side its camera sees, with back micro-buffers traced over the
+    /// hemisphere of -n (`svgir_pbr::two_sided`; SPEC 4 shades the oriented side only).
+    #[serde(default)]
+    pub two_sided: bool,
     /// How the BRDF's diffuse lobe combines with the specular one, in training, the one-bounce
     /// gather and relighting (SPEC 4: added; `layered` dims it by the specular layer's albedo,
     /// as Cycles' Principled BSDF does; `svgir_shading::layering`).
@@ -324,6 +328,7 @@ impl Default for Stage2Config {
             grey_light: GreyLight::Off,
             light_colour_degree: None,
             pbr_coverage: Coverage::Render,
+            two_sided: false,
             diffuse: Diffuse::Added,
             sun_search_views: 0,
             sun_search_every: default_sun_search_every(),

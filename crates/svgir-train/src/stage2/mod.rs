@@ -4,7 +4,9 @@
 //! Set-up: orient every surfel's normal towards the training cameras that see it (the hemisphere
 //! of its micro-buffer must be the visible side; [`crate::orient`]), build the BVH, trace the
 //! K-direction micro-buffers once, attach M Gaussian vertices of raw materials (SPEC 3) and
-//! create the learnable env map.
+//! create the learnable env map. With `config.two_sided` it also traces every Gaussian's back
+//! hemisphere ([`BackSide`]), and each view shades a Gaussian on the side its camera sees
+//! (`svgir_pbr::two_sided`).
 //! One iteration on a random view:
 //! 1. SH pass: rasterise the SH colours (the SH image keeps training, SPEC 6 Eqn 15).
 //! 2. PBR pass: shade every visible Gaussian's vertices (SPEC 4), rasterise the vertex colours
@@ -19,7 +21,7 @@ mod sun_search;
 
 pub use crate::composite::Coverage;
 pub use config::{EnvInit, GreyLight, Stage2Config, Stage2Rates, Stage2Weights, DEFAULT_TRACE_EPS};
-pub use render::{PbrRender, Shading};
+pub use render::{BackShading, PbrRender, Shading};
 pub use sun_search::SunSearch;
 
 use crate::adam::AdamGroup;
@@ -34,9 +36,9 @@ use serde::{Deserialize, Serialize};
 use std::time::Instant;
 use svgir_core::{Camera, Dataset, Image, Rng, Surfels};
 use svgir_pbr::{
-    radiance_consistency, radiance_consistency_backward, shade_backward_cached, shade_into_cached, ColourProjector,
-    ConsistencyInputs, DirectionCache, EnvLight, Indirect, PbrError, PbrGrads, ShadeInputs, ShadeOutput, ShadeParams,
-    SvgMaterials,
+    negated, radiance_consistency, radiance_consistency_backward, shade_sides_backward, shade_sides_into,
+    split_by_side, ColourProjector, ConsistencyInputs, DirectionCache, EnvLight, Indirect, PbrError, PbrGrads,
+    ShadeInputs, ShadeOutput, ShadeParams, Side, SvgMaterials,
 };
 use svgir_raster::{backward, render, Background, ColorSource, Features, OutputGrads, RasterConfig, RenderInput};
 use svgir_trace::{brightest_texels, concentrate_lobe, BrightLights, Bvh, GatherParams, MicroBuffer};
@@ -90,6 +92,19 @@ pub struct Stage2 {
     pub trace_opacity: Vec<f32>,
     /// Holds the light grey or its colour smooth while `config.grey_light` holds.
     colour: ColourProjector,
+    /// Every Gaussian's back side, with `config.two_sided` ([`Stage2::trace_back_side`]).
+    pub back: Option<BackSide>,
+}
+
+/// The back side of every Gaussian for two-sided shading (`svgir_pbr::two_sided`): traced once,
+/// against the same frozen occluders as the front, and never saved (a resumed run re-traces it,
+/// bit-identically).
+pub struct BackSide {
+    /// Micro-buffers over the hemisphere of `-n`, with the front's K and azimuths.
+    pub mb: MicroBuffer,
+    pub dir_cache: DirectionCache,
+    /// The directional lights' visibility from the back side (same texels and directions).
+    pub lights: BrightLights,
 }
 
 /// Stage 2's rasteriser settings: no distortion output (no loss uses it).
@@ -116,7 +131,44 @@ impl Stage2 {
         let bvh = Bvh::build(&surfels);
         let mb = MicroBuffer::trace(&bvh, &surfels, config.directions, config.seed, &config.trace_params())?;
         let trace_seconds = t0.elapsed().as_secs_f64();
-        Self::from_parts(config, surfels, mb, trace_seconds)
+        let mut s2 = Self::from_parts(config, surfels, mb, trace_seconds)?;
+        s2.bvh = Some(bvh);
+        s2.trace_back_side()?;
+        Ok(s2)
+    }
+
+    /// Trace the back sides' micro-buffers and light visibility if `config.two_sided` asks for
+    /// them and they are missing (a new or a restored run; call after `trace_opacity` is set).
+    pub fn trace_back_side(&mut self) -> Result<(), PbrError> {
+        if !self.config.two_sided || self.back.is_some() {
+            return Ok(());
+        }
+        let t0 = Instant::now();
+        let occluders = self.occluders();
+        let bvh = self.bvh.get_or_insert_with(|| Bvh::build(&occluders));
+        let p = self.config.trace_params();
+        let axes = self.mb.normals.iter().map(|n| -*n).collect();
+        let mb = MicroBuffer::trace_about(bvh, &occluders, axes, self.mb.k, self.config.seed, &p)?;
+        let dir_cache = DirectionCache::new(&mb, &self.env.radiance())?;
+        let lights = self.lights.for_normals(bvh, &occluders, &mb.normals, &p)?;
+        self.back = Some(BackSide { mb, dir_cache, lights });
+        self.trace_seconds += t0.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    /// The back sides' light visibility, `None` without lights or back sides.
+    pub fn active_back_lights(&self) -> Option<&BrightLights> {
+        self.back.as_ref().map(|b| &b.lights).filter(|l| !l.is_empty())
+    }
+
+    /// `(front, back)`: the Gaussians of `visible` that `camera` sees on their oriented side and
+    /// from behind (`svgir_pbr::split_by_side`); one-sided, all of them on the front.
+    fn sides(&self, camera: &Camera, visible: &[bool], two_sided: bool) -> (Vec<bool>, Vec<bool>) {
+        if two_sided {
+            split_by_side(&self.normals, &self.surfels.positions, camera.center(), visible)
+        } else {
+            (visible.to_vec(), vec![false; visible.len()])
+        }
     }
 
     /// A fresh stage-2 state around oriented surfels and their traced micro-buffers.
@@ -170,6 +222,7 @@ impl Stage2 {
             bvh: None,
             trace_opacity: surfels_opacity,
             colour,
+            back: None,
         })
     }
 
@@ -185,6 +238,9 @@ impl Stage2 {
         let geom = svgir_core::EnvMap::constant(self.env.width, self.env.height, [0.0; 3]);
         let p = self.config.trace_params();
         self.lights = BrightLights::trace(bvh, &occluders, &self.mb.normals, &geom, texels, &p, Some(&self.lights))?;
+        if let Some(back) = &mut self.back {
+            back.lights = self.lights.for_normals(bvh, &occluders, &back.mb.normals, &p)?;
+        }
         self.trace_seconds += t0.elapsed().as_secs_f64();
         Ok(())
     }
@@ -294,32 +350,45 @@ impl Stage2 {
         };
         let (sh_out, sh_state) = render(&sh_input, &self.raster);
         let visible = visible_of(&sh_out.max_radius);
-        // L_rc is estimated on a random subset of the visible Gaussians.
-        let n_visible = visible.iter().filter(|v| **v).count();
+        let (front_vis, back_vis) = self.sides(cam, &visible, self.back.is_some());
+        // L_rc is estimated on a random subset of the Gaussians seen on their oriented side
+        // (the side the micro-buffers' hits are shaded on).
+        let n_visible = front_vis.iter().filter(|v| **v).count();
         let rc_visible: Vec<bool> = if n_visible > cfg.consistency_samples {
             let keep = cfg.consistency_samples as f32 / n_visible as f32;
-            visible.iter().map(|v| *v && self.rng.uniform() < keep).collect()
+            front_vis.iter().map(|v| *v && self.rng.uniform() < keep).collect()
         } else {
-            visible.clone()
+            front_vis.clone()
         };
 
         // 2. PBR pass.
         let act = self.materials.activated(&self.normals)?;
         let env_rad = self.env.radiance();
-        let shade_in = ShadeInputs {
-            mb: &self.mb,
-            positions: &self.surfels.positions,
-            camera_center: cam.center(),
-            visible: &visible,
-            mats: act.view(),
-            env_geom: &env_rad,
-            env: &env_rad.data,
-            indirect: self.indirect(),
-            params: self.shade_params(),
-            lights: self.active_lights(),
+        let front = Side {
+            inputs: ShadeInputs {
+                mb: &self.mb,
+                positions: &self.surfels.positions,
+                camera_center: cam.center(),
+                visible: &front_vis,
+                mats: act.view(),
+                env_geom: &env_rad,
+                env: &env_rad.data,
+                indirect: self.indirect(),
+                params: self.shade_params(),
+                lights: self.active_lights(),
+            },
+            cache: Some(&self.dir_cache),
         };
-        let mut shaded = ShadeOutput::new();
-        shade_into_cached(&shade_in, Some(&self.dir_cache), &mut shaded)?;
+        let back_shading = self.back.as_ref().map(|b| BackShading {
+            mb: &b.mb,
+            cache: Some(&b.dir_cache),
+            indirect: self.indirect(),
+            lights: self.active_back_lights(),
+        });
+        let back_normals = back_shading.as_ref().map(|_| negated(&act.normals));
+        let back = render::back_side(&front, back_shading.as_ref(), &back_vis, back_normals.as_deref());
+        let (mut shaded, mut scratch) = (ShadeOutput::new(), ShadeOutput::new());
+        shade_sides_into(&front, back.as_ref(), &mut shaded, &mut scratch)?;
         let facing = self.facing(cam);
         let extra = Self::extra_features(&act, &facing);
         let pbr_input = RenderInput {
@@ -444,7 +513,7 @@ impl Stage2 {
             &sh_out,
             &OutputGrads { color: Some(&v_sh_color), ..Default::default() },
         );
-        let mut pg: PbrGrads = shade_backward_cached(&shade_in, Some(&self.dir_cache), &g_pbr.v_color_features)?;
+        let mut pg: PbrGrads = shade_sides_backward(&front, back.as_ref(), &g_pbr.v_color_features)?;
         if let Some(c) = &cons_grads {
             pg.add_scaled(c, 1.0);
         }

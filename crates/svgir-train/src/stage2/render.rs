@@ -7,8 +7,11 @@ use super::{Stage2, EXTRA_CHANNELS, MIN_OPACITY};
 use crate::composite::pbr_composite;
 use glam::Vec3;
 use svgir_core::Camera;
-use svgir_pbr::{shade_into_cached, DirectionCache, Indirect, PbrError, ShadeInputs, ShadeOutput, ShadeParams};
+use svgir_pbr::{
+    negated, shade_sides_into, DirectionCache, Indirect, PbrError, ShadeInputs, ShadeOutput, ShadeParams, Side,
+};
 use svgir_raster::{render, Background, ColorSource, Features, RenderInput};
+use svgir_trace::VertexMaterials;
 use svgir_trace::{BrightLights, MicroBuffer};
 
 /// Everything a PBR render produces, per pixel, after dividing by opacity.
@@ -47,32 +50,43 @@ pub struct Shading<'a> {
     pub params: ShadeParams,
     /// Texels of `env` shaded as directional lights.
     pub lights: Option<&'a BrightLights>,
+    /// The back sides (two-sided shading; `None`: every Gaussian on its oriented side).
+    pub back: Option<BackShading<'a>>,
+}
+
+/// The back sides' micro-buffers (over -n), direction cache, indirect term and light visibility.
+pub struct BackShading<'a> {
+    pub mb: &'a MicroBuffer,
+    pub cache: Option<&'a DirectionCache>,
+    pub indirect: Indirect<'a, f32>,
+    pub lights: Option<&'a BrightLights>,
 }
 
 impl Stage2 {
-    /// Render the PBR image and material buffers for `camera` over `bg`. `indirect` overrides
-    /// the indirect term (relighting: one-bounce light under `env`, rho = 1); `albedo_scale`
-    /// multiplies every vertex albedo (SPEC 8 evaluation). Shades with the training
-    /// micro-buffers and the training clamp of the radiance (SPEC 4); relighting at SPEC 7's K
-    /// goes through [`crate::relight::Relighter`].
+    /// Render the PBR image and material buffers for `camera` over `bg` as training does (the
+    /// training micro-buffers, traced indirect light and the clamp of SPEC 4); `albedo_scale`
+    /// multiplies every vertex albedo (SPEC 8 evaluation). Relighting at SPEC 7's K goes through
+    /// [`crate::relight::Relighter`].
     pub fn render_pbr(
         &self,
         camera: &Camera,
         bg: [f32; 3],
         env: &svgir_core::EnvMap,
-        indirect: Option<&[[f32; 3]]>,
         albedo_scale: [f32; 3],
     ) -> Result<PbrRender, PbrError> {
         let shading = Shading {
             mb: &self.mb,
             cache: Some(&self.dir_cache),
             env,
-            indirect: match indirect {
-                Some(l) => Indirect::Given(l),
-                None => self.indirect(),
-            },
+            indirect: self.indirect(),
             params: self.shade_params(),
             lights: self.active_lights(),
+            back: self.back.as_ref().map(|b| BackShading {
+                mb: &b.mb,
+                cache: Some(&b.dir_cache),
+                indirect: self.indirect(),
+                lights: self.active_back_lights(),
+            }),
         };
         self.render_shaded(camera, bg, &shading, albedo_scale)
     }
@@ -92,21 +106,27 @@ impl Stage2 {
         for (i, a) in act.albedo.iter_mut().enumerate() {
             *a *= albedo_scale[i % 3];
         }
-        let visible = vec![true; self.surfels.len()];
-        let mut shaded = ShadeOutput::new();
-        let inputs = ShadeInputs {
-            mb: shading.mb,
-            positions: &self.surfels.positions,
-            camera_center: camera.center(),
-            visible: &visible,
-            mats: act.view(),
-            env_geom: shading.env,
-            env: &shading.env.data,
-            indirect: shading.indirect,
-            params: shading.params,
-            lights: shading.lights,
+        let all = vec![true; self.surfels.len()];
+        let (front_vis, back_vis) = self.sides(camera, &all, shading.back.is_some());
+        let back_normals = shading.back.as_ref().map(|_| negated(&act.normals));
+        let front = Side {
+            inputs: ShadeInputs {
+                mb: shading.mb,
+                positions: &self.surfels.positions,
+                camera_center: camera.center(),
+                visible: &front_vis,
+                mats: act.view(),
+                env_geom: shading.env,
+                env: &shading.env.data,
+                indirect: shading.indirect,
+                params: shading.params,
+                lights: shading.lights,
+            },
+            cache: shading.cache,
         };
-        shade_into_cached(&inputs, shading.cache, &mut shaded)?;
+        let back = back_side(&front, shading.back.as_ref(), &back_vis, back_normals.as_deref());
+        let (mut shaded, mut scratch) = (ShadeOutput::new(), ShadeOutput::new());
+        shade_sides_into(&front, back.as_ref(), &mut shaded, &mut scratch)?;
         let extra = Self::extra_features(&act, &self.facing(camera));
         let input = RenderInput {
             surfels: &self.surfels,
@@ -138,6 +158,29 @@ impl Stage2 {
         }
         Ok(r)
     }
+}
+
+/// The back side's shading inputs: `front`'s, with the back micro-buffers, indirect term and
+/// lights, the Gaussians `visible` seen from behind and the negated shading `normals`.
+pub(crate) fn back_side<'a>(
+    front: &Side<'a, f32>,
+    back: Option<&BackShading<'a>>,
+    visible: &'a [bool],
+    normals: Option<&'a [f32]>,
+) -> Option<Side<'a, f32>> {
+    let (b, normals) = (back?, normals?);
+    let f = &front.inputs;
+    Some(Side {
+        inputs: ShadeInputs {
+            mb: b.mb,
+            visible,
+            mats: VertexMaterials { normals, ..f.mats },
+            indirect: b.indirect,
+            lights: b.lights,
+            ..*f
+        },
+        cache: b.cache,
+    })
 }
 
 #[cfg(test)]

@@ -66,6 +66,9 @@ impl Stage2 {
         let bvh = self.bvh.get_or_insert_with(|| svgir_trace::Bvh::build(&occluders));
         let p = self.config.trace_params();
         self.lights = self.lights.with_direction(bvh, &occluders, &self.mb.normals, b, dir, &p)?;
+        if let Some(back) = &mut self.back {
+            back.lights = back.lights.with_direction(bvh, &occluders, &back.mb.normals, b, dir, &p)?;
+        }
         Ok(())
     }
 
@@ -78,7 +81,7 @@ impl Stage2 {
         let (mut sum, mut count) = (0.0f64, 0usize);
         for &v in views {
             let view = &dataset.train[v];
-            let mut r = self.render_pbr(&view.camera, bg, &env, None, [1.0; 3])?;
+            let mut r = self.render_pbr(&view.camera, bg, &env, [1.0; 3])?;
             if let Some(cover) = photo_coverage(self.config.pbr_coverage, &view.image) {
                 r.recomposite(&cover, bg);
             }
