@@ -247,6 +247,47 @@ struct Header2 {
     /// A `trace_opacity` array follows the Adam state (absent in older checkpoints).
     #[serde(default)]
     has_trace_opacity: bool,
+    /// Back-side micro-buffer arrays follow (two-sided runs; their traced radiance holds the SH
+    /// of stage 2's start, which keeps training, so they are saved rather than re-traced).
+    #[serde(default)]
+    has_back: bool,
+}
+
+fn push_microbuffer<'a>(arrays: &mut Vec<(String, &'a [u8])>, prefix: &str, mb: &'a MicroBuffer) {
+    arrays.push((format!("{prefix}.normals"), bytes(&mb.normals)));
+    arrays.push((format!("{prefix}.xi"), bytes(&mb.xi)));
+    arrays.push((format!("{prefix}.vis"), bytes(&mb.vis)));
+    arrays.push((format!("{prefix}.radiance"), bytes(&mb.radiance)));
+    arrays.push((format!("{prefix}.first_hit"), bytes(&mb.first_hit)));
+    arrays.push((format!("{prefix}.uv"), bytes(&mb.uv)));
+}
+
+/// The micro-buffer saved under `prefix` by [`push_microbuffer`], checked against `n` Gaussians
+/// and `k` directions.
+fn read_microbuffer(
+    a: &mut Arrays,
+    prefix: &str,
+    k: usize,
+    n: usize,
+    path: &Path,
+) -> Result<MicroBuffer, CheckpointError> {
+    let mb = MicroBuffer {
+        k,
+        normals: a.next_as(&format!("{prefix}.normals"))?,
+        xi: a.next_as(&format!("{prefix}.xi"))?,
+        vis: a.next_as(&format!("{prefix}.vis"))?,
+        radiance: a.next_as(&format!("{prefix}.radiance"))?,
+        first_hit: a.next_as(&format!("{prefix}.first_hit"))?,
+        uv: a.next_as(&format!("{prefix}.uv"))?,
+    };
+    let samples = n * k;
+    if mb.normals.len() != n
+        || mb.xi.len() != n
+        || [mb.vis.len(), mb.radiance.len(), mb.first_hit.len(), mb.uv.len()].iter().any(|l| *l != samples)
+    {
+        return Err(corrupt(path, &format!("{prefix} micro-buffer arrays have the wrong size")));
+    }
+    Ok(mb)
 }
 
 pub fn save_stage2(t: &Stage2, path: &Path) -> Result<(), CheckpointError> {
@@ -256,14 +297,12 @@ pub fn save_stage2(t: &Stage2, path: &Path) -> Result<(), CheckpointError> {
     arrays.push(("roughness_raw".into(), bytes(&mat.roughness_raw)));
     arrays.push(("normal_offset".into(), bytes(&mat.normal_offset)));
     arrays.push(("env".into(), bytes(&t.env.param)));
-    arrays.push(("mb.normals".into(), bytes(&mb.normals)));
-    arrays.push(("mb.xi".into(), bytes(&mb.xi)));
-    arrays.push(("mb.vis".into(), bytes(&mb.vis)));
-    arrays.push(("mb.radiance".into(), bytes(&mb.radiance)));
-    arrays.push(("mb.first_hit".into(), bytes(&mb.first_hit)));
-    arrays.push(("mb.uv".into(), bytes(&mb.uv)));
+    push_microbuffer(&mut arrays, "mb", mb);
     push_groups(&mut arrays, &t.groups);
     arrays.push(("trace_opacity".into(), bytes(&t.trace_opacity)));
+    if let Some(b) = &t.back {
+        push_microbuffer(&mut arrays, "back", &b.mb);
+    }
     let header = Header2 {
         config: t.config.clone(),
         iteration: t.iteration,
@@ -279,6 +318,7 @@ pub fn save_stage2(t: &Stage2, path: &Path) -> Result<(), CheckpointError> {
         light_texels: t.lights.texels.clone(),
         light_dirs: t.lights.dirs.iter().map(|d| d.to_array()).collect(),
         has_trace_opacity: true,
+        has_back: t.back.is_some(),
     };
     write_container(path, &header, &arrays)
 }
@@ -290,22 +330,7 @@ pub fn load_stage2(path: &Path) -> Result<Stage2, CheckpointError> {
     let n = surfels.len();
     let (albedo, rough, offset) = (a.next("albedo_raw")?, a.next("roughness_raw")?, a.next("normal_offset")?);
     let env: Vec<[f32; 3]> = a.next_as("env")?;
-    let mb = MicroBuffer {
-        k: h.directions,
-        normals: a.next_as("mb.normals")?,
-        xi: a.next_as("mb.xi")?,
-        vis: a.next_as("mb.vis")?,
-        radiance: a.next_as("mb.radiance")?,
-        first_hit: a.next_as("mb.first_hit")?,
-        uv: a.next_as("mb.uv")?,
-    };
-    let samples = n * h.directions;
-    if mb.normals.len() != n
-        || mb.xi.len() != n
-        || [mb.vis.len(), mb.radiance.len(), mb.first_hit.len(), mb.uv.len()].iter().any(|l| *l != samples)
-    {
-        return Err(corrupt(path, "micro-buffer arrays have the wrong size"));
-    }
+    let mb = read_microbuffer(&mut a, "mb", h.directions, n, path)?;
     let m = h.vertices;
     let texels = (h.env_size.0 * h.env_size.1) as usize;
     if albedo.len() != n * m * 3 || rough.len() != n * m || offset.len() != n * m * 3 || env.len() != texels {
@@ -316,6 +341,7 @@ pub fn load_stage2(path: &Path) -> Result<Stage2, CheckpointError> {
     if trace_opacity.as_ref().is_some_and(|o| o.len() != n) {
         return Err(corrupt(path, "trace_opacity has the wrong size"));
     }
+    let back_mb = if h.has_back { Some(read_microbuffer(&mut a, "back", h.directions, n, path)?) } else { None };
     let rebuild = |e: svgir_pbr::PbrError| CheckpointError::Rebuild { path: path.to_path_buf(), what: e.to_string() };
     let mut t = Stage2::from_parts(h.config, surfels, mb, h.trace_seconds).map_err(rebuild)?;
     t.materials.albedo_raw = albedo;
@@ -330,7 +356,10 @@ pub fn load_stage2(path: &Path) -> Result<Stage2, CheckpointError> {
     if let Some(o) = trace_opacity {
         t.trace_opacity = o;
     }
-    t.trace_back_side().map_err(rebuild)?;
+    match back_mb {
+        Some(mb) => t.set_back_side(mb).map_err(rebuild)?,
+        None => t.trace_back_side().map_err(rebuild)?,
+    }
     t.set_lights(&h.light_texels).map_err(rebuild)?;
     for (b, d) in h.light_dirs.iter().enumerate().take(t.lights.len()) {
         let d = glam::Vec3::from_array(*d);

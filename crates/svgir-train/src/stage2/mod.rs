@@ -97,8 +97,7 @@ pub struct Stage2 {
 }
 
 /// The back side of every Gaussian for two-sided shading (`svgir_pbr::two_sided`): traced once,
-/// against the same frozen occluders as the front, and never saved (a resumed run re-traces it,
-/// bit-identically).
+/// against the same frozen occluders as the front, and saved with the checkpoint like the front.
 pub struct BackSide {
     /// Micro-buffers over the hemisphere of `-n`, with the front's K and azimuths.
     pub mb: MicroBuffer,
@@ -146,13 +145,29 @@ impl Stage2 {
         let t0 = Instant::now();
         let occluders = self.occluders();
         let bvh = self.bvh.get_or_insert_with(|| Bvh::build(&occluders));
-        let p = self.config.trace_params();
         let axes = self.mb.normals.iter().map(|n| -*n).collect();
-        let mb = MicroBuffer::trace_about(bvh, &occluders, axes, self.mb.k, self.config.seed, &p)?;
-        let dir_cache = DirectionCache::new(&mb, &self.env.radiance())?;
-        let lights = self.lights.for_normals(bvh, &occluders, &mb.normals, &p)?;
-        self.back = Some(BackSide { mb, dir_cache, lights });
+        let mb =
+            MicroBuffer::trace_about(bvh, &occluders, axes, self.mb.k, self.config.seed, &self.config.trace_params())?;
+        self.set_back_side(mb)?;
         self.trace_seconds += t0.elapsed().as_secs_f64();
+        Ok(())
+    }
+
+    /// Make `mb` (e.g. restored from a checkpoint) the back sides' micro-buffers, with their
+    /// direction cache and the current lights' visibility from the back.
+    pub fn set_back_side(&mut self, mb: MicroBuffer) -> Result<(), PbrError> {
+        if (mb.len(), mb.k) != (self.mb.len(), self.mb.k) {
+            return Err(PbrError::SizeMismatch {
+                what: "back micro-buffer",
+                got: mb.len() * mb.k,
+                want: self.mb.len() * self.mb.k,
+            });
+        }
+        let occluders = self.occluders();
+        let bvh = self.bvh.get_or_insert_with(|| Bvh::build(&occluders));
+        let dir_cache = DirectionCache::new(&mb, &self.env.radiance())?;
+        let lights = self.lights.for_normals(bvh, &occluders, &mb.normals, &self.config.trace_params())?;
+        self.back = Some(BackSide { mb, dir_cache, lights });
         Ok(())
     }
 
