@@ -8,7 +8,7 @@ use svgir_pbr::bench::{synthetic_materials, synthetic_microbuffer, synthetic_pos
 use svgir_pbr::{
     activate, activate_backward, env_radiance, env_radiance_backward, negated, shade, shade_backward,
     shade_backward_cached, shade_into_cached, shade_sides_backward, shade_sides_into, split_by_side, DirectionCache,
-    EnvLight, Indirect, ShadeInputs, ShadeOutput, ShadeParams, Side,
+    EnvLight, Indirect, MaterialGrads, PbrGrads, ShadeInputs, ShadeOutput, ShadeParams, Side,
 };
 use svgir_shading::{ggx, Diffuse};
 use svgir_trace::{brightest_texels, BrightLights, MicroBuffer, VertexMaterials};
@@ -116,6 +116,12 @@ fn inputs<'a>(
     }
 }
 
+/// Shading gradients chained through the activations to `c`'s raw material parameters.
+fn raw_grads(c: &Case, m: usize, g: &PbrGrads<f64>) -> MaterialGrads<f64> {
+    activate_backward(m, &c.albedo, &c.rough, &c.offset, &c.mb.normals, &g.v_albedo, &g.v_roughness, &g.v_normals)
+        .unwrap()
+}
+
 #[test]
 fn gradients_match_finite_differences_f64() {
     let configs = [
@@ -134,17 +140,7 @@ fn gradients_match_finite_differences_f64() {
         let act = activate(m, &c.albedo, &c.rough, &c.offset, &c.mb.normals).unwrap();
         let rad = env_radiance(&c.env);
         let grads = shade_backward(&inputs(&c, &act.view(), mode, params, &rad, c.rho), &c.g).unwrap();
-        let raw_g = activate_backward(
-            m,
-            &c.albedo,
-            &c.rough,
-            &c.offset,
-            &c.mb.normals,
-            &grads.v_albedo,
-            &grads.v_roughness,
-            &grads.v_normals,
-        )
-        .unwrap();
+        let raw_g = raw_grads(&c, m, &grads);
         let v_param = env_radiance_backward(&c.env, &grads.v_env);
         let h = 1e-6;
         let tag = format!("M={m} {mode:?} V={visibility} env_max={env_max} lights={lights}");
@@ -491,17 +487,7 @@ fn two_sided_gradients_match_finite_differences_f64_and_flip_the_surfel() {
             ..inputs(&c, &view, mode, params, &rad, c.rho)
         };
         let grads = shade_sides_backward(&front, Some(&Side { inputs: bi, cache: None }), &c.g).unwrap();
-        let raw_g = activate_backward(
-            m,
-            &c.albedo,
-            &c.rough,
-            &c.offset,
-            &c.mb.normals,
-            &grads.v_albedo,
-            &grads.v_roughness,
-            &grads.v_normals,
-        )
-        .unwrap();
+        let raw_g = raw_grads(&c, m, &grads);
         let v_param = env_radiance_backward(&c.env, &grads.v_env);
         let h = 1e-6;
         let check = |what: &str, i: usize, fd: f64, an: f64| {
