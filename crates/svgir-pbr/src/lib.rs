@@ -49,7 +49,7 @@ pub use grads::PbrGrads;
 pub use material::{activate, activate_backward, ActivatedMaterials, MaterialGrads, SvgMaterials};
 pub use shade::{shade, shade_into, shade_into_cached, Indirect, ShadeInputs, ShadeOutput, ShadeParams, ENV_MAX};
 pub use shade_backward::{shade_backward, shade_backward_cached};
-pub use two_sided::{negated, shade_sides_backward, shade_sides_into, split_by_side, Side};
+pub use two_sided::{faces, negated, shade_sides_backward, shade_sides_into, split_by_side, Side};
 
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum PbrError {

@@ -33,15 +33,22 @@ pub struct Side<'a, F> {
     pub cache: Option<&'a DirectionCache>,
 }
 
+/// Does `camera` see the oriented side of a Gaussian at `position` with `normal`? The test the
+/// rasteriser flips normals by: `normal . (camera - position) >= 0`.
+#[inline]
+pub fn faces(normal: Vec3, position: Vec3, camera: Vec3) -> bool {
+    normal.dot(camera - position) >= 0.0
+}
+
 /// Which side of each Gaussian `camera` sees: `(front, back)` visibility masks of the Gaussians
-/// in `visible`, split by `normal . (camera - position) >= 0`.
+/// in `visible`, split by [`faces`].
 pub fn split_by_side(normals: &[Vec3], positions: &[Vec3], camera: Vec3, visible: &[bool]) -> (Vec<bool>, Vec<bool>) {
     normals
         .iter()
         .zip(positions)
         .zip(visible)
         .map(|((n, p), &v)| {
-            let front = n.dot(camera - *p) >= 0.0;
+            let front = faces(*n, *p, camera);
             (v && front, v && !front)
         })
         .unzip()

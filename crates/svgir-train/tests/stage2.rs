@@ -55,7 +55,7 @@ fn stage2_raises_pbr_psnr_and_resumes_bit_identically() {
     // the sun gathered into one texel before it (iteration 60) and its direction searched before
     // and after it (60, 110: the checkpoint carries a sun off its texel centre), in the run and
     // its resumption; with the normal smoothness (our addition) on, the PBR image blended by
-    // the photos' alpha, and two-sided shading (back sides re-traced on load).
+    // the photos' alpha, and two-sided shading (back sides saved in the checkpoint).
     let lit = Stage2Config {
         iterations: 130,
         two_sided: true,

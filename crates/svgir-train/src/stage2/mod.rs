@@ -36,7 +36,7 @@ use serde::{Deserialize, Serialize};
 use std::time::Instant;
 use svgir_core::{Camera, Dataset, Image, Rng, Surfels};
 use svgir_pbr::{
-    negated, radiance_consistency, radiance_consistency_backward, shade_sides_backward, shade_sides_into,
+    faces, negated, radiance_consistency, radiance_consistency_backward, shade_sides_backward, shade_sides_into,
     split_by_side, ColourProjector, ConsistencyInputs, DirectionCache, EnvLight, Indirect, PbrError, PbrGrads,
     ShadeInputs, ShadeOutput, ShadeParams, Side, SvgMaterials,
 };
@@ -148,7 +148,7 @@ impl Stage2 {
         let axes = self.mb.normals.iter().map(|n| -*n).collect();
         let mb =
             MicroBuffer::trace_about(bvh, &occluders, axes, self.mb.k, self.config.seed, &self.config.trace_params())?;
-        self.set_back_side(mb)?;
+        self.attach_back_side(mb, &occluders)?;
         self.trace_seconds += t0.elapsed().as_secs_f64();
         Ok(())
     }
@@ -156,6 +156,12 @@ impl Stage2 {
     /// Make `mb` (e.g. restored from a checkpoint) the back sides' micro-buffers, with their
     /// direction cache and the current lights' visibility from the back.
     pub fn set_back_side(&mut self, mb: MicroBuffer) -> Result<(), PbrError> {
+        let occluders = self.occluders();
+        self.attach_back_side(mb, &occluders)
+    }
+
+    /// [`Stage2::set_back_side`] with the occluders (`self.occluders()`) already at hand.
+    fn attach_back_side(&mut self, mb: MicroBuffer, occluders: &Surfels) -> Result<(), PbrError> {
         if (mb.len(), mb.k) != (self.mb.len(), self.mb.k) {
             return Err(PbrError::SizeMismatch {
                 what: "back micro-buffer",
@@ -163,10 +169,9 @@ impl Stage2 {
                 want: self.mb.len() * self.mb.k,
             });
         }
-        let occluders = self.occluders();
-        let bvh = self.bvh.get_or_insert_with(|| Bvh::build(&occluders));
+        let bvh = self.bvh.get_or_insert_with(|| Bvh::build(occluders));
         let dir_cache = DirectionCache::new(&mb, &self.env.radiance())?;
-        let lights = self.lights.for_normals(bvh, &occluders, &mb.normals, &self.config.trace_params())?;
+        let lights = self.lights.for_normals(bvh, occluders, &mb.normals, &self.config.trace_params())?;
         self.back = Some(BackSide { mb, dir_cache, lights });
         Ok(())
     }
@@ -309,7 +314,7 @@ impl Stage2 {
         self.normals
             .iter()
             .zip(&self.surfels.positions)
-            .map(|(n, p)| if n.dot(c - *p) >= 0.0 { 1.0 } else { -1.0 })
+            .map(|(n, p)| if faces(*n, *p, c) { 1.0 } else { -1.0 })
             .collect()
     }
 
