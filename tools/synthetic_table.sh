@@ -1,31 +1,44 @@
 #!/usr/bin/env bash
 # Both stages on every Blender-Cycles scene in ../shared/data/synthetic, then the SPEC 8 table.
 #
-#   bash tools/synthetic_table.sh [OUT] [STAGE2_ITERATIONS] [-- extra `svgir inverse` options]
-#        (defaults: runs/synthetic, 1500)
+#   bash tools/synthetic_table.sh [OUT] [STAGE2_ITERATIONS] [-- `svgir inverse` options]
+#        (defaults: runs/synthetic, 1500, and the table's stage-2 options below)
 #
-# Stage 1: STAGE1_ITERATIONS (env, default 10000) from 20k random points, black background,
+# Stage 1: STAGE1_ITERATIONS (env, default SPEC's 30000) from 20k random points, black background,
 #          densify every 100 until half way, opacity reset every 3000.
 # Stage 2: STAGE2_ITERATIONS (SPEC's schedule is 20000), relighting evaluated at K = 384.
+#          Options after `--` replace the defaults in STAGE2_DEFAULTS.
 # Environment: SCENES="cup_and_ball suzanne_marble" restricts the scenes.
+#
+# Re-running with the same OUT continues: an interrupted stage resumes from its last checkpoint
+# and finished scenes are only re-tabulated. Use a new OUT for new settings.
 set -euo pipefail
+STAGE2_DEFAULTS=(--lights 4 --env-activation exp --sun-at 400 --rho-lr 0 --materials-from 500
+                 --diffuse layered --sun-search-views 4 --two-sided)
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 DATA="$ROOT/../shared/data/synthetic"
 OUT="${1:-runs/synthetic}"
 ITERS2="${2:-1500}"
 shift $(( $# < 2 ? $# : 2 ))
 [ "${1:-}" = "--" ] && shift
-ITERS1="${STAGE1_ITERATIONS:-10000}"
+[ $# -gt 0 ] || set -- "${STAGE2_DEFAULTS[@]}"
+ITERS1="${STAGE1_ITERATIONS:-30000}"
 [ -d "$DATA" ] || { echo "error: $DATA not found (the shared data folder next to the checkout)" >&2; exit 1; }
 cargo build --release --manifest-path "$ROOT/Cargo.toml" -p svgir-cli
 SVGIR="$ROOT/target/release/svgir"
 for scene in ${SCENES:-$(ls "$DATA")}; do
   run="$OUT/$scene"
   if [ ! -f "$run/point_cloud.ply" ]; then
+    resume=()
+    [ -f "$run/checkpoint.bin" ] && resume=(--resume)
     "$SVGIR" train "$DATA/$scene" --out "$run" --iterations "$ITERS1" --background black --init-points 20000 \
-      --densify-every 100 --densify-until $((ITERS1 / 2)) --opacity-reset-every 3000
+      --densify-every 100 --densify-until $((ITERS1 / 2)) --opacity-reset-every 3000 "${resume[@]}"
   fi
-  "$SVGIR" inverse --run "$run" --iterations "$ITERS2" --turntable 0 "$@"
+  if [ ! -f "$run/stage2/eval.json" ]; then
+    resume=()
+    [ -f "$run/stage2/checkpoint.bin" ] && resume=(--resume)
+    "$SVGIR" inverse --run "$run" --iterations "$ITERS2" --turntable 0 "$@" "${resume[@]}"
+  fi
 done
 python3 - "$OUT" <<'PY'
 import json, pathlib, sys

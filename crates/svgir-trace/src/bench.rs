@@ -1,10 +1,10 @@
-//! Timing table for `svgir bench trace`: BVH build, ray throughput (all-hits march and first hit)
-//! and K = 64 micro-buffer fill on [`crate::scenes::object_scene`] scenes of 10k / 100k / 300k
+//! Timing table for `svgir bench trace`: BVH build, ray throughput (all-hits march and first hit),
+//! K = 64 micro-buffer fill and the one-bounce gather over it (Eqn 13, M = 4, a constant map) on [`crate::scenes::object_scene`] scenes of 10k / 100k / 300k
 //! surfels, on 1 thread and on `threads` threads (each in its own rayon pool).
 
 use crate::scenes::object_scene;
 use crate::traverse::{march, HitSource, Ray, TraceParams};
-use crate::{Bvh, MicroBuffer};
+use crate::{gather_all, Bvh, GatherParams, MicroBuffer, VertexMaterials};
 use rayon::prelude::*;
 use std::fmt::Write;
 use std::time::Instant;
@@ -35,8 +35,17 @@ pub fn bench_table_sizes(threads: usize, sizes: &[usize]) -> String {
     );
     let _ = writeln!(
         out,
-        "{:>8} {:>7} {:>10} {:>6} {:>12} {:>12} {:>10} {:>10} {:>9}",
-        "surfels", "threads", "build ms", "depth", "march Mray/s", "first Mray/s", "hits/ray", "mb fill s", "mb MB"
+        "{:>8} {:>7} {:>10} {:>6} {:>12} {:>12} {:>10} {:>10} {:>9} {:>9}",
+        "surfels",
+        "threads",
+        "build ms",
+        "depth",
+        "march Mray/s",
+        "first Mray/s",
+        "hits/ray",
+        "mb fill s",
+        "mb MB",
+        "gather s"
     );
     let mut counts = vec![1usize];
     if threads > 1 {
@@ -65,10 +74,11 @@ pub fn bench_table_sizes(threads: usize, sizes: &[usize]) -> String {
                 let t0 = Instant::now();
                 let mb = MicroBuffer::trace(&bvh, &s, 64, 3, &p);
                 let fill = t0.elapsed().as_secs_f64();
-                let mb_mb = mb.map(|m| m.memory_bytes() as f64 / 1e6).unwrap_or(f64::NAN);
+                let mb_mb = mb.as_ref().map(|m| m.memory_bytes() as f64 / 1e6).unwrap_or(f64::NAN);
+                let gather = mb.as_ref().map(gather_seconds).unwrap_or(f64::NAN);
                 let _ = writeln!(
                     out,
-                    "{:>8} {:>7} {:>10.1} {:>6} {:>12.2} {:>12.2} {:>10.2} {:>10.2} {:>9.0}",
+                    "{:>8} {:>7} {:>10.1} {:>6} {:>12.2} {:>12.2} {:>10.2} {:>10.2} {:>9.0} {:>9.2}",
                     n,
                     t,
                     build * 1e3,
@@ -77,12 +87,32 @@ pub fn bench_table_sizes(threads: usize, sizes: &[usize]) -> String {
                     RAYS as f64 / first / 1e6,
                     hits as f64 / RAYS as f64,
                     fill,
-                    mb_mb
+                    mb_mb,
+                    gather
                 );
             });
         }
     }
     out
+}
+
+/// Seconds for Eqn 13 over every sample of `mb` (M = 4 grey vertices, roughness 0.5, a 16 x 32
+/// constant map).
+fn gather_seconds(mb: &MicroBuffer) -> f64 {
+    let m = 4;
+    let albedo = vec![0.5f32; mb.len() * m * 3];
+    let roughness = vec![0.5f32; mb.len() * m];
+    let normals: Vec<f32> = mb.normals.iter().flat_map(|n| std::iter::repeat_n(n.to_array(), m)).flatten().collect();
+    let mats = VertexMaterials { m, albedo: &albedo, roughness: &roughness, normals: &normals };
+    let env = svgir_core::EnvMap::constant(32, 16, [1.0; 3]);
+    let t0 = Instant::now();
+    match gather_all(mb, &mats, &env, &GatherParams::default()) {
+        Ok(l) => {
+            std::hint::black_box(l);
+            t0.elapsed().as_secs_f64()
+        }
+        Err(_) => f64::NAN,
+    }
 }
 
 /// The table for `svgir bench trace` at the standard sizes.

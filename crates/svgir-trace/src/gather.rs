@@ -9,9 +9,11 @@
 //! `GatherParams::lights` the escape list also holds h's directional lights ([`BrightLights`]),
 //! weighted by solid angle and traced visibility, and the K samples see those texels as black.
 //!
-//! Work split: [`gather_all`] runs rayon over receiving Gaussians j (each task owns its K outputs);
-//! per task a scratch holds the escape list of the last hit Gaussian h (directions and env
-//! radiance of its unoccluded samples), reused while consecutive directions hit the same h.
+//! Work split: [`gather_all`] / [`gather_from`] sort the rays by their hit Gaussian h and run
+//! rayon over h: each task builds h's escape list (directions and env radiance of its unoccluded
+//! samples) once and shades every ray that hit h (building it per ray cost as much as the
+//! shading). [`gather_pairs`] runs over its pairs, reusing the escape list while consecutive
+//! pairs hit the same h.
 //! Nothing is saved for backward: [`crate::gather_backward`] recomputes the (cheap) escape lists.
 //! All maths is generic over `Float` so the tests check the gradients in f64.
 
@@ -287,19 +289,77 @@ pub fn gather_from(
         )));
     }
     let light = LightIn::new(env, p);
-    let mut out = vec![[0.0f32; 3]; rays.len() * rays.k];
-    if rays.k == 0 {
-        return Ok(out);
+    let by_hit = PairsByHit::new(rays, hits.len())?;
+    // One task per hit Gaussian h: its escape list is built once and shades every ray that hit
+    // it. Each value is the same `shade_pair` as a ray-by-ray loop gives (bit for bit).
+    let mut shaded = vec![[0.0f32; 3]; by_hit.pairs.len()];
+    let mut groups = Vec::with_capacity(hits.len());
+    let mut rest = shaded.as_mut_slice();
+    for h in 0..hits.len() {
+        let (group, tail) = rest.split_at_mut(by_hit.range(h).len());
+        groups.push((h, group));
+        rest = tail;
     }
-    out.par_chunks_mut(rays.k).enumerate().for_each_init(Escapes::new, |esc, (j, row)| {
-        for (k, o) in row.iter_mut().enumerate() {
-            if let Some(h) = rays.hit(j, k) {
-                esc.fill(hits, &light, h);
-                *o = shade_pair(rays, mats, esc, light.diffuse, j, k);
-            }
+    groups.into_par_iter().for_each_init(Escapes::new, |esc, (h, group)| {
+        if group.is_empty() {
+            return;
+        }
+        esc.fill(hits, &light, h as u32);
+        for (o, &pair) in group.iter_mut().zip(&by_hit.pairs[by_hit.range(h)]) {
+            let (j, k) = (pair as usize / rays.k, pair as usize % rays.k);
+            *o = shade_pair(rays, mats, esc, light.diffuse, j, k);
         }
     });
+    let mut out = vec![[0.0f32; 3]; rays.len() * rays.k];
+    for (&pair, v) in by_hit.pairs.iter().zip(&shaded) {
+        out[pair as usize] = *v;
+    }
     Ok(out)
+}
+
+/// The (j, k) samples of a micro-buffer grouped by their first-hit Gaussian (a counting sort):
+/// `pairs[start[h]..start[h + 1]]` are the flat indices `j * K + k` of the rays that hit h, in
+/// increasing order.
+struct PairsByHit {
+    start: Vec<usize>,
+    pairs: Vec<u32>,
+}
+
+impl PairsByHit {
+    fn new(rays: &MicroBuffer, hit_count: usize) -> Result<Self, TraceError> {
+        if u32::try_from(rays.first_hit.len()).is_err() {
+            return Err(TraceError::InvalidParameter(format!(
+                "{} samples: more than a u32 can index",
+                rays.first_hit.len()
+            )));
+        }
+        let mut start = vec![0usize; hit_count + 1];
+        for &h in &rays.first_hit {
+            if h == NO_HIT {
+                continue;
+            }
+            if h as usize >= hit_count {
+                return Err(TraceError::InvalidParameter(format!("first hit {h} of {hit_count} Gaussians")));
+            }
+            start[h as usize + 1] += 1;
+        }
+        for h in 0..hit_count {
+            start[h + 1] += start[h];
+        }
+        let mut next = start.clone();
+        let mut pairs = vec![0u32; start[hit_count]];
+        for (i, &h) in rays.first_hit.iter().enumerate() {
+            if h != NO_HIT {
+                pairs[next[h as usize]] = i as u32;
+                next[h as usize] += 1;
+            }
+        }
+        Ok(Self { start, pairs })
+    }
+
+    fn range(&self, h: usize) -> std::ops::Range<usize> {
+        self.start[h]..self.start[h + 1]
+    }
 }
 
 /// L1b for a list of (j, k) pairs, in parallel.

@@ -601,6 +601,9 @@ mod tests {
         let short = VertexMaterials { m, albedo: &alb[1..], roughness: &rough, normals: &nrm };
         assert!(gather_all(&c.mb, &short, &c.env, &p).is_err());
         assert!(gather_one(&c.mb, &VertexMaterials { m: 3, ..mats }, &c.env, &p, 0, 0).is_err());
+        let mut corrupt = c.mb.clone();
+        corrupt.first_hit[0] = corrupt.len() as u32;
+        assert!(gather_all(&corrupt, &mats, &c.env, &p).is_err());
         let _ = &c.surfels;
     }
 }
