@@ -267,9 +267,7 @@ pub fn gather_all(
 }
 
 /// Eqn 13 for the rays of `rays`, each reflected by its hit Gaussian h as lit in `hits` (h's
-/// escapes and `p.lights` index `hits`' Gaussians). Two-sided shading gathers its back-side rays
-/// (`MicroBuffer::trace_about` with `-n`) off the hit Gaussians' front sides; `gather_all(mb)` is
-/// `gather_from(mb, mb)`.
+/// escapes and `p.lights` index `hits`' Gaussians); `gather_all(mb)` is `gather_from(mb, mb)`.
 pub fn gather_from(
     rays: &MicroBuffer,
     hits: &MicroBuffer,
@@ -277,88 +275,145 @@ pub fn gather_from(
     env: &EnvMap,
     p: &GatherParams,
 ) -> Result<Vec<[f32; 3]>, TraceError> {
-    check(hits, mats, env)?;
-    check_lights(hits, env, p)?;
-    if (rays.len(), rays.k) != (hits.len(), hits.k) {
-        return Err(TraceError::InvalidParameter(format!(
-            "rays for {} Gaussians x {} directions, hits for {} x {}",
-            rays.len(),
-            rays.k,
-            hits.len(),
-            hits.k
-        )));
+    let side = HitSide { mb: hits, mats: *mats, lights: p.lights };
+    gather_grouped(rays, &[side], env, p, |_, _, _| 0)
+}
+
+/// One side of every Gaussian as the gather reflects it: the micro-buffer traced about that
+/// side's normals (its escapes), the materials with their normals pointing out of that side, and
+/// that side's directional-light visibility.
+#[derive(Clone, Copy, Debug)]
+pub struct HitSide<'a> {
+    pub mb: &'a MicroBuffer,
+    pub mats: VertexMaterials<'a, f32>,
+    pub lights: Option<&'a BrightLights>,
+}
+
+/// Two-sided shading's Eqn 13: each ray of `rays` is reflected off the side of its hit Gaussian h
+/// that it meets, `front` when the ray runs against h's front normal (`front.mb.normals[h]`),
+/// `back` otherwise (`back.mb` traced about `-n`, `back.mats` with negated normals). Inside a
+/// bowl, a ray from one wall meets the opposite wall's inner side, which the interior lights;
+/// `gather_from(rays, front)` would reflect the outside's light instead. `p.lights` is unused:
+/// each side brings its own.
+pub fn gather_two_sided(
+    rays: &MicroBuffer,
+    front: HitSide,
+    back: HitSide,
+    env: &EnvMap,
+    p: &GatherParams,
+) -> Result<Vec<[f32; 3]>, TraceError> {
+    let normals = &front.mb.normals;
+    gather_grouped(rays, &[front, back], env, p, |j, k, h| usize::from(rays.direction(j, k).dot(normals[h]) > 0.0))
+}
+
+/// Eqn 13 for every ray of `rays` off side `side_of(j, k, h)` of its hit Gaussian h.
+fn gather_grouped(
+    rays: &MicroBuffer,
+    sides: &[HitSide],
+    env: &EnvMap,
+    p: &GatherParams,
+    side_of: impl Fn(usize, usize, usize) -> usize + Sync,
+) -> Result<Vec<[f32; 3]>, TraceError> {
+    for side in sides {
+        check(side.mb, &side.mats, env)?;
+        check_lights(side.mb, env, &GatherParams { lights: side.lights, ..*p })?;
+        if (rays.len(), rays.k) != (side.mb.len(), side.mb.k) {
+            return Err(TraceError::InvalidParameter(format!(
+                "rays for {} Gaussians x {} directions, hits for {} x {}",
+                rays.len(),
+                rays.k,
+                side.mb.len(),
+                side.mb.k
+            )));
+        }
     }
-    let light = LightIn::new(env, p);
-    let by_hit = PairsByHit::new(rays, hits.len())?;
-    // One task per hit Gaussian h: its escape list is built once and shades every ray that hit
-    // it. Each value is the same `shade_pair` as a ray-by-ray loop gives (bit for bit).
+    let lights: Vec<LightIn<f32>> =
+        sides.iter().map(|side| LightIn::new(env, &GatherParams { lights: side.lights, ..*p })).collect();
+    let n = rays.len();
+    let by_hit = PairsByHit::new(rays, sides.len(), side_of)?;
+    // One task per (side, hit Gaussian h): its escape list is built once and shades every ray
+    // that hit it. Each value is the same `shade_pair` as a ray-by-ray loop gives (bit for bit).
     let mut shaded = vec![[0.0f32; 3]; by_hit.pairs.len()];
-    let mut groups = Vec::with_capacity(hits.len());
+    let mut groups = Vec::with_capacity(sides.len() * n);
     let mut rest = shaded.as_mut_slice();
-    for h in 0..hits.len() {
-        let (group, tail) = rest.split_at_mut(by_hit.range(h).len());
-        groups.push((h, group));
+    for group in 0..sides.len() * n {
+        let (values, tail) = rest.split_at_mut(by_hit.range(group).len());
+        groups.push((group, values));
         rest = tail;
     }
-    groups.into_par_iter().for_each_init(Escapes::new, |esc, (h, group)| {
-        if group.is_empty() {
+    groups.into_par_iter().for_each_init(Escapes::new, |esc, (group, values)| {
+        if values.is_empty() {
             return;
         }
-        esc.fill(hits, &light, h as u32);
-        for (o, &pair) in group.iter_mut().zip(&by_hit.pairs[by_hit.range(h)]) {
+        let (s, h) = (group / n, group % n);
+        // A scratch list may hold the same h's escapes from the other side.
+        esc.h = NO_HIT;
+        esc.fill(sides[s].mb, &lights[s], h as u32);
+        for (o, &pair) in values.iter_mut().zip(&by_hit.pairs[by_hit.range(group)]) {
             let (j, k) = (pair as usize / rays.k, pair as usize % rays.k);
-            *o = shade_pair(rays, mats, esc, light.diffuse, j, k);
+            *o = shade_pair(rays, &sides[s].mats, esc, p.diffuse, j, k);
         }
     });
-    let mut out = vec![[0.0f32; 3]; rays.len() * rays.k];
+    let mut out = vec![[0.0f32; 3]; n * rays.k];
     for (&pair, v) in by_hit.pairs.iter().zip(&shaded) {
         out[pair as usize] = *v;
     }
     Ok(out)
 }
 
-/// The (j, k) samples of a micro-buffer grouped by their first-hit Gaussian (a counting sort):
-/// `pairs[start[h]..start[h + 1]]` are the flat indices `j * K + k` of the rays that hit h, in
-/// increasing order.
+/// The (j, k) samples of a micro-buffer grouped by (side, first-hit Gaussian h) with a counting
+/// sort: `pairs[range(side * N + h)]` are the flat indices `j * K + k` of the rays that hit h's
+/// side `side`, in increasing order.
 struct PairsByHit {
     start: Vec<usize>,
     pairs: Vec<u32>,
 }
 
 impl PairsByHit {
-    fn new(rays: &MicroBuffer, hit_count: usize) -> Result<Self, TraceError> {
-        if u32::try_from(rays.first_hit.len()).is_err() {
+    fn new(
+        rays: &MicroBuffer,
+        side_count: usize,
+        side_of: impl Fn(usize, usize, usize) -> usize + Sync,
+    ) -> Result<Self, TraceError> {
+        let (n, k) = (rays.len(), rays.k);
+        if u32::try_from(rays.first_hit.len().max(side_count * n)).is_err() {
             return Err(TraceError::InvalidParameter(format!(
-                "{} samples: more than a u32 can index",
-                rays.first_hit.len()
+                "{n} Gaussians x {k} samples x {side_count} sides: more than a u32 can index"
             )));
         }
-        let mut start = vec![0usize; hit_count + 1];
-        for &h in &rays.first_hit {
-            if h == NO_HIT {
-                continue;
-            }
-            if h as usize >= hit_count {
-                return Err(TraceError::InvalidParameter(format!("first hit {h} of {hit_count} Gaussians")));
-            }
-            start[h as usize + 1] += 1;
+        if let Some(&h) = rays.first_hit.iter().find(|&&h| h != NO_HIT && h as usize >= n) {
+            return Err(TraceError::InvalidParameter(format!("first hit {h} of {n} Gaussians")));
         }
-        for h in 0..hit_count {
-            start[h + 1] += start[h];
+        let mut group = vec![NO_HIT; n * k];
+        if k > 0 {
+            group.par_chunks_mut(k).enumerate().for_each(|(j, row)| {
+                for (kk, g) in row.iter_mut().enumerate() {
+                    if let Some(h) = rays.hit(j, kk) {
+                        let side = side_of(j, kk, h as usize).min(side_count - 1);
+                        *g = (side * n + h as usize) as u32;
+                    }
+                }
+            });
+        }
+        let groups = side_count * n;
+        let mut start = vec![0usize; groups + 1];
+        for &g in group.iter().filter(|&&g| g != NO_HIT) {
+            start[g as usize + 1] += 1;
+        }
+        for g in 0..groups {
+            start[g + 1] += start[g];
         }
         let mut next = start.clone();
-        let mut pairs = vec![0u32; start[hit_count]];
-        for (i, &h) in rays.first_hit.iter().enumerate() {
-            if h != NO_HIT {
-                pairs[next[h as usize]] = i as u32;
-                next[h as usize] += 1;
-            }
+        let mut pairs = vec![0u32; start[groups]];
+        for (i, &g) in group.iter().enumerate().filter(|(_, &g)| g != NO_HIT) {
+            pairs[next[g as usize]] = i as u32;
+            next[g as usize] += 1;
         }
         Ok(Self { start, pairs })
     }
 
-    fn range(&self, h: usize) -> std::ops::Range<usize> {
-        self.start[h]..self.start[h + 1]
+    fn range(&self, group: usize) -> std::ops::Range<usize> {
+        self.start[group]..self.start[group + 1]
     }
 }
 
@@ -384,4 +439,77 @@ pub fn gather_pairs(
             }
         })
         .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scenes::object_scene;
+    use crate::{brightest_texels, Bvh, TraceParams};
+    use svgir_core::Rng;
+
+    /// Each ray of either side's micro-buffer is reflected off the side of its hit it meets: the
+    /// value equals `gather_from` off that side alone, and both sides occur.
+    #[test]
+    fn two_sided_gather_reflects_off_the_side_each_ray_meets() {
+        let (m, k) = (2, 16);
+        let surfels = object_scene(300, 9);
+        let bvh = Bvh::build(&surfels);
+        let tp = TraceParams::default();
+        let front = MicroBuffer::trace(&bvh, &surfels, k, 9, &tp).unwrap();
+        let back =
+            MicroBuffer::trace_about(&bvh, &surfels, front.normals.iter().map(|a| -*a).collect(), k, 9, &tp).unwrap();
+        let n = front.len();
+        let mut rng = Rng::new(9);
+        let albedo: Vec<f32> = (0..n * m * 3).map(|_| rng.range(0.05, 0.9)).collect();
+        let roughness: Vec<f32> = (0..n * m).map(|_| rng.range(0.1, 0.9)).collect();
+        let normals: Vec<f32> =
+            front.normals.iter().flat_map(|a| std::iter::repeat_n(a.to_array(), m)).flatten().collect();
+        let flipped: Vec<f32> = normals.iter().map(|x| -x).collect();
+        let mut env = EnvMap::constant(16, 8, [0.0; 3]);
+        for t in env.data.iter_mut() {
+            *t = [rng.range(0.1, 3.0), rng.range(0.1, 3.0), rng.range(0.1, 3.0)];
+        }
+        let texels = brightest_texels(&env, 3);
+        let front_lights = BrightLights::trace(&bvh, &surfels, &front.normals, &env, &texels, &tp, None).unwrap();
+        let back_lights = front_lights.for_normals(&bvh, &surfels, &back.normals, &tp).unwrap();
+        let lit_front = HitSide {
+            mb: &front,
+            mats: VertexMaterials { m, albedo: &albedo, roughness: &roughness, normals: &normals },
+            lights: Some(&front_lights),
+        };
+        let lit_back = HitSide {
+            mats: VertexMaterials { normals: &flipped, ..lit_front.mats },
+            mb: &back,
+            lights: Some(&back_lights),
+        };
+        let p = GatherParams::default();
+        let off = |rays: &MicroBuffer, side: &HitSide| {
+            gather_from(rays, side.mb, &side.mats, &env, &GatherParams { lights: side.lights, ..p }).unwrap()
+        };
+        for rays in [&front, &back] {
+            let got = gather_two_sided(rays, lit_front, lit_back, &env, &p).unwrap();
+            let (want_front, want_back) = (off(rays, &lit_front), off(rays, &lit_back));
+            let mut met = [0, 0];
+            for j in 0..n {
+                for kk in 0..k {
+                    let i = j * k + kk;
+                    match rays.hit(j, kk) {
+                        None => assert_eq!(got[i], [0.0; 3]),
+                        Some(h) if rays.direction(j, kk).dot(front.normals[h as usize]) > 0.0 => {
+                            assert_eq!(got[i], want_back[i]);
+                            met[1] += 1;
+                        }
+                        Some(_) => {
+                            assert_eq!(got[i], want_front[i]);
+                            met[0] += 1;
+                        }
+                    }
+                }
+            }
+            assert!(met[0] > 50 && met[1] > 50, "both sides should be met: {met:?}");
+        }
+        let short = VertexMaterials { albedo: &albedo[1..], ..lit_front.mats };
+        assert!(gather_two_sided(&front, HitSide { mats: short, ..lit_front }, lit_back, &env, &p).is_err());
+    }
 }

@@ -27,7 +27,9 @@ pub mod traverse;
 pub use bounce::add_bounces;
 pub use bright::{brightest_texels, concentrate_lobe, BrightLights};
 pub use bvh::{Bvh, Node};
-pub use gather::{gather_all, gather_from, gather_one, gather_pairs, GatherParams, VertexMaterials};
+pub use gather::{
+    gather_all, gather_from, gather_one, gather_pairs, gather_two_sided, GatherParams, HitSide, VertexMaterials,
+};
 pub use gather_backward::{gather_all_backward, gather_one_backward, gather_pairs_backward, GatherGrads};
 pub use hit::{disks_of, Disk, Hit};
 pub use microbuffer::{MicroBuffer, NO_HIT};

@@ -22,7 +22,7 @@
 use crate::stage2::{BackShading, PbrRender, Shading, Stage2};
 use svgir_core::{Camera, EnvMap};
 use svgir_pbr::{DirectionCache, Indirect, PbrError, ShadeParams};
-use svgir_trace::{brightest_texels, BrightLights, Bvh, GatherParams, MicroBuffer};
+use svgir_trace::{brightest_texels, BrightLights, Bvh, GatherParams, HitSide, MicroBuffer, VertexMaterials};
 
 /// SPEC 7: directions per Gaussian at relighting evaluation.
 pub const RELIGHT_DIRECTIONS: usize = 384;
@@ -69,8 +69,8 @@ pub struct PreparedLight {
     pub one_bounce: Option<Vec<[f32; 3]>>,
     /// The map's brightest texels as directional lights (`None` with `RelightSampling::lights = 0`).
     pub lights: Option<BrightLights>,
-    /// Two-sided models: the back sides' one-bounce light (their rays reflected off the hit
-    /// Gaussians' front sides, `svgir_trace::gather_from`) and light visibility.
+    /// Two-sided models: the back sides' one-bounce light and light visibility (front and back
+    /// rays are reflected off the side of their hit they meet, `svgir_trace::gather_two_sided`).
     pub back_one_bounce: Option<Vec<[f32; 3]>>,
     pub back_lights: Option<BrightLights>,
 }
@@ -123,13 +123,23 @@ impl Relighter {
         }
         let act = s2.materials.activated(&s2.normals)?;
         let p = GatherParams { env_max: f32::INFINITY, lights: lights.as_ref(), diffuse: s2.config.diffuse };
-        let mut one_bounce = svgir_trace::gather_all(&self.mb, &act.view(), &env, &p)?;
-        svgir_trace::add_bounces(&self.mb, &act.view(), &mut one_bounce, self.bounces)?;
-        // The back sides get Eqn 13's one bounce only: `add_bounces` follows the front sides' paths.
-        let back_one_bounce = match &self.back {
-            Some((back, _)) => Some(svgir_trace::gather_from(back, &self.mb, &act.view(), &env, &p)?),
-            None => None,
+        let Some((back, _)) = &self.back else {
+            let mut one_bounce = svgir_trace::gather_all(&self.mb, &act.view(), &env, &p)?;
+            svgir_trace::add_bounces(&self.mb, &act.view(), &mut one_bounce, self.bounces)?;
+            return Ok(PreparedLight { env, one_bounce: Some(one_bounce), lights, back_one_bounce: None, back_lights });
         };
+        // Two-sided: every ray, front or back, is reflected off the side of its hit it meets.
+        let flipped = svgir_pbr::two_sided::negated(&act.normals);
+        let front_side = HitSide { mb: &self.mb, mats: act.view(), lights: lights.as_ref() };
+        let back_side = HitSide {
+            mb: back,
+            mats: VertexMaterials { normals: &flipped, ..act.view() },
+            lights: back_lights.as_ref(),
+        };
+        let mut one_bounce = svgir_trace::gather_two_sided(&self.mb, front_side, back_side, &env, &p)?;
+        // `add_bounces` follows the front sides' paths only.
+        svgir_trace::add_bounces(&self.mb, &act.view(), &mut one_bounce, self.bounces)?;
+        let back_one_bounce = Some(svgir_trace::gather_two_sided(back, front_side, back_side, &env, &p)?);
         Ok(PreparedLight { env, one_bounce: Some(one_bounce), lights, back_one_bounce, back_lights })
     }
 
