@@ -40,16 +40,6 @@ for scene in ${SCENES:-$(ls "$DATA")}; do
     "$SVGIR" inverse --run "$run" --iterations "$ITERS2" --turntable 0 "$@" "${resume[@]}"
   fi
 done
-python3 - "$OUT" <<'PY'
-import json, pathlib, sys
-out = pathlib.Path(sys.argv[1])
-print("| scene | NVS PSNR | albedo PSNR | roughness MSE | normal MAE | relight PSNR / SSIM / LPIPS | per light |")
-print("|---|---|---|---|---|---|---|")
-for ev in sorted(out.glob("*/stage2/eval.json")):
-    e = json.loads(ev.read_text())
-    r = e["relight"]["mean"]
-    per = ", ".join(f"{k} {v['psnr']:.2f}" for k, v in e["relight"]["per_light"].items())
-    fmt = lambda x, f: "-" if x is None else format(x, f)
-    print(f"| {ev.parent.parent.name} | {e['nvs']['psnr']:.2f} | {e['albedo']['psnr']:.2f} | {e['roughness_mse']:.4f} "
-          f"| {e['normal_mae_deg']:.2f} | {r['psnr']:.2f} / {r['ssim']:.3f} / {fmt(r['lpips'], '.3f')} | {per} |")
-PY
+# The table: `svgir eval` prints each run's SPEC 8 evaluation (saved by `svgir inverse`) and the
+# markdown table of all scenes (`svgir eval --run RUN/stage2` evaluates a run again).
+"$SVGIR" eval --cached --run "$OUT"/*/stage2

@@ -37,6 +37,29 @@ fn quick_demo_writes_a_report_with_metrics() {
     assert!(status.success(), "svgir relight failed");
     let relit = svgir_io_png(&out.join("stage2/relit_sunset/test_000.png"));
     assert!(relit > 0, "relit image is empty");
+
+    // `svgir eval` on the stage-2 run repeats SPEC 8's evaluation: the same numbers (with the
+    // demo's relighting settings), a per-metric table and the scene table's row.
+    let res =
+        svgir().args(["eval", "--lpips", "none", "--relight-directions", "16", "--run"]).arg(&out).output().unwrap();
+    assert!(res.status.success(), "svgir eval --run failed: {}", String::from_utf8_lossy(&res.stderr));
+    let text = String::from_utf8_lossy(&res.stdout);
+    let row = text.lines().find(|l| l.starts_with("| svgir_demo_test")).expect("a table row for the run");
+    assert!(text.contains("relit: night") && text.contains("normal MAE"), "stdout: {text}");
+    let again: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(out.join("stage2/eval.json")).unwrap()).unwrap();
+    for key in ["nvs", "albedo", "roughness_mse", "normal_mae_deg"] {
+        let (a, b) = (&again[key], &eval[key]);
+        let psnr = |v: &serde_json::Value| v.get("psnr").unwrap_or(v).as_f64().unwrap();
+        assert_eq!(psnr(a), psnr(b), "{key} changed on re-evaluation");
+    }
+    let relit_psnr = |v: &serde_json::Value| v["relight"]["mean"]["psnr"].as_f64().unwrap();
+    assert_eq!(relit_psnr(&again), relit_psnr(&eval), "relighting changed on re-evaluation");
+    assert!(row.contains(&format!("{:.2}", psnr)), "row {row} lacks NVS {psnr:.2}");
+    // --cached prints the saved evaluation without rendering.
+    let cached = svgir().args(["eval", "--cached", "--run"]).arg(out.join("stage2")).output().unwrap();
+    assert!(cached.status.success());
+    assert!(String::from_utf8_lossy(&cached.stdout).contains(row), "--cached prints a different row");
     std::fs::remove_dir_all(&out).ok();
 }
 

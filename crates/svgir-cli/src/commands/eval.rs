@@ -1,6 +1,10 @@
 //! `svgir eval`: image-quality metrics between predicted and ground-truth images, as the
 //! standard evaluations compute them (PSNR, SSIM with the 11x11 sigma-1.5 window, LPIPS v0.1).
 //! Pairs images by file name; RGBA images are composited over `--background` first.
+//!
+//! On stage-2 runs (`svgir inverse`) it runs SPEC 8's whole evaluation instead ([`super::spec8`]):
+//! NVS, albedo, roughness, normals and relighting per light, a table per run and one markdown
+//! row per run.
 
 use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
@@ -32,10 +36,29 @@ pub struct EvalArgs {
     /// Folder of ground-truth images with the same file names.
     #[arg(long)]
     pub gt: Option<PathBuf>,
-    /// A run folder instead: its test renders (`test/NAME_rgb.png` from `svgir train`, or
-    /// `test/NAME_pbr.png` from `svgir inverse`) against the ground truth saved beside them.
-    #[arg(long, required_unless_present = "pred")]
-    pub run: Option<PathBuf>,
+    /// A run folder instead. A stage-1 run (`svgir train`): its test renders against the ground
+    /// truth saved beside them. A stage-2 run (`RUN/stage2` from `svgir inverse`, or RUN holding
+    /// one): SPEC 8's evaluation on the dataset's test views, written to its `eval.json`.
+    /// Several stage-2 runs may be given (one table row each).
+    #[arg(long, num_args = 1.., required_unless_present = "pred")]
+    pub run: Vec<PathBuf>,
+    /// Stage-2 runs: print the evaluation `svgir inverse` saved (`eval.json`) instead of
+    /// evaluating again.
+    #[arg(long)]
+    pub cached: bool,
+    /// Stage-2 runs: the dataset, if it moved (default: the path in the run's config.json).
+    #[arg(long)]
+    pub data: Option<PathBuf>,
+    /// Stage-2 runs: directions per Gaussian when relighting (SPEC 7: 384).
+    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_DIRECTIONS)]
+    pub relight_directions: usize,
+    /// Stage-2 runs: brightest texels of each map shaded as directional lights (0: SPEC 7's K
+    /// directions alone).
+    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_LIGHTS)]
+    pub relight_lights: usize,
+    /// Stage-2 runs: diffuse bounces added to the one-bounce indirect light (0: Eqn 13 alone).
+    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_BOUNCES)]
+    pub relight_bounces: usize,
     /// LPIPS network (weights from --lpips-weights or ../shared/data/lpips).
     #[arg(long, value_enum, default_value_t = LpipsNet::Vgg)]
     pub lpips: LpipsNet,
@@ -81,10 +104,11 @@ pub fn default_lpips_weights(net: LpipsNet) -> Option<PathBuf> {
 
 /// (prediction, ground truth) file pairs to compare, with a display name.
 fn pairs(args: &EvalArgs) -> Result<Vec<(String, PathBuf, PathBuf)>> {
-    let (dir, list) = match (&args.pred, &args.run) {
+    let (dir, list) = match (&args.pred, args.run.as_slice()) {
         (Some(p), _) => (p.clone(), true),
-        (None, Some(r)) => (r.join("test"), false),
-        (None, None) => bail!("give --pred and --gt, or --run"),
+        (None, [r]) => (r.join("test"), false),
+        (None, []) => bail!("give --pred and --gt, or --run"),
+        (None, _) => bail!("several --run folders: only for stage-2 runs (`svgir inverse`)"),
     };
     let mut names: Vec<String> = std::fs::read_dir(&dir)
         .with_context(|| format!("{}: cannot list folder", dir.display()))?
@@ -113,7 +137,105 @@ fn pairs(args: &EvalArgs) -> Result<Vec<(String, PathBuf, PathBuf)>> {
     Ok(out)
 }
 
+/// The stage-2 folder of `run`: `run` itself or `run/stage2`, if its config.json is stage 2's.
+fn stage2_folder(run: &Path) -> Option<PathBuf> {
+    let is_stage2 = |d: &Path| {
+        std::fs::read_to_string(d.join("config.json"))
+            .ok()
+            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
+            .is_some_and(|c| c.get("stage2").is_some())
+    };
+    [run.to_path_buf(), run.join("stage2")].into_iter().find(|d| is_stage2(d))
+}
+
+/// A name for a stage-2 folder in the table: the stage-1 run's folder for `RUN/stage2`.
+fn scene_name(dir: &Path) -> String {
+    let name = |p: &Path| p.file_name().map(|n| n.to_string_lossy().into_owned());
+    match name(dir) {
+        Some(n) if n == "stage2" => dir.parent().and_then(name).unwrap_or(n),
+        Some(n) => n,
+        None => dir.display().to_string(),
+    }
+}
+
+/// SPEC 8 on each stage-2 run (or its saved `eval.json` with `--cached`).
+fn run_stage2(args: &EvalArgs, dirs: &[PathBuf]) -> Result<()> {
+    let lpips = if args.cached { None } else { super::spec8::load_lpips(args.lpips)? };
+    let sampling = svgir_train::relight::RelightSampling {
+        directions: args.relight_directions,
+        lights: args.relight_lights,
+        bounces: args.relight_bounces,
+    };
+    let mut rows = Vec::new();
+    for dir in dirs {
+        let saved_path = dir.join("eval.json");
+        let read_saved = || -> Result<serde_json::Value> {
+            let text = std::fs::read_to_string(&saved_path)
+                .with_context(|| format!("{}: cannot read (evaluate without --cached)", saved_path.display()))?;
+            serde_json::from_str(&text).with_context(|| format!("{}: not JSON", saved_path.display()))
+        };
+        let result = if args.cached {
+            read_saved()?
+        } else {
+            let cfg_path = dir.join("config.json");
+            let cfg: serde_json::Value = serde_json::from_str(
+                &std::fs::read_to_string(&cfg_path).with_context(|| format!("{}: cannot read", cfg_path.display()))?,
+            )
+            .with_context(|| format!("{}: not JSON", cfg_path.display()))?;
+            // The stage-1 run: RUN for RUN/stage2, else the one the config records.
+            let stage1 = match dir.parent() {
+                Some(p) if dir.ends_with("stage2") && p.join("config.json").exists() => p.to_path_buf(),
+                _ => PathBuf::from(
+                    cfg["stage1_run"].as_str().with_context(|| format!("{}: no stage1_run", cfg_path.display()))?,
+                ),
+            };
+            let data = args.data.clone().or_else(|| cfg["data"].as_str().map(PathBuf::from));
+            let (dataset, _) = super::spec8::load_run_dataset(&stage1, data.as_deref())?;
+            let s2 = svgir_train::checkpoint::load_stage2(&dir.join("checkpoint.bin"))?;
+            eprintln!("{}: SPEC 8 evaluation on {} test views", dir.display(), dataset.test.len());
+            let fresh = super::spec8::evaluate(&s2, &dataset, dir, lpips.as_ref(), 0, sampling)?;
+            // Keep what `svgir inverse` recorded beside the metrics (timings, sizes).
+            let mut merged = read_saved().unwrap_or_else(|_| json!({}));
+            for (k, v) in fresh.as_object().into_iter().flatten() {
+                merged[k] = v.clone();
+            }
+            std::fs::write(&saved_path, serde_json::to_string_pretty(&merged)?)
+                .with_context(|| format!("writing {}", saved_path.display()))?;
+            merged
+        };
+        println!("{} ({} test views)", dir.display(), result["views"]);
+        println!("{}", super::spec8::metric_table(&result));
+        rows.push((scene_name(dir), dir.display().to_string(), result));
+    }
+    println!("{}", super::spec8::TABLE_HEADER);
+    for (name, _, r) in &rows {
+        println!("{}", super::spec8::table_row(name, r));
+    }
+    if let Some(path) = &args.json {
+        let all: serde_json::Map<String, serde_json::Value> = rows.into_iter().map(|(_, d, r)| (d, r)).collect();
+        std::fs::write(path, serde_json::to_string_pretty(&all)?)
+            .with_context(|| format!("writing {}", path.display()))?;
+    }
+    Ok(())
+}
+
 pub fn run(args: EvalArgs) -> Result<()> {
+    if args.pred.is_none() && !args.run.is_empty() {
+        let stage2: Vec<Option<PathBuf>> = args.run.iter().map(|r| stage2_folder(r)).collect();
+        if stage2.iter().all(Option::is_some) {
+            return run_stage2(&args, &stage2.into_iter().flatten().collect::<Vec<_>>());
+        }
+        if args.run.len() > 1 {
+            let not: Vec<String> = args
+                .run
+                .iter()
+                .zip(&stage2)
+                .filter(|(_, s)| s.is_none())
+                .map(|(r, _)| r.display().to_string())
+                .collect();
+            bail!("several --run folders need stage-2 runs (`svgir inverse`); not one: {}", not.join(", "));
+        }
+    }
     let pairs = pairs(&args)?;
     let lpips = match args.lpips {
         LpipsNet::None => None,

@@ -4,19 +4,17 @@
 //! raw materials), and `test/` images (PBR, albedo, roughness, normal, each relit light, with
 //! ground truth beside them).
 
-use super::eval::{default_lpips_weights, LpipsNet};
+use super::eval::LpipsNet;
 use crate::progress;
 use anyhow::{Context, Result};
 use clap::Args;
 use serde_json::json;
 use std::io::Write;
 use std::path::{Path, PathBuf};
-use svgir_core::{Dataset, Image, LightInfo};
-use svgir_metrics::{evaluate_pair, ImageMetrics, Lpips, SsimVariant};
+use svgir_core::{Dataset, LightInfo};
 use svgir_pbr::EnvActivation;
 use svgir_shading::Diffuse;
-use svgir_train::relight::{RelightSampling, Relighter};
-use svgir_train::stage1::alpha_of;
+use svgir_train::relight::RelightSampling;
 use svgir_train::stage2::{Coverage, EnvInit, GreyLight, Stage2Rates, Stage2Weights};
 use svgir_train::{checkpoint, Stage2, Stage2Config};
 
@@ -299,25 +297,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         "--light-colour-degree {} is above 3",
         args.light_colour_degree.unwrap_or(0)
     );
-    let cfg_path = args.run.join("config.json");
-    let run_cfg: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(&cfg_path).with_context(|| format!("{}: cannot read", cfg_path.display()))?,
-    )
-    .with_context(|| format!("{}: not JSON", cfg_path.display()))?;
-    let data = match &args.data {
-        Some(d) => d.clone(),
-        None => {
-            PathBuf::from(run_cfg["data"].as_str().with_context(|| format!("{}: no data path", cfg_path.display()))?)
-        }
-    };
-    let load = &run_cfg["load"];
-    let opts = svgir_io::LoadOptions {
-        resolution: load["resolution"].as_u64().map(|v| v as u32),
-        downscale: load["downscale"].as_f64().map(|v| v as f32),
-        load_test: true,
-        max_views: load["max_views"].as_u64().map(|v| v as usize),
-    };
-    let dataset = svgir_io::load_dataset(&data, &opts)?;
+    let (dataset, data) = super::spec8::load_run_dataset(&args.run, args.data.as_deref())?;
     let stage1 = checkpoint::load(&args.run.join("checkpoint.bin"), &dataset)?;
     let out = args.out.clone().unwrap_or_else(|| args.run.join("stage2"));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
@@ -451,13 +431,13 @@ pub fn run(args: InverseArgs) -> Result<()> {
     if args.oracle_light {
         set_true_light(&mut s2, &dataset)?;
     }
-    let lpips = load_lpips(args.lpips)?;
+    let lpips = super::spec8::load_lpips(args.lpips)?;
     let sampling = RelightSampling {
         directions: args.relight_directions,
         lights: args.relight_lights,
         bounces: args.relight_bounces,
     };
-    let eval = evaluate(&s2, &dataset, &out, lpips.as_ref(), args.turntable, sampling)?;
+    let eval = super::spec8::evaluate(&s2, &dataset, &out, lpips.as_ref(), args.turntable, sampling)?;
     let its = s2.iteration.max(1) as f64;
     let t = &s2.times;
     let mut eval_out = eval;
@@ -498,18 +478,6 @@ fn set_true_light(s2: &mut Stage2, dataset: &Dataset) -> Result<()> {
     Ok(())
 }
 
-fn load_lpips(net: LpipsNet) -> Result<Option<Lpips>> {
-    let Some(path) = default_lpips_weights(net) else {
-        if !matches!(net, LpipsNet::None) {
-            eprintln!("warning: LPIPS weights not found next to the checkout; LPIPS is left out");
-        }
-        return Ok(None);
-    };
-    let kind = if matches!(net, LpipsNet::Alex) { svgir_metrics::Net::Alex } else { svgir_metrics::Net::Vgg };
-    let bytes = std::fs::read(&path).with_context(|| format!("{}: cannot read", path.display()))?;
-    Ok(Some(Lpips::from_safetensors(&bytes, kind).with_context(|| path.display().to_string())?))
-}
-
 /// PNG previews of the learned light and, if the dataset ships it, the true training light at
 /// the same resolution (sRGB of the radiance clamped to [0, 1]; the learned map is only known up
 /// to the albedo-light scale ambiguity, so the two are shown, not compared numerically).
@@ -521,196 +489,4 @@ fn write_env_previews(s2: &Stage2, ds: &Dataset, out: &Path) -> Result<()> {
         svgir_io::write_png(out.join("env_true.png"), &tone(&truth), 8)?;
     }
     Ok(())
-}
-
-/// `frames` cameras on a circle around the world origin (where the synthetic scenes sit; +Z up),
-/// at the training cameras' mean distance and 20 degrees elevation, with `like`'s intrinsics.
-pub fn turntable_cameras(ds: &Dataset, like: &svgir_core::Camera, frames: usize) -> Vec<svgir_core::Camera> {
-    use glam::{Mat4, Vec3};
-    let centers: Vec<Vec3> = ds.train.iter().map(|v| v.camera.center()).collect();
-    let dist = centers.iter().map(|c| c.length()).sum::<f32>() / centers.len().max(1) as f32;
-    let elev = 20f32.to_radians();
-    (0..frames)
-        .filter_map(|f| {
-            let az = std::f32::consts::TAU * f as f32 / frames as f32;
-            let eye = dist * Vec3::new(elev.cos() * az.cos(), elev.cos() * az.sin(), elev.sin());
-            let back = eye.normalize();
-            let right = Vec3::Z.cross(back).normalize();
-            let up = back.cross(right);
-            let c2w = Mat4::from_cols(right.extend(0.0), up.extend(0.0), back.extend(0.0), eye.extend(1.0));
-            svgir_core::Camera::from_blender_c2w(c2w, like.intrinsics).ok()
-        })
-        .collect()
-}
-
-/// Colour over black divided by its opacity: the render's straight colour (0 where nothing was hit).
-pub fn straight_colour(over_black: &[f32], alpha: &[f32]) -> Vec<f32> {
-    over_black
-        .chunks(3)
-        .zip(alpha)
-        .flat_map(|(c, a)| {
-            let inv = if *a > 1e-5 { 1.0 / a } else { 0.0 };
-            c.iter().map(move |x| (x * inv).clamp(0.0, 1.0))
-        })
-        .collect()
-}
-
-fn png(path: &Path, w: u32, h: u32, data: Vec<f32>) -> Result<()> {
-    let ch = (data.len() / (w * h) as usize) as u32;
-    svgir_io::write_png(path, &Image::from_data(w, h, ch, data), 8)?;
-    Ok(())
-}
-
-fn mean_json(all: &[ImageMetrics]) -> serde_json::Value {
-    ImageMetrics::mean(all).map_or(serde_json::Value::Null, |m| json!(m))
-}
-
-/// SPEC 8 on the test views: NVS, albedo (median-scaled), roughness MSE, normal MAE, relighting.
-fn evaluate(
-    s2: &Stage2,
-    ds: &Dataset,
-    out: &Path,
-    lpips: Option<&Lpips>,
-    turntable: usize,
-    sampling: RelightSampling,
-) -> Result<serde_json::Value> {
-    let dir = out.join("test");
-    std::fs::create_dir_all(&dir)?;
-    let env = s2.env.radiance();
-    let black = [0.0f32; 3];
-    let variant = SsimVariant::GaussianSplatting;
-    let mut nvs = Vec::new();
-    let mut renders = Vec::new();
-    let mut scale_acc = svgir_metrics::AlbedoScale::new();
-    let mut normal_mae = svgir_metrics::NormalMae::new();
-    let (mut rough_se, mut rough_n) = (0.0f64, 0u64);
-    for v in &ds.test {
-        let r = s2.render_pbr(&v.camera, black, &env, [1.0; 3])?;
-        let (w, h) = (r.width, r.height);
-        let mask = alpha_of(&v.image);
-        let pred = Image::from_data(w, h, 3, r.image.clone());
-        // SPEC 8: both over black (the photo is straight-alpha RGBA; the render already is).
-        nvs.push(evaluate_pair(&pred, &super::eval::rgb(&v.image, black), None, variant, lpips)?);
-        png(&dir.join(format!("{}_pbr.png", v.name)), w, h, r.image.iter().map(|x| x.clamp(0.0, 1.0)).collect())?;
-        png(&dir.join(format!("{}_gt_rgb.png", v.name)), w, h, v.image.composite_over(black).data)?;
-        png(&dir.join(format!("{}_normal.png", v.name)), w, h, r.normal.iter().map(|n| 0.5 + 0.5 * n).collect())?;
-        png(&dir.join(format!("{}_roughness.png", v.name)), w, h, r.roughness.clone())?;
-        // Full-precision material maps for other tools.
-        svgir_io::write_exr(dir.join(format!("{}_albedo.exr", v.name)), &Image::from_data(w, h, 3, r.albedo.clone()))?;
-        svgir_io::write_exr(
-            dir.join(format!("{}_roughness.exr", v.name)),
-            &Image::from_data(w, h, 1, r.roughness.clone()),
-        )?;
-        svgir_io::write_exr(dir.join(format!("{}_normal.exr", v.name)), &Image::from_data(w, h, 3, r.normal.clone()))?;
-        if let Some(gt) = &v.albedo {
-            scale_acc.add_view(&r.albedo, &gt.data, &mask)?;
-        }
-        if let Some(gt) = &v.normal {
-            normal_mae.add_view(&r.normal, &gt.data, &mask)?;
-            png(&dir.join(format!("{}_gt_normal.png", v.name)), w, h, gt.data.iter().map(|n| 0.5 + 0.5 * n).collect())?;
-        }
-        if let Some(gt) = &v.roughness {
-            for (p, (g, m)) in r.roughness.iter().zip(gt.data.iter().zip(&mask)) {
-                if *m > 0.5 {
-                    rough_se += ((p - g) as f64).powi(2);
-                    rough_n += 1;
-                }
-            }
-            png(&dir.join(format!("{}_gt_roughness.png", v.name)), w, h, gt.data.clone())?;
-        }
-        renders.push((r, mask));
-    }
-    let mut result = json!({ "nvs": mean_json(&nvs), "views": ds.test.len() });
-    if let Some(mae) = normal_mae.mean_deg() {
-        result["normal_mae_deg"] = json!(mae);
-    }
-    if rough_n > 0 {
-        result["roughness_mse"] = json!(rough_se / rough_n as f64);
-    }
-    let scale = scale_acc.scale().unwrap_or([1.0; 3]);
-    let mut albedo = Vec::new();
-    for (v, (r, mask)) in ds.test.iter().zip(&renders) {
-        let Some(gt) = &v.albedo else { continue };
-        let (w, h) = (r.width, r.height);
-        let srgb = |x: &[f32]| x.iter().map(|c| svgir_core::color::linear_to_srgb(*c)).collect::<Vec<f32>>();
-        let pred = srgb(&svgir_metrics::apply_albedo_scale(&r.albedo, scale, mask, black)?);
-        let gt_s = srgb(&svgir_metrics::apply_albedo_scale(&gt.data, [1.0; 3], mask, black)?);
-        albedo.push(evaluate_pair(
-            &Image::from_data(w, h, 3, pred.clone()),
-            &Image::from_data(w, h, 3, gt_s.clone()),
-            None,
-            variant,
-            lpips,
-        )?);
-        png(&dir.join(format!("{}_albedo.png", v.name)), w, h, pred)?;
-        png(&dir.join(format!("{}_gt_albedo.png", v.name)), w, h, gt_s)?;
-    }
-    if !albedo.is_empty() {
-        result["albedo"] = mean_json(&albedo);
-        result["albedo_scale"] = json!(scale);
-    }
-    // Relighting (SPEC 7): K micro-buffers, one-bounce indirect per light.
-    let mut per_light = serde_json::Map::new();
-    let mut all = Vec::new();
-    let relighter = if ds.relight_lights.iter().any(|l| l.envmap_path.is_some()) {
-        let r = Relighter::new(s2, sampling)?;
-        eprintln!(
-            "relighting: traced K = {} directions and {} lights in {:.1} s",
-            sampling.directions, sampling.lights, r.trace_seconds
-        );
-        result["relight_directions"] = json!(sampling.directions);
-        result["relight_lights"] = json!(sampling.lights);
-        result["relight_bounces"] = json!(sampling.bounces);
-        Some(r)
-    } else {
-        None
-    };
-    for light in &ds.relight_lights {
-        let (Some(path), Some(relighter)) = (&light.envmap_path, &relighter) else { continue };
-        let t0 = std::time::Instant::now();
-        let lit = relighter.prepare(s2, svgir_io::read_envmap(path, light.strength, s2.config.env_height)?)?;
-        eprintln!("relighting: one-bounce light under {} in {:.1} s", light.name, t0.elapsed().as_secs_f64());
-        let mut ms = Vec::new();
-        for (v, (_, mask)) in ds.test.iter().zip(&renders) {
-            let Some(gt) = v.relit.get(&light.name) else { continue };
-            let r = relighter.render(s2, &v.camera, black, &lit, scale)?;
-            // SPEC 8: the predicted colour and the photo are both composited with the GT mask on
-            // black, so the prediction enters as straight colour (not already multiplied by its
-            // own opacity, which would count the coverage twice at edges).
-            let pred = Image::from_data(r.width, r.height, 3, straight_colour(&r.image, &r.alpha));
-            ms.push(evaluate_pair(&pred, gt, Some(mask), variant, lpips)?);
-            let masked: Vec<f32> = pred
-                .data
-                .chunks(3)
-                .zip(mask)
-                .flat_map(|(p, m)| p.iter().map(move |c| (c * m).clamp(0.0, 1.0)))
-                .collect();
-            png(&dir.join(format!("{}_relit_{}.png", v.name, light.name)), r.width, r.height, masked)?;
-            png(
-                &dir.join(format!("{}_gt_relit_{}.png", v.name, light.name)),
-                r.width,
-                r.height,
-                gt.composite_over(black).data,
-            )?;
-        }
-        if let Some(first) = ds.test.first() {
-            let tdir = out.join("turntable");
-            std::fs::create_dir_all(&tdir)?;
-            for (f, cam) in turntable_cameras(ds, &first.camera, turntable).iter().enumerate() {
-                let r = relighter.render(s2, cam, black, &lit, scale)?;
-                png(
-                    &tdir.join(format!("{}_{f:03}.png", light.name)),
-                    r.width,
-                    r.height,
-                    r.image.iter().map(|c| c.clamp(0.0, 1.0)).collect(),
-                )?;
-            }
-        }
-        all.extend_from_slice(&ms);
-        per_light.insert(light.name.clone(), mean_json(&ms));
-    }
-    if !all.is_empty() {
-        result["relight"] = json!({"mean": mean_json(&all), "per_light": per_light});
-    }
-    Ok(result)
 }

@@ -8,6 +8,7 @@ pub mod inverse;
 pub mod oracle_materials;
 pub mod relight;
 pub mod report;
+pub mod spec8;
 pub mod train;
 
 use clap::Args;

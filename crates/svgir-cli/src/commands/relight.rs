@@ -4,7 +4,7 @@
 //! (rho = 1, radiance not clamped), and the dataset's test cameras (and optionally a turntable)
 //! are rendered to PNG.
 
-use super::inverse::turntable_cameras;
+use super::spec8::turntable_cameras;
 use anyhow::{Context, Result};
 use clap::Args;
 use std::path::PathBuf;
