@@ -106,9 +106,11 @@ pub fn run(args: DemoArgs) -> Result<()> {
         // The quick demo (a CI test) keeps its 16 training directions; the full demo relights
         // with 128 rather than SPEC 7's 384 (`svgir inverse`'s default) to stay a few minutes
         // long (K is recorded in eval.json).
-        relight_directions: if args.quick { 16 } else { 128 },
-        relight_lights: svgir_train::relight::RELIGHT_LIGHTS,
-        relight_bounces: svgir_train::relight::RELIGHT_BOUNCES,
+        relight: super::spec8::EvalRelightArgs {
+            relight_directions: if args.quick { 16 } else { 128 },
+            relight_lights: svgir_train::relight::RELIGHT_LIGHTS,
+            relight_bounces: svgir_train::relight::RELIGHT_BOUNCES,
+        },
     })?;
     let report = args.out.join("report.html");
     super::report::write_report(&args.out, &report)?;

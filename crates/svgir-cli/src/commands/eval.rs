@@ -49,16 +49,8 @@ pub struct EvalArgs {
     /// Stage-2 runs: the dataset, if it moved (default: the path in the run's config.json).
     #[arg(long)]
     pub data: Option<PathBuf>,
-    /// Stage-2 runs: directions per Gaussian when relighting (SPEC 7: 384).
-    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_DIRECTIONS)]
-    pub relight_directions: usize,
-    /// Stage-2 runs: brightest texels of each map shaded as directional lights (0: SPEC 7's K
-    /// directions alone).
-    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_LIGHTS)]
-    pub relight_lights: usize,
-    /// Stage-2 runs: diffuse bounces added to the one-bounce indirect light (0: Eqn 13 alone).
-    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_BOUNCES)]
-    pub relight_bounces: usize,
+    #[command(flatten)]
+    pub relight: super::spec8::EvalRelightArgs,
     /// LPIPS network (weights from --lpips-weights or ../shared/data/lpips).
     #[arg(long, value_enum, default_value_t = LpipsNet::Vgg)]
     pub lpips: LpipsNet,
@@ -161,11 +153,7 @@ fn scene_name(dir: &Path) -> String {
 /// SPEC 8 on each stage-2 run (or its saved `eval.json` with `--cached`).
 fn run_stage2(args: &EvalArgs, dirs: &[PathBuf]) -> Result<()> {
     let lpips = if args.cached { None } else { super::spec8::load_lpips(args.lpips)? };
-    let sampling = svgir_train::relight::RelightSampling {
-        directions: args.relight_directions,
-        lights: args.relight_lights,
-        bounces: args.relight_bounces,
-    };
+    let sampling = args.relight.sampling();
     let mut rows = Vec::new();
     for dir in dirs {
         let saved_path = dir.join("eval.json");

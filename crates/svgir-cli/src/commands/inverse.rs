@@ -14,7 +14,6 @@ use std::path::{Path, PathBuf};
 use svgir_core::{Dataset, LightInfo};
 use svgir_pbr::EnvActivation;
 use svgir_shading::Diffuse;
-use svgir_train::relight::RelightSampling;
 use svgir_train::stage2::{Coverage, EnvInit, GreyLight, Stage2Rates, Stage2Weights};
 use svgir_train::{checkpoint, Stage2, Stage2Config};
 
@@ -84,18 +83,8 @@ pub struct InverseArgs {
     /// Output folder (default RUN/stage2).
     #[arg(long)]
     pub out: Option<PathBuf>,
-    /// Directions per Gaussian when relighting for the evaluation (SPEC 7: 384; memory is
-    /// Gaussians x K x 16 bytes).
-    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_DIRECTIONS)]
-    pub relight_directions: usize,
-    /// Brightest texels of each relighting map shaded as directional lights with traced
-    /// visibility when relighting for the evaluation (0: the K directions alone, as SPEC 7).
-    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_LIGHTS)]
-    pub relight_lights: usize,
-    /// Diffuse bounces of indirect light added to SPEC 7's one-bounce term when relighting for
-    /// the evaluation (0: Eqn 13 alone).
-    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_BOUNCES)]
-    pub relight_bounces: usize,
+    #[command(flatten)]
+    pub relight: super::spec8::EvalRelightArgs,
     /// Initial learned light: SPEC 4's per-texel random init, or a uniform grey at its mean.
     #[arg(long, value_enum, default_value_t = EnvInitArg::Random)]
     pub env_init: EnvInitArg,
@@ -432,11 +421,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         set_true_light(&mut s2, &dataset)?;
     }
     let lpips = super::spec8::load_lpips(args.lpips)?;
-    let sampling = RelightSampling {
-        directions: args.relight_directions,
-        lights: args.relight_lights,
-        bounces: args.relight_bounces,
-    };
+    let sampling = args.relight.sampling();
     let eval = super::spec8::evaluate(&s2, &dataset, &out, lpips.as_ref(), args.turntable, sampling)?;
     let its = s2.iteration.max(1) as f64;
     let t = &s2.times;

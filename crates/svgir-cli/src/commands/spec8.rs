@@ -15,6 +15,33 @@ use svgir_train::relight::{RelightSampling, Relighter};
 use svgir_train::stage1::alpha_of;
 use svgir_train::Stage2;
 
+/// How the evaluation relights (SPEC 7), for `svgir inverse` and `svgir eval`.
+#[derive(clap::Args, Clone, Copy, Debug)]
+pub struct EvalRelightArgs {
+    /// Directions per Gaussian when relighting for the evaluation (SPEC 7: 384; memory is
+    /// Gaussians x K x 16 bytes).
+    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_DIRECTIONS)]
+    pub relight_directions: usize,
+    /// Brightest texels of each relighting map shaded as directional lights with traced
+    /// visibility when relighting for the evaluation (0: the K directions alone, as SPEC 7).
+    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_LIGHTS)]
+    pub relight_lights: usize,
+    /// Diffuse bounces of indirect light added to SPEC 7's one-bounce term when relighting for
+    /// the evaluation (0: Eqn 13 alone).
+    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_BOUNCES)]
+    pub relight_bounces: usize,
+}
+
+impl EvalRelightArgs {
+    pub fn sampling(&self) -> RelightSampling {
+        RelightSampling {
+            directions: self.relight_directions,
+            lights: self.relight_lights,
+            bounces: self.relight_bounces,
+        }
+    }
+}
+
 /// The dataset a stage-1 run was trained on, with its test views (`data` overrides the path in
 /// `RUN/config.json`), loaded with the run's own resolution options; and its path.
 pub fn load_run_dataset(stage1_run: &Path, data: Option<&Path>) -> Result<(Dataset, PathBuf)> {
