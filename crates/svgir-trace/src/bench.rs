@@ -1,6 +1,7 @@
 //! Timing table for `svgir bench trace`: BVH build, ray throughput (all-hits march and first hit),
-//! K = 64 micro-buffer fill and the one-bounce gather over it (Eqn 13, M = 4, a constant map) on [`crate::scenes::object_scene`] scenes of 10k / 100k / 300k
-//! surfels, on 1 thread and on `threads` threads (each in its own rayon pool).
+//! K = 64 micro-buffer fill and the one-bounce gather over it (Eqn 13, M = 4, a constant map) on
+//! [`crate::scenes::object_scene`] scenes of 10k / 100k / 300k surfels, on 1 thread and on
+//! `threads` threads (each in its own rayon pool).
 
 use crate::scenes::object_scene;
 use crate::traverse::{march, HitSource, Ray, TraceParams};

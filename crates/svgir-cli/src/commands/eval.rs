@@ -131,12 +131,7 @@ fn pairs(args: &EvalArgs) -> Result<Vec<(String, PathBuf, PathBuf)>> {
 
 /// The stage-2 folder of `run`: `run` itself or `run/stage2`, if its config.json is stage 2's.
 fn stage2_folder(run: &Path) -> Option<PathBuf> {
-    let is_stage2 = |d: &Path| {
-        std::fs::read_to_string(d.join("config.json"))
-            .ok()
-            .and_then(|t| serde_json::from_str::<serde_json::Value>(&t).ok())
-            .is_some_and(|c| c.get("stage2").is_some())
-    };
+    let is_stage2 = |d: &Path| super::read_json(&d.join("config.json"), "").is_ok_and(|c| c.get("stage2").is_some());
     [run.to_path_buf(), run.join("stage2")].into_iter().find(|d| is_stage2(d))
 }
 
@@ -157,19 +152,12 @@ fn run_stage2(args: &EvalArgs, dirs: &[PathBuf]) -> Result<()> {
     let mut rows = Vec::new();
     for dir in dirs {
         let saved_path = dir.join("eval.json");
-        let read_saved = || -> Result<serde_json::Value> {
-            let text = std::fs::read_to_string(&saved_path)
-                .with_context(|| format!("{}: cannot read (evaluate without --cached)", saved_path.display()))?;
-            serde_json::from_str(&text).with_context(|| format!("{}: not JSON", saved_path.display()))
-        };
+        let read_saved = || super::read_json(&saved_path, "evaluate without --cached");
         let result = if args.cached {
             read_saved()?
         } else {
             let cfg_path = dir.join("config.json");
-            let cfg: serde_json::Value = serde_json::from_str(
-                &std::fs::read_to_string(&cfg_path).with_context(|| format!("{}: cannot read", cfg_path.display()))?,
-            )
-            .with_context(|| format!("{}: not JSON", cfg_path.display()))?;
+            let cfg = super::read_json(&cfg_path, "")?;
             // The stage-1 run: RUN for RUN/stage2, else the one the config records.
             let stage1 = match dir.parent() {
                 Some(p) if dir.ends_with("stage2") && p.join("config.json").exists() => p.to_path_buf(),

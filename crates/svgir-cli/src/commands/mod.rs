@@ -52,6 +52,15 @@ pub fn loss_weights<W: svgir_train::NamedWeights>(overrides: &[String]) -> anyho
     Ok(weights)
 }
 
+/// A JSON file (a run's `config.json` or `eval.json`); errors name the file, and a missing or
+/// unreadable one says `missing_hint` (e.g. which command writes it) when that is not empty.
+pub fn read_json(path: &std::path::Path, missing_hint: &str) -> anyhow::Result<serde_json::Value> {
+    use anyhow::Context;
+    let hint = if missing_hint.is_empty() { String::new() } else { format!(" ({missing_hint})") };
+    let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read{hint}", path.display()))?;
+    serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))
+}
+
 #[cfg(test)]
 mod tests {
     use super::loss_weights;

@@ -44,11 +44,7 @@ pub struct RelightArgs {
 pub fn run(args: RelightArgs) -> Result<()> {
     let stage2_dir = args.run.join("stage2");
     let cfg_path = stage2_dir.join("config.json");
-    let cfg: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(&cfg_path)
-            .with_context(|| format!("{}: cannot read (run `svgir inverse` first)", cfg_path.display()))?,
-    )
-    .with_context(|| format!("{}: not JSON", cfg_path.display()))?;
+    let cfg = super::read_json(&cfg_path, "run `svgir inverse` first")?;
     let data = PathBuf::from(cfg["data"].as_str().with_context(|| format!("{}: no data path", cfg_path.display()))?);
     let s2 = checkpoint::load_stage2(&stage2_dir.join("checkpoint.bin"))?;
     let env = svgir_io::read_envmap(&args.envmap, args.strength, s2.config.env_height)?;

@@ -46,10 +46,7 @@ impl EvalRelightArgs {
 /// `RUN/config.json`), loaded with the run's own resolution options; and its path.
 pub fn load_run_dataset(stage1_run: &Path, data: Option<&Path>) -> Result<(Dataset, PathBuf)> {
     let cfg_path = stage1_run.join("config.json");
-    let run_cfg: serde_json::Value = serde_json::from_str(
-        &std::fs::read_to_string(&cfg_path).with_context(|| format!("{}: cannot read", cfg_path.display()))?,
-    )
-    .with_context(|| format!("{}: not JSON", cfg_path.display()))?;
+    let run_cfg = super::read_json(&cfg_path, "")?;
     let data = match data {
         Some(d) => d.to_path_buf(),
         None => {
