@@ -8,7 +8,8 @@
 use crate::adam::{exp_lr, AdamGroup};
 use crate::config::Stage1Config;
 use crate::densify::{densify_and_prune, reset_opacity, DensifyReport, DensifyStats, Groups};
-use crate::losses::{depth_normal::depth_normal_loss, l1::l1_loss, mask};
+use crate::losses::mask;
+use crate::losses::objective::{stage1_objective, ObjectiveInput, ObjectiveTarget};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 use svgir_core::{Camera, Dataset, Image, Rng, Surfels};
@@ -155,34 +156,22 @@ impl Stage1 {
 
         let (w, h) = (view.camera.width() as usize, view.camera.height() as usize);
         let npix = w * h;
-        let mut v_color = vec![0.0f32; npix * 3];
-        let l1 = l1_loss(&out.color, &gt, cfg.loss.l1, &mut v_color);
-        let (ssim, v_ssim) = svgir_metrics::ssim_with_grad(&out.color, &gt, svgir_metrics::Shape::new(w, h, 3))
-            .expect("render and target have the same shape");
-        for (g, s) in v_color.iter_mut().zip(&v_ssim) {
-            // loss term is weight * (1 - SSIM)
-            *g -= cfg.loss.ssim * s;
-        }
-        let mut loss = cfg.loss.l1 * l1 + cfg.loss.ssim * (1.0 - ssim);
-        let mut v_alpha = vec![0.0f32; npix];
         let target = &self.targets[view_idx];
-        if cfg.use_mask {
-            loss += cfg.loss.mask * mask::mask_loss(&out.alpha, &target.dilated, cfg.loss.mask, &mut v_alpha);
-            loss += cfg.loss.entropy * mask::entropy_loss(&out.alpha, &target.alpha, cfg.loss.entropy, &mut v_alpha);
-        }
         let t_frac = (it as f32 / cfg.iterations as f32).min(1.0);
-        let w_dn = cfg.loss.normal_start + cfg.loss.normal_ramp * t_frac;
-        let (dn, g_dn) = depth_normal_loss(&out.depth, &out.alpha, &out.normal, &view.camera);
-        loss += w_dn * dn;
-        let v_depth: Vec<f32> = g_dn.v_depth_sum.iter().map(|g| w_dn * g).collect();
-        let v_normal: Vec<f32> = g_dn.v_normal.iter().map(|g| w_dn * g).collect();
-        for (a, g) in v_alpha.iter_mut().zip(&g_dn.v_opacity) {
-            *a += w_dn * g;
-        }
-        let v_dist = vec![cfg.loss.distortion; npix];
-        if cfg.loss.distortion > 0.0 {
-            loss += cfg.loss.distortion * out.distortion.iter().sum::<f32>() / npix as f32;
-        }
+        let obj = stage1_objective(
+            &cfg.loss,
+            t_frac,
+            cfg.use_mask,
+            &ObjectiveInput {
+                color: &out.color,
+                alpha: &out.alpha,
+                depth: &out.depth,
+                normal: &out.normal,
+                distortion: &out.distortion,
+            },
+            &ObjectiveTarget { rgb: &gt, alpha: &target.alpha, dilated: &target.dilated },
+            &view.camera,
+        );
         let mse = out.color.iter().zip(&gt).map(|(a, b)| ((a - b) as f64).powi(2)).sum::<f64>() / (npix * 3) as f64;
         let t2 = Instant::now();
 
@@ -192,11 +181,11 @@ impl Stage1 {
             &state,
             &out,
             &OutputGrads {
-                color: Some(&v_color),
-                alpha: Some(&v_alpha),
-                depth: Some(&v_depth),
-                normal: Some(&v_normal),
-                distortion: (cfg.loss.distortion > 0.0).then_some(&v_dist[..]),
+                color: Some(&obj.v_color),
+                alpha: Some(&obj.v_alpha),
+                depth: Some(&obj.v_depth),
+                normal: Some(&obj.v_normal),
+                distortion: obj.v_distortion.as_deref(),
                 extra: None,
             },
         );
@@ -253,9 +242,9 @@ impl Stage1 {
         StepStats {
             iteration: it,
             view: view_idx,
-            loss,
-            l1,
-            ssim,
+            loss: obj.loss,
+            l1: obj.l1,
+            ssim: obj.ssim,
             psnr: psnr_of_mse(mse),
             num_gaussians: self.surfels.len(),
             densify,

@@ -5,4 +5,5 @@
 pub mod depth_normal;
 pub mod l1;
 pub mod mask;
+pub mod objective;
 pub mod smoothness;

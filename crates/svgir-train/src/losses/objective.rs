@@ -1,0 +1,83 @@
+//! Stage 1's assembled per-pixel objective (SPEC 2): L1 + D-SSIM on colour, mask and entropy on
+//! opacity, depth-normal consistency, and 2DGS depth distortion, with the gradients it hands
+//! the rasterizer's backward. One function so that the whole sum can be checked against finite
+//! differences (`tests/objective.rs`), not only its parts.
+
+use super::{depth_normal::depth_normal_loss, l1::l1_loss, mask};
+use crate::config::LossWeights;
+use svgir_core::Camera;
+
+/// What the objective reads of one view besides the render.
+pub struct ObjectiveTarget<'a> {
+    /// Photo RGB over the render's background, `H*W*3`.
+    pub rgb: &'a [f32],
+    /// Photo alpha, `H*W` (1 for photos without a mask).
+    pub alpha: &'a [f32],
+    /// 9x9-dilated mask (SPEC 2's mask loss).
+    pub dilated: &'a [bool],
+}
+
+/// The render outputs the objective depends on.
+pub struct ObjectiveInput<'a> {
+    pub color: &'a [f32],
+    pub alpha: &'a [f32],
+    /// Un-normalised `sum w z` as the rasterizer outputs it.
+    pub depth: &'a [f32],
+    pub normal: &'a [f32],
+    pub distortion: &'a [f32],
+}
+
+/// Loss value, its parts, and `d loss / d output` per pixel.
+pub struct Objective {
+    pub loss: f32,
+    pub l1: f32,
+    pub ssim: f32,
+    pub v_color: Vec<f32>,
+    pub v_alpha: Vec<f32>,
+    pub v_depth: Vec<f32>,
+    pub v_normal: Vec<f32>,
+    /// `None` when the distortion weight is 0 (the rasterizer then skips its output).
+    pub v_distortion: Option<Vec<f32>>,
+}
+
+/// SPEC 2's loss at training progress `t_frac` in [0, 1] (the depth-normal weight ramps with it).
+/// `use_mask` switches the mask and entropy losses on (datasets with a meaningful alpha).
+pub fn stage1_objective(
+    w: &LossWeights,
+    t_frac: f32,
+    use_mask: bool,
+    out: &ObjectiveInput,
+    target: &ObjectiveTarget,
+    camera: &Camera,
+) -> Objective {
+    let (width, height) = (camera.width() as usize, camera.height() as usize);
+    let npix = width * height;
+    let mut v_color = vec![0.0f32; npix * 3];
+    let l1 = l1_loss(out.color, target.rgb, w.l1, &mut v_color);
+    let (ssim, v_ssim) = svgir_metrics::ssim_with_grad(out.color, target.rgb, svgir_metrics::Shape::new(width, height, 3))
+        .expect("render and target have the same shape");
+    for (g, s) in v_color.iter_mut().zip(&v_ssim) {
+        // The loss term is weight * (1 - SSIM).
+        *g -= w.ssim * s;
+    }
+    let mut loss = w.l1 * l1 + w.ssim * (1.0 - ssim);
+    let mut v_alpha = vec![0.0f32; npix];
+    if use_mask {
+        loss += w.mask * mask::mask_loss(out.alpha, target.dilated, w.mask, &mut v_alpha);
+        loss += w.entropy * mask::entropy_loss(out.alpha, target.alpha, w.entropy, &mut v_alpha);
+    }
+    let w_dn = w.normal_start + w.normal_ramp * t_frac.clamp(0.0, 1.0);
+    let (dn, g_dn) = depth_normal_loss(out.depth, out.alpha, out.normal, camera);
+    loss += w_dn * dn;
+    let v_depth = g_dn.v_depth_sum.iter().map(|g| w_dn * g).collect();
+    let v_normal = g_dn.v_normal.iter().map(|g| w_dn * g).collect();
+    for (a, g) in v_alpha.iter_mut().zip(&g_dn.v_opacity) {
+        *a += w_dn * g;
+    }
+    // 2DGS: lambda_dist * mean over pixels, so each pixel's gradient is lambda / npix.
+    let v_distortion = (w.distortion > 0.0).then(|| {
+        loss += w.distortion * out.distortion.iter().map(|&d| d as f64).sum::<f64>() as f32 / npix as f32;
+        vec![w.distortion / npix as f32; npix]
+    });
+    Objective { loss, l1, ssim, v_color, v_alpha, v_depth, v_normal, v_distortion }
+}
