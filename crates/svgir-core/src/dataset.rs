@@ -1,5 +1,5 @@
-//! A multi-view dataset in memory, whatever layout it came from (NeRF/Blender, TensoIR, COLMAP).
-//! Loaders live in `svgir-io`; this is only the data.
+//! A multi-view dataset in memory, whatever layout it came from (NeRF/Blender, TensoIR, COLMAP,
+//! nerfstudio `transforms.json`). Loaders live in `svgir-io`; this is only the data.
 //!
 //! Image encodings, fixed for all loaders:
 //! - `View::image`: RGBA as stored in the file, sRGB-encoded colour in [0, 1], straight (not
@@ -9,6 +9,10 @@
 //!   where the object is (alpha > 0), zero elsewhere.
 //! - `roughness`: 1 channel in [0, 1].
 //! - `relit[name]`: RGBA like `image`, the same view under light `name`.
+//!
+//! Foreground masks always arrive as `View::image`'s alpha; [`Dataset::masks`] says whether that
+//! alpha *is* a mask (and where it came from) or just 1 everywhere, so callers need not guess
+//! from pixel values (area resizing leaves alpha at 0.99999 on photos that have no mask).
 
 use crate::{Camera, Image};
 use glam::Vec3;
@@ -44,9 +48,25 @@ pub struct PointCloud {
     pub colors: Vec<[f32; 3]>,
 }
 
+/// Where the views' foreground masks (their alpha channel) came from.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub enum MaskSource {
+    /// No masks: alpha is 1 except where undistortion looked outside a photo.
+    #[default]
+    None,
+    /// The image files' own alpha channel (rendered RGBA datasets, RGBA photos).
+    Alpha,
+    /// One mask file per photo in this folder (COLMAP captures with `masks/`).
+    Folder(PathBuf),
+    /// Per-frame `mask_path` entries of a nerfstudio `transforms.json`.
+    PerFrame,
+}
+
 #[derive(Clone, Debug)]
 pub struct Dataset {
     pub name: String,
+    /// Where it was loaded from: the dataset folder, or the json file when a `transforms.json`
+    /// capture was given by its file.
     pub root: PathBuf,
     pub train: Vec<View>,
     pub test: Vec<View>,
@@ -57,9 +77,16 @@ pub struct Dataset {
     pub relight_lights: Vec<LightInfo>,
     /// Camera model name as read (e.g. "PINHOLE", "blender"), for reporting.
     pub camera_model: String,
+    /// Whether the images' alpha is a foreground mask, and its source.
+    pub masks: MaskSource,
 }
 
 impl Dataset {
+    /// True when the views' alpha channel is a foreground mask (see [`MaskSource`]).
+    pub fn has_masks(&self) -> bool {
+        self.masks != MaskSource::None
+    }
+
     pub fn all_views(&self) -> impl Iterator<Item = &View> {
         self.train.iter().chain(self.test.iter())
     }

@@ -20,7 +20,7 @@ pub mod sh;
 pub mod surfel;
 
 pub use camera::{Camera, CameraError, Intrinsics};
-pub use dataset::{Dataset, LightInfo, PointCloud, View};
+pub use dataset::{Dataset, LightInfo, MaskSource, PointCloud, View};
 pub use envmap::EnvMap;
 pub use float::Float;
 pub use image::Image;

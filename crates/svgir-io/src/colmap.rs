@@ -5,20 +5,30 @@
 //! and report truncation and unknown camera models as errors (fuzzed in `tests/fuzz.rs`).
 //! Loading: images sorted by name; **every 8th image (index 0, 8, 16, ...) is a test view**, the
 //! Mip-NeRF 360 / 3DGS `llffhold = 8` convention. Distorted cameras are undistorted on load
-//! into pinhole images with the same fx, fy, cx, cy ([`undistort_image`]). Photos have no mask:
-//! alpha is 1 except where undistortion looks outside the photo. Sparse points become
-//! [`Dataset::points`] with colours / 255.
+//! into pinhole images with the same fx, fy, cx, cy ([`undistort_image`]); each image keeps its
+//! own camera's size. Photos in `images/` that the model does not register are ignored.
+//!
+//! Masks: with a `masks/` folder, every photo `images/NAME.EXT` takes its alpha from
+//! `masks/NAME.{png,jpg,jpeg}` or COLMAP's `masks/NAME.EXT.png` ([`find_colmap_mask`]); a
+//! missing or wrongly sized mask is an error. Without one, a photo's own alpha channel is kept
+//! (a mask if it is below 1 somewhere), else alpha is 1 except where undistortion looks
+//! outside the photo. Masks are applied before undistortion so they warp with the photo.
+//!
+//! Sparse points become [`Dataset::points`] with colours / 255; a model without `points3D.bin`
+//! or with zero points gives `None`, so training falls back to its own initialisation instead
+//! of starting from no surfels at all.
 
 use crate::camera_model::{undistort_image, CameraModel};
 use crate::error::{read_bytes, ErrorKind, Result, WithPath};
 use crate::image_io::to_rgba;
 use crate::load::{check_size, finish_view, read_view_image, select_views, LoadOptions};
+use crate::mask::{apply_mask, find_colmap_mask, stored_alpha_is_mask};
 use crate::nerf::dataset_name;
 use glam::{DMat3, DQuat, Vec3};
 use rayon::prelude::*;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use svgir_core::{Camera, Dataset, Intrinsics, PointCloud, View};
+use svgir_core::{Camera, Dataset, Intrinsics, MaskSource, PointCloud, View};
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct ColmapCamera {
@@ -194,7 +204,7 @@ pub fn read_model(dir: &Path) -> Result<ColmapModel> {
     let (b, p) = read("images.bin")?;
     let images = parse_images(&b).at(&p)?;
     let p = dir.join("points3D.bin");
-    // A model without points is still usable (cameras from another source).
+    // A model without points is still usable (cameras from another source); `load` gives None.
     let points = if p.is_file() { parse_points(&read_bytes(&p)?).at(&p)? } else { Vec::new() };
     Ok(ColmapModel { cameras, images, points })
 }
@@ -223,7 +233,14 @@ pub fn image_camera(model: &ColmapModel, index: usize) -> std::result::Result<Ca
     Camera::from_w2c(r, t, k).map_err(|e| err(e.to_string()))
 }
 
-fn load_view(root: &Path, model: &ColmapModel, index: usize, opts: &LoadOptions) -> Result<View> {
+/// Loads one registered image; the flag says whether the photo file's own alpha was a mask.
+fn load_view(
+    root: &Path,
+    model: &ColmapModel,
+    index: usize,
+    masks: Option<&Path>,
+    opts: &LoadOptions,
+) -> Result<(View, bool)> {
     let images_bin = sparse_dir(root).unwrap_or_else(|| root.join("sparse")).join("images.bin");
     let im = &model.images[index];
     let camera = image_camera(model, index).at(&images_bin)?;
@@ -231,29 +248,37 @@ fn load_view(root: &Path, model: &ColmapModel, index: usize, opts: &LoadOptions)
     let path = root.join("images").join(&im.name);
     let photo = read_view_image(&path, "view image")?;
     check_size(&photo, index, (cam.width, cam.height), &path)?;
-    let photo = to_rgba(photo);
+    let stored_mask = stored_alpha_is_mask(&photo);
+    let photo = match masks {
+        Some(dir) => apply_mask(photo, &path, &find_colmap_mask(dir, &im.name)?)?,
+        None => to_rgba(photo),
+    };
     let image = if cam.model.is_pinhole() { photo } else { undistort_image(&photo, cam.model, &cam.params) };
     let name = Path::new(&im.name).file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    finish_view(
-        View { name, camera, image, albedo: None, normal: None, roughness: None, relit: BTreeMap::new() },
-        opts,
-        &path,
-    )
+    let v = View { name, camera, image, albedo: None, normal: None, roughness: None, relit: BTreeMap::new() };
+    Ok((finish_view(v, opts, &path)?, stored_mask))
 }
 
-/// Loads a COLMAP dataset (see the module docs for the split).
+/// Loads a COLMAP dataset (see the module docs for the split, masks and points).
 pub fn load(root: &Path, opts: &LoadOptions) -> Result<Dataset> {
     let dir = sparse_dir(root).ok_or_else(|| ErrorKind::Missing("sparse/cameras.bin".into()).at(root))?;
     let mut model = read_model(&dir)?;
     model.images.sort_by(|a, b| a.name.cmp(&b.name));
+    let masks_dir = Some(root.join("masks")).filter(|d| d.is_dir());
     let (test_idx, train_idx): (Vec<usize>, Vec<usize>) = (0..model.images.len()).partition(|i| i % 8 == 0);
-    let load_split = |idx: &[usize]| -> Result<Vec<View>> {
+    let load_split = |idx: &[usize]| -> Result<Vec<(View, bool)>> {
         let keep = select_views(idx.len(), opts.max_views);
-        let views: Vec<Result<View>> = keep.par_iter().map(|&k| load_view(root, &model, idx[k], opts)).collect();
+        let views: Vec<Result<(View, bool)>> =
+            keep.par_iter().map(|&k| load_view(root, &model, idx[k], masks_dir.as_deref(), opts)).collect();
         views.into_iter().collect()
     };
     let train = load_split(&train_idx)?;
     let test = if opts.load_test { load_split(&test_idx)? } else { Vec::new() };
+    let masks = match masks_dir {
+        Some(d) => MaskSource::Folder(d),
+        None if train.iter().chain(&test).any(|v| v.1) => MaskSource::Alpha,
+        None => MaskSource::None,
+    };
     let points = PointCloud {
         positions: model.points.iter().map(|p| Vec3::new(p.xyz[0] as f32, p.xyz[1] as f32, p.xyz[2] as f32)).collect(),
         colors: model.points.iter().map(|p| p.rgb.map(|c| c as f32 / 255.0)).collect(),
@@ -264,11 +289,12 @@ pub fn load(root: &Path, opts: &LoadOptions) -> Result<Dataset> {
     Ok(Dataset {
         name: dataset_name(root),
         root: root.to_path_buf(),
-        train,
-        test,
-        points: Some(points),
+        train: train.into_iter().map(|v| v.0).collect(),
+        test: test.into_iter().map(|v| v.0).collect(),
+        points: Some(points).filter(|p| !p.positions.is_empty()),
         train_light: None,
         relight_lights: Vec::new(),
         camera_model: models.join("+"),
+        masks,
     })
 }

@@ -7,7 +7,7 @@
 //! Normals are renormalised after filtering. Only downscaling is allowed.
 
 use crate::error::{ErrorKind, Result, WithPath};
-use crate::{colmap, nerf, tensoir};
+use crate::{colmap, nerf, tensoir, transforms};
 use std::path::Path;
 use svgir_core::{Dataset, Image, View};
 
@@ -39,10 +39,43 @@ pub enum Layout {
     TensoIr,
     /// COLMAP: `sparse/{cameras,images,points3D}.bin` (or `sparse/0/`) + `images/`.
     Colmap,
+    /// nerfstudio / instant-ngp: one `transforms.json` for all frames ([`transforms`]).
+    Transforms,
 }
 
-/// Which layout the folder `root` holds.
+impl Layout {
+    /// The layout's name as `svgir info` prints it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Layout::Nerf => "NeRF/Blender",
+            Layout::TensoIr => "TensoIR",
+            Layout::Colmap => "COLMAP",
+            Layout::Transforms => "transforms.json",
+        }
+    }
+}
+
+/// The folder of a dataset path: `root` itself, or the folder of a json file given instead.
+fn dataset_dir(root: &Path) -> &Path {
+    match root.parent() {
+        Some(p) if root.is_file() => {
+            if p.as_os_str().is_empty() {
+                Path::new(".")
+            } else {
+                p
+            }
+        }
+        _ => root,
+    }
+}
+
+/// Which layout the folder `root` holds. A json file is accepted too: `transforms_<split>.json`
+/// stands for its folder, any other json for a single-file `transforms.json` capture.
 pub fn detect_layout(root: &Path) -> Result<Layout> {
+    if root.is_file() && root.extension().is_some_and(|e| e.eq_ignore_ascii_case("json")) {
+        let name = root.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+        return if name.starts_with("transforms_") { detect_layout(dataset_dir(root)) } else { Ok(Layout::Transforms) };
+    }
     if !root.is_dir() {
         let kind = if root.exists() { ErrorKind::invalid("not a folder") } else { ErrorKind::NotFound };
         return Err(kind.at(root));
@@ -56,20 +89,24 @@ pub fn detect_layout(root: &Path) -> Result<Layout> {
     if root.join("transforms_train.json").is_file() {
         return Ok(Layout::Nerf);
     }
+    if root.join("transforms.json").is_file() {
+        return Ok(Layout::Transforms);
+    }
     Err(ErrorKind::invalid(
-        "not a dataset: expected transforms_train.json (NeRF), train_000/metadata.json (TensoIR) or sparse/cameras.bin (COLMAP)",
+        "not a dataset: expected transforms_train.json (NeRF), train_000/metadata.json (TensoIR), sparse/cameras.bin (COLMAP) or transforms.json (nerfstudio)",
     )
     .at(root))
 }
 
-/// Loads the dataset in folder `root`, whatever its layout.
+/// Loads the dataset in folder `root` (or given by its json file), whatever its layout.
 pub fn load_dataset(root: impl AsRef<Path>, opts: &LoadOptions) -> Result<Dataset> {
     let root = root.as_ref();
     check_options(opts).at(root)?;
     match detect_layout(root)? {
-        Layout::Nerf => nerf::load(root, opts),
-        Layout::TensoIr => tensoir::load(root, opts),
-        Layout::Colmap => colmap::load(root, opts),
+        Layout::Nerf => nerf::load(dataset_dir(root), opts),
+        Layout::TensoIr => tensoir::load(dataset_dir(root), opts),
+        Layout::Colmap => colmap::load(dataset_dir(root), opts),
+        Layout::Transforms => transforms::load(root, opts),
     }
 }
 

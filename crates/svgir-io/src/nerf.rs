@@ -9,12 +9,13 @@
 
 use crate::error::{ErrorKind, Result, WithPath};
 use crate::load::{check_size, finish_view, read_json, read_view_image, select_views, LoadOptions};
+use crate::mask::stored_alpha_is_mask;
 use glam::Mat4;
 use rayon::prelude::*;
 use serde_json::Value;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use svgir_core::{Camera, Dataset, Intrinsics, View};
+use svgir_core::{Camera, Dataset, Intrinsics, MaskSource, View};
 
 /// One frame of a transforms file.
 #[derive(Clone, Debug)]
@@ -133,8 +134,8 @@ pub fn blender_camera(c2w: Mat4, k: Intrinsics, i: usize) -> std::result::Result
     Camera::from_blender_c2w(c2w, k).map_err(|e| ErrorKind::Camera { index: i, problem: format!("{e}") })
 }
 
-/// Loads one split; `None` if it's the test split and there is no test file.
-fn load_split(root: &Path, split: &str, opts: &LoadOptions) -> Result<Vec<View>> {
+/// Loads one split; each flag says whether that image file's alpha was a mask.
+fn load_split(root: &Path, split: &str, opts: &LoadOptions) -> Result<Vec<(View, bool)>> {
     let tf = read_transforms(root, split)?;
     let json_path = root.join(format!("transforms_{split}.json"));
     // Validate all cameras first (cheap) so a bad matrix is reported before any image is read.
@@ -143,33 +144,34 @@ fn load_split(root: &Path, split: &str, opts: &LoadOptions) -> Result<Vec<View>>
         blender_camera(f.c2w, k0, i).at(&json_path)?;
     }
     let keep = select_views(tf.frames.len(), opts.max_views);
-    let views: Vec<Result<View>> = keep
+    let views: Vec<Result<(View, bool)>> = keep
         .par_iter()
         .map(|&i| {
             let f = &tf.frames[i];
             let img = read_view_image(&f.image_path, "view image")?;
             let want = tf.size.unwrap_or((img.width, img.height));
             check_size(&img, i, want, &f.image_path)?;
+            let stored_mask = stored_alpha_is_mask(&img);
             let image = crate::image_io::to_rgba(img);
             let k = Intrinsics::from_fov_x(tf.camera_angle_x, image.width, image.height);
             let camera = blender_camera(f.c2w, k, i).at(&json_path)?;
             let name = f.image_path.file_stem().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
             let v = View { name, camera, image, albedo: None, normal: None, roughness: None, relit: BTreeMap::new() };
-            finish_view(v, opts, &f.image_path)
+            Ok((finish_view(v, opts, &f.image_path)?, stored_mask))
         })
         .collect();
     let views = views.into_iter().collect::<Result<Vec<_>>>()?;
     // Without w/h in the file, all images must still agree with the first one.
-    if let Some(first) = views.first() {
+    if let Some((first, _)) = views.first() {
         let want = (first.image.width, first.image.height);
-        for (v, &i) in views.iter().zip(&keep) {
+        for ((v, _), &i) in views.iter().zip(&keep) {
             check_size(&v.image, i, want, &tf.frames[i].image_path)?;
         }
     }
     Ok(views)
 }
 
-/// Loads a NeRF/Blender dataset.
+/// Loads a NeRF/Blender dataset; RGBA images with transparency make [`MaskSource::Alpha`].
 pub fn load(root: &Path, opts: &LoadOptions) -> Result<Dataset> {
     let train = load_split(root, "train", opts)?;
     let test = if opts.load_test && root.join("transforms_test.json").is_file() {
@@ -177,15 +179,17 @@ pub fn load(root: &Path, opts: &LoadOptions) -> Result<Dataset> {
     } else {
         Vec::new()
     };
+    let masks = if train.iter().chain(&test).any(|v| v.1) { MaskSource::Alpha } else { MaskSource::None };
     Ok(Dataset {
         name: dataset_name(root),
         root: root.to_path_buf(),
-        train,
-        test,
+        train: train.into_iter().map(|v| v.0).collect(),
+        test: test.into_iter().map(|v| v.0).collect(),
         points: None,
         train_light: None,
         relight_lights: Vec::new(),
         camera_model: "blender".into(),
+        masks,
     })
 }
 

@@ -1,8 +1,12 @@
 //! A human-readable summary of a loaded dataset (what `svgir info` prints).
+//!
+//! Masks are reported from [`Dataset::masks`], not guessed from pixels: area resizing leaves
+//! alpha just below 1 on unmasked photos, which a pixel count would call masked.
 
+use crate::load::detect_layout;
 use std::collections::BTreeSet;
 use std::fmt::Write;
-use svgir_core::{Dataset, View};
+use svgir_core::{Dataset, MaskSource, View};
 
 fn sizes(views: &[View]) -> String {
     let set: BTreeSet<(u32, u32)> = views.iter().map(|v| (v.image.width, v.image.height)).collect();
@@ -17,19 +21,30 @@ fn count(views: &[&View], f: impl Fn(&View) -> bool) -> usize {
     views.iter().filter(|v| f(v)).count()
 }
 
-/// Views, resolution, camera model, ground truth present, lights and points, one item a line.
+fn masks(m: &MaskSource) -> String {
+    match m {
+        MaskSource::None => "none".into(),
+        MaskSource::Alpha => "alpha channel of the images".into(),
+        MaskSource::Folder(d) => format!("mask files in {}", d.display()),
+        MaskSource::PerFrame => "per-frame mask_path".into(),
+    }
+}
+
+/// Layout, views, resolution, camera model, masks, ground truth present, lights and points, one
+/// item a line. The layout is detected again from `ds.root` ("unknown" if that fails).
 pub fn dataset_summary(ds: &Dataset) -> String {
     let mut s = String::new();
     let all: Vec<&View> = ds.all_views().collect();
     let _ = writeln!(s, "dataset   {} ({})", ds.name, ds.root.display());
+    let layout = detect_layout(&ds.root).map(|l| l.name()).unwrap_or("unknown");
+    let _ = writeln!(s, "layout    {layout}");
     let _ = writeln!(s, "views     {} train, {} test", ds.train.len(), ds.test.len());
     let _ = writeln!(s, "size      train {}; test {}", sizes(&ds.train), sizes(&ds.test));
     let fov = ds.train.first().map(|v| v.camera.intrinsics.fov_x().to_degrees());
     let fov = fov.map(|f| format!(", fov_x {f:.1} deg")).unwrap_or_default();
     let _ = writeln!(s, "cameras   {}{fov}, extent {:.3}", ds.camera_model, ds.camera_extent());
-    let masked = count(&all, |v| v.image.data.chunks_exact(4).any(|p| p[3] < 1.0));
+    let _ = writeln!(s, "masks     {}", masks(&ds.masks));
     let gt = [
-        ("masks", masked),
         ("albedo", count(&all, |v| v.albedo.is_some())),
         ("normal", count(&all, |v| v.normal.is_some())),
         ("roughness", count(&all, |v| v.roughness.is_some())),
@@ -54,4 +69,46 @@ pub fn dataset_summary(ds: &Dataset) -> String {
         None => _ = writeln!(s, "points    none"),
     }
     s
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use svgir_core::{Camera, Image, Intrinsics};
+
+    #[test]
+    fn masks_come_from_the_field_not_the_pixels() {
+        let k = Intrinsics::from_fov_x(0.7, 4, 4);
+        let cam = Camera::from_w2c(glam::Mat3::IDENTITY, glam::Vec3::new(0.0, 0.0, 4.0), k).unwrap();
+        // Alpha a hair below 1, as area resizing leaves it on a photo without a mask.
+        let image = Image::filled(4, 4, &[0.5, 0.5, 0.5, 0.99999]);
+        let view = View {
+            name: "v".into(),
+            camera: cam,
+            image,
+            albedo: None,
+            normal: None,
+            roughness: None,
+            relit: Default::default(),
+        };
+        let mut ds = Dataset {
+            name: "d".into(),
+            root: "/nonexistent/d".into(),
+            train: vec![view],
+            test: vec![],
+            points: None,
+            train_light: None,
+            relight_lights: vec![],
+            camera_model: "PINHOLE".into(),
+            masks: MaskSource::None,
+        };
+        let s = dataset_summary(&ds);
+        assert!(
+            s.contains("masks     none\n") && s.contains("layout    unknown\n") && s.contains("truth     none"),
+            "{s}"
+        );
+        ds.masks = MaskSource::Folder("/d/masks".into());
+        assert!(dataset_summary(&ds).contains("masks     mask files in /d/masks\n"));
+        assert!(ds.has_masks());
+    }
 }

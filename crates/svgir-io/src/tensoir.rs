@@ -13,13 +13,14 @@ use crate::image_io::to_rgba;
 use crate::load::{
     alpha_of, check_size, decode_normals, finish_view, read_json, read_view_image, select_views, LoadOptions,
 };
+use crate::mask::stored_alpha_is_mask;
 use crate::nerf::{blender_camera, dataset_name, parse_matrix, read_transforms};
 use glam::Mat4;
 use rayon::prelude::*;
 use serde_json::Value;
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-use svgir_core::{Dataset, Image, Intrinsics, LightInfo, View};
+use svgir_core::{Dataset, Image, Intrinsics, LightInfo, MaskSource, View};
 
 /// True if `root` looks like a TensoIR dataset (a `train_000/metadata.json`, or transforms whose
 /// first frame lives in a folder with `metadata.json`).
@@ -105,11 +106,13 @@ fn optional(path: &Path, view: usize, size: (u32, u32)) -> Result<Option<Image>>
     Ok(Some(img))
 }
 
-fn load_view(e: &Entry, i: usize, opts: &LoadOptions) -> Result<View> {
+/// Loads one view; the flag says whether `rgba.png`'s alpha was a mask.
+fn load_view(e: &Entry, i: usize, opts: &LoadOptions) -> Result<(View, bool)> {
     let rgba_path = e.dir.join("rgba.png");
     let img = read_view_image(&rgba_path, "view image")?;
     let size = e.size.unwrap_or((img.width, img.height));
     check_size(&img, i, size, &rgba_path)?;
+    let stored_mask = stored_alpha_is_mask(&img);
     let image = to_rgba(img);
     let alpha = alpha_of(&image);
     let camera = blender_camera(e.c2w, Intrinsics::from_fov_x(e.fov_x, size.0, size.1), i).at(&e.source)?;
@@ -133,13 +136,13 @@ fn load_view(e: &Entry, i: usize, opts: &LoadOptions) -> Result<View> {
         }
     }
     let name = e.dir.file_name().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    finish_view(View { name, camera, image, albedo, normal, roughness, relit }, opts, &rgba_path)
+    Ok((finish_view(View { name, camera, image, albedo, normal, roughness, relit }, opts, &rgba_path)?, stored_mask))
 }
 
-fn load_split(root: &Path, split: &str, opts: &LoadOptions) -> Result<Vec<View>> {
+fn load_split(root: &Path, split: &str, opts: &LoadOptions) -> Result<Vec<(View, bool)>> {
     let entries = entries(root, split)?;
     let keep = select_views(entries.len(), opts.max_views);
-    let views: Vec<Result<View>> = keep.par_iter().map(|&i| load_view(&entries[i], i, opts)).collect();
+    let views: Vec<Result<(View, bool)>> = keep.par_iter().map(|&i| load_view(&entries[i], i, opts)).collect();
     views.into_iter().collect()
 }
 
@@ -197,10 +200,13 @@ fn lights(root: &Path, test: &[View]) -> Result<(Option<LightInfo>, Vec<LightInf
     Ok((train, relight))
 }
 
-/// Loads a TensoIR dataset.
+/// Loads a TensoIR dataset; RGBA images with transparency make [`MaskSource::Alpha`].
 pub fn load(root: &Path, opts: &LoadOptions) -> Result<Dataset> {
     let train = load_split(root, "train", opts)?;
     let test = if opts.load_test { load_split(root, "test", opts)? } else { Vec::new() };
+    let masks = if train.iter().chain(&test).any(|v| v.1) { MaskSource::Alpha } else { MaskSource::None };
+    let train: Vec<View> = train.into_iter().map(|v| v.0).collect();
+    let test: Vec<View> = test.into_iter().map(|v| v.0).collect();
     let (train_light, relight_lights) = lights(root, &test)?;
     Ok(Dataset {
         name: dataset_name(root),
@@ -211,5 +217,6 @@ pub fn load(root: &Path, opts: &LoadOptions) -> Result<Dataset> {
         train_light,
         relight_lights,
         camera_model: "blender".into(),
+        masks,
     })
 }

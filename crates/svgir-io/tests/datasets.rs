@@ -28,6 +28,7 @@ fn lego_counts_sizes_and_cameras() {
     let ds = load_dataset(&root, &LoadOptions::default()).unwrap();
     assert_eq!((ds.train.len(), ds.test.len()), (100, 200));
     assert_eq!(ds.camera_model, "blender");
+    assert_eq!(ds.masks, svgir_core::MaskSource::Alpha);
     for v in ds.all_views() {
         assert_eq!((v.image.width, v.image.height, v.image.channels), (400, 400, 4));
         assert!((v.camera.intrinsics.fov_x() - 0.6911112).abs() < 1e-5);
@@ -82,6 +83,7 @@ fn tensoir_scenes_have_ground_truth_relit_images_and_lights() {
         let ds = load_dataset(&root, &LoadOptions::default()).unwrap();
         assert_eq!((ds.train.len(), ds.test.len()), (ntrain, ntest), "{scene}");
         assert_eq!(ds.name, scene);
+        assert_eq!(ds.masks, svgir_core::MaskSource::Alpha, "{scene}");
         let tl = ds.train_light.as_ref().unwrap();
         assert!(tl.envmap_path.as_ref().unwrap().is_file() && tl.strength > 0.0);
         let mut names: Vec<&str> = ds.relight_lights.iter().map(|l| l.name.as_str()).collect();
@@ -177,6 +179,9 @@ fn colmap_statue_points_reproject_onto_their_keypoints() {
     let summary = svgir_io::dataset_summary(&ds);
     eprintln!("{summary}");
     assert!(summary.contains("PINHOLE") && summary.contains(&format!("points    {}", model.points.len())));
+    // No masks folder, JPEG photos: no masks, whatever resizing later does to alpha.
+    assert!(summary.contains("layout    COLMAP\n") && summary.contains("masks     none\n"), "{summary}");
+    assert!(!ds.has_masks());
     let pts = ds.points.as_ref().unwrap();
     assert_eq!(pts.positions.len(), model.points.len());
     assert!(pts.colors.iter().flatten().all(|c| (0.0..=1.0).contains(c)));
@@ -187,6 +192,7 @@ fn colmap_statue_points_reproject_onto_their_keypoints() {
     }
     let half =
         load_dataset(&root, &LoadOptions { downscale: Some(2.0), max_views: Some(2), ..Default::default() }).unwrap();
+    assert!(svgir_io::dataset_summary(&half).contains("masks     none\n"));
     let (a, b) = (&ds.train[0], &half.train[0]);
     assert_eq!(b.image.width, (a.image.width as f32 / 2.0).round() as u32);
     assert!(

@@ -1,7 +1,8 @@
 //! Robustness: the PLY, HDR and COLMAP parsers on random bytes, on every truncation of a valid
 //! file, and on valid files with random byte flips. Truncations and random bytes must give
 //! `Err`; flips may give `Ok` (a flipped pixel is still an image) but nothing may panic.
-//! Each test prints how many inputs it ran.
+//! The `transforms.json` parser gets every value of a valid file replaced by odd ones. Each test
+//! prints how many inputs it ran.
 
 mod common;
 
@@ -119,4 +120,68 @@ fn byte_flips_never_panic() {
     });
     result.unwrap();
     eprintln!("byte-flip cases run: {} (x 6 parsers)", count.get());
+}
+
+/// Every JSON pointer into `v` (objects and arrays included).
+fn pointers(v: &serde_json::Value, at: String, out: &mut Vec<String>) {
+    match v {
+        serde_json::Value::Object(m) => m.iter().for_each(|(k, x)| pointers(x, format!("{at}/{k}"), out)),
+        serde_json::Value::Array(a) => a.iter().enumerate().for_each(|(i, x)| pointers(x, format!("{at}/{i}"), out)),
+        _ => {}
+    }
+    out.push(at);
+}
+
+#[test]
+fn transforms_json_with_odd_values_never_panics() {
+    use serde_json::json;
+    let m = json!([[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 4], [0, 0, 0, 1]]);
+    let base = json!({
+        "camera_model": "OPENCV", "fl_x": 50, "fl_y": 52, "cx": 32, "cy": 24, "w": 64, "h": 48,
+        "k1": -0.1, "k2": 0.01, "p1": 0.0, "p2": 0.0, "ply_file_path": "p.ply",
+        "train_filenames": ["images/a.png"], "test_filenames": ["images/b.png"],
+        "frames": [
+            {"file_path": "images/a.png", "mask_path": "m/a.png", "transform_matrix": m, "fl_x": 40},
+            {"file_path": "./images/b.png", "mask_path": "m/b.png", "transform_matrix": m, "camera_angle_x": 1.0},
+        ],
+    });
+    let odd = [
+        json!(null),
+        json!(0),
+        json!(-1),
+        json!(1e308),
+        json!(-1e308),
+        json!(1e-308),
+        json!(0.5),
+        json!(u64::MAX),
+        json!(true),
+        json!(""),
+        json!("EQUIRECTANGULAR"),
+        json!([]),
+        json!([[1, 2], [3]]),
+        json!({}),
+    ];
+    let mut at = Vec::new();
+    pointers(&base, String::new(), &mut at);
+    let mut n = 0;
+    for p in &at {
+        for o in &odd {
+            let mut v = base.clone();
+            match v.pointer_mut(p) {
+                Some(slot) => *slot = o.clone(),
+                None => continue,
+            }
+            no_panic(&format!("transforms.json with {p} = {o}"), || {
+                if let Ok(cap) = svgir_io::transforms::parse_capture(&v, std::path::Path::new("/d")) {
+                    for f in &cap.frames {
+                        if let Some(params) = f.lens.params(64, 48) {
+                            let _ = f.lens.model.pinhole(&params);
+                        }
+                    }
+                }
+            });
+            n += 1;
+        }
+    }
+    eprintln!("transforms.json odd-value cases run: {n}");
 }

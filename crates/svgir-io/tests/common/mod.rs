@@ -85,3 +85,53 @@ pub fn small_model() -> (Vec<u8>, Vec<u8>, Vec<u8>) {
     ]);
     (cams, imgs, pts)
 }
+
+/// A fresh empty folder under the system temp dir, unique to this process and `name`.
+pub fn tmp_dir(name: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("svgir-io-test-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&d);
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// A `w` x `h` grey image (1 channel) with a Gaussian spot of sigma 1.2 px centred at the
+/// continuous pixel position (x, y) (pixel centres at +0.5).
+pub fn spot(w: u32, h: u32, x: f64, y: f64) -> svgir_core::Image {
+    let mut img = svgir_core::Image::new(w, h, 1);
+    for j in 0..h {
+        for i in 0..w {
+            let d2 = (i as f64 + 0.5 - x).powi(2) + (j as f64 + 0.5 - y).powi(2);
+            img.pixel_mut(i, j)[0] = (-d2 / (2.0 * 1.2 * 1.2)).exp() as f32;
+        }
+    }
+    img
+}
+
+/// Sub-pixel peak of channel `ch`, in continuous pixels: the brightest pixel refined by a
+/// parabola through the logarithms of it and its neighbours (exact for a Gaussian spot, and
+/// unlike a centroid unmoved by the uneven stretching a lens warp gives the spot's flanks).
+pub fn peak(img: &svgir_core::Image, ch: u32) -> (f64, f64) {
+    let c = ch as usize;
+    let (mut bi, mut bj, mut best) = (1, 1, f32::MIN);
+    for j in 1..img.height - 1 {
+        for i in 1..img.width - 1 {
+            if img.pixel(i, j)[c] > best {
+                (bi, bj, best) = (i, j, img.pixel(i, j)[c]);
+            }
+        }
+    }
+    let ln = |i: u32, j: u32| (img.pixel(i, j)[c].max(1e-6) as f64).ln();
+    let vertex = |a: f64, b: f64, c: f64| if a - 2.0 * b + c < 0.0 { (a - c) / (2.0 * (a - 2.0 * b + c)) } else { 0.0 };
+    let dx = vertex(ln(bi - 1, bj), ln(bi, bj), ln(bi + 1, bj));
+    let dy = vertex(ln(bi, bj - 1), ln(bi, bj), ln(bi, bj + 1));
+    (bi as f64 + 0.5 + dx, bj as f64 + 0.5 + dy)
+}
+
+/// COLMAP/OpenCV forward distortion (k1, k2, p1, p2) of normalised coordinates, written out
+/// here independently of the library's.
+pub fn opencv_distort(k: [f64; 4], u: f64, v: f64) -> (f64, f64) {
+    let [k1, k2, p1, p2] = k;
+    let r2 = u * u + v * v;
+    let radial = 1.0 + k1 * r2 + k2 * r2 * r2;
+    (u * radial + 2.0 * p1 * u * v + p2 * (r2 + 2.0 * u * u), v * radial + 2.0 * p2 * u * v + p1 * (r2 + 2.0 * v * v))
+}
