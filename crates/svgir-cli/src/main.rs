@@ -27,6 +27,8 @@ enum Command {
     Info(commands::info::InfoArgs),
     /// Stage 1: fit Gaussian surfels with SH colour (geometry + radiance field) to a dataset.
     Train(commands::train::TrainArgs),
+    /// Foreground masks for a capture without them, from a stage-1 reconstruction (PNGs to check and edit).
+    Masks(commands::masks::MasksArgs),
     /// Stage 2: recover materials and lighting on a stage-1 run, relight and evaluate (SPEC 6-8).
     Inverse(commands::inverse::InverseArgs),
     /// Render a stage-2 model under a new HDR environment map.
@@ -53,6 +55,7 @@ fn main() {
     let result = match cli.command {
         Command::Info(a) => commands::info::run(a),
         Command::Train(a) => commands::train::run(a),
+        Command::Masks(a) => commands::masks::run(a),
         Command::Eval(a) => commands::eval::run(a),
         Command::Inverse(a) => commands::inverse::run(a),
         Command::Relight(a) => commands::relight::run(a),

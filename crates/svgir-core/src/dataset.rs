@@ -91,6 +91,12 @@ impl Dataset {
         self.train.iter().chain(self.test.iter())
     }
 
+    /// Mean of the training cameras' centres (the origin without training views).
+    pub fn camera_centroid(&self) -> Vec3 {
+        let n = self.train.len().max(1) as f32;
+        self.train.iter().map(|v| v.camera.center()).sum::<Vec3>() / n
+    }
+
     /// Scene extent as 3DGS defines it (SPEC 2): 1.1 x the largest distance of a training camera
     /// from the training cameras' centroid.
     pub fn camera_extent(&self) -> f32 {
@@ -98,7 +104,7 @@ impl Dataset {
         if centers.is_empty() {
             return 1.0;
         }
-        let centroid = centers.iter().copied().sum::<Vec3>() / centers.len() as f32;
+        let centroid = self.camera_centroid();
         1.1 * centers.iter().map(|c| (*c - centroid).length()).fold(0.0, f32::max)
     }
 }

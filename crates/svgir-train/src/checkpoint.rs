@@ -14,6 +14,7 @@
 use crate::adam::AdamGroup;
 use crate::config::Stage1Config;
 use crate::densify::DensifyStats;
+use crate::exposure::{self, ExposureCorrection};
 use crate::stage1::{PhaseTimes, Stage1};
 use crate::stage2::{Stage2, Stage2Config};
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
@@ -181,6 +182,10 @@ struct Header1 {
     times: PhaseTimes,
     /// Adam groups without their moments (which follow as arrays).
     groups: Vec<AdamGroup>,
+    /// Per-photo colour corrections' Adam step counts (their values and moments follow as
+    /// arrays); empty without corrections.
+    #[serde(default)]
+    exposure_steps: Vec<u64>,
 }
 
 pub fn save(trainer: &Stage1, path: &Path) -> Result<(), CheckpointError> {
@@ -191,6 +196,18 @@ pub fn save(trainer: &Stage1, path: &Path) -> Result<(), CheckpointError> {
     arrays.push(("stats.max_radius".into(), bytes(&st.max_radius)));
     arrays.push(("stats.accum_weight".into(), bytes(&st.accum_weight)));
     push_groups(&mut arrays, &trainer.groups);
+    let ex = trainer.exposure.as_ref();
+    let ex_flat = |f: &dyn Fn(usize) -> Vec<f32>| -> Vec<f32> {
+        ex.map(|e| (0..e.params.len()).flat_map(f).collect()).unwrap_or_default()
+    };
+    let ex_params = ex_flat(&|i| ex.unwrap().params[i].to_vec());
+    let ex_m = ex_flat(&|i| ex.unwrap().adam[i].m.clone());
+    let ex_v = ex_flat(&|i| ex.unwrap().adam[i].v.clone());
+    if ex.is_some() {
+        arrays.push(("exposure.params".into(), bytes(&ex_params)));
+        arrays.push(("exposure.m".into(), bytes(&ex_m)));
+        arrays.push(("exposure.v".into(), bytes(&ex_v)));
+    }
     let header = Header1 {
         config: trainer.config.clone(),
         iteration: trainer.iteration,
@@ -199,6 +216,7 @@ pub fn save(trainer: &Stage1, path: &Path) -> Result<(), CheckpointError> {
         sh_degree: trainer.surfels.sh_degree,
         times: trainer.times.clone(),
         groups: strip(&trainer.groups),
+        exposure_steps: ex.map(|e| e.adam.iter().map(|g| g.step).collect()).unwrap_or_default(),
     };
     write_container(path, &header, &arrays)
 }
@@ -214,7 +232,15 @@ pub fn load(path: &Path, dataset: &Dataset) -> Result<Stage1, CheckpointError> {
     };
     let n = surfels.len();
     let groups = read_groups::<5>(&mut a, &header.groups, &[n; 5])?;
+    let exposure = read_exposure(&mut a, &header.exposure_steps)?;
     let mut trainer = Stage1::new(header.config, surfels, dataset);
+    if trainer.exposure.is_some() {
+        let e = exposure.ok_or_else(|| corrupt(&a.path, "colour corrections missing"))?;
+        if e.params.len() != dataset.train.len() {
+            return Err(corrupt(&a.path, "colour corrections for a different number of training photos"));
+        }
+        trainer.exposure = Some(e);
+    }
     trainer.surfels.sh_degree = header.sh_degree;
     trainer.groups = groups;
     trainer.stats = stats;
@@ -223,6 +249,27 @@ pub fn load(path: &Path, dataset: &Dataset) -> Result<Stage1, CheckpointError> {
     trainer.extent = header.extent;
     trainer.times = header.times;
     Ok(trainer)
+}
+
+/// The per-photo colour corrections saved by [`save`], if any.
+fn read_exposure(a: &mut Arrays, steps: &[u64]) -> Result<Option<ExposureCorrection>, CheckpointError> {
+    if steps.is_empty() {
+        return Ok(None);
+    }
+    let (params, m, v) = (a.next("exposure.params")?, a.next("exposure.m")?, a.next("exposure.v")?);
+    let n = steps.len();
+    if params.len() != n * exposure::PARAMS || m.len() != params.len() || v.len() != params.len() {
+        return Err(corrupt(&a.path, "colour corrections have the wrong size"));
+    }
+    let mut e = ExposureCorrection::new(n);
+    for i in 0..n {
+        let rows = i * exposure::PARAMS..(i + 1) * exposure::PARAMS;
+        e.params[i].copy_from_slice(&params[rows.clone()]);
+        e.adam[i].m.copy_from_slice(&m[rows.clone()]);
+        e.adam[i].v.copy_from_slice(&v[rows]);
+        e.adam[i].step = steps[i];
+    }
+    Ok(Some(e))
 }
 
 #[derive(Serialize, Deserialize)]

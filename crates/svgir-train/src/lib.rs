@@ -6,6 +6,8 @@ pub mod checkpoint;
 pub mod composite;
 pub mod config;
 pub mod densify;
+pub mod exposure;
+pub mod foreground;
 pub mod init;
 pub mod losses;
 pub mod orient;
@@ -13,6 +15,6 @@ pub mod relight;
 pub mod stage1;
 pub mod stage2;
 
-pub use config::{BackgroundMode, NamedWeights, Stage1Config};
+pub use config::{BackgroundMode, NamedWeights, Profile, Stage1Config};
 pub use stage1::{Stage1, StepStats};
 pub use stage2::{Stage2, Stage2Config};

@@ -8,6 +8,7 @@
 use crate::adam::{exp_lr, AdamGroup};
 use crate::config::Stage1Config;
 use crate::densify::{densify_and_prune, reset_opacity, DensifyReport, DensifyStats, Groups};
+use crate::exposure::{self, ExposureCorrection};
 use crate::losses::mask;
 use crate::losses::objective::{stage1_objective, ObjectiveInput, ObjectiveTarget};
 use serde::{Deserialize, Serialize};
@@ -54,6 +55,8 @@ pub struct Stage1 {
     pub extent: f32,
     pub times: PhaseTimes,
     pub raster: RasterConfig,
+    /// Per-photo colour corrections (`config.exposure`).
+    pub exposure: Option<ExposureCorrection>,
     targets: Vec<Target>,
 }
 
@@ -111,7 +114,12 @@ impl Stage1 {
             })
             .collect();
         // The distortion output costs a division per composited pixel; only pay when it is in the loss.
-        let raster = RasterConfig { distortion: config.loss.distortion > 0.0, ..RasterConfig::default() };
+        let raster = RasterConfig {
+            distortion: config.loss.distortion > 0.0,
+            near: config.near_fraction * extent,
+            ..RasterConfig::default()
+        };
+        let exposure = config.exposure.then(|| ExposureCorrection::new(dataset.train.len()));
         Self {
             config,
             surfels,
@@ -122,6 +130,7 @@ impl Stage1 {
             extent,
             times: PhaseTimes::default(),
             raster,
+            exposure,
             targets,
         }
     }
@@ -158,12 +167,15 @@ impl Stage1 {
         let npix = w * h;
         let target = &self.targets[view_idx];
         let t_frac = (it as f32 / cfg.iterations as f32).min(1.0);
-        let obj = stage1_objective(
+        // The loss sees the photo's colour correction applied to the render.
+        let corrected = self.exposure.as_ref().map(|e| exposure::apply(&e.params[view_idx], &out.color));
+        let color = corrected.as_deref().unwrap_or(&out.color);
+        let mut obj = stage1_objective(
             &cfg.loss,
             t_frac,
             cfg.use_mask,
             &ObjectiveInput {
-                color: &out.color,
+                color,
                 alpha: &out.alpha,
                 depth: &out.depth,
                 normal: &out.normal,
@@ -172,7 +184,12 @@ impl Stage1 {
             &ObjectiveTarget { rgb: &gt, alpha: &target.alpha, dilated: &target.dilated },
             &view.camera,
         );
-        let mse = out.color.iter().zip(&gt).map(|(a, b)| ((a - b) as f64).powi(2)).sum::<f64>() / (npix * 3) as f64;
+        let mse = color.iter().zip(&gt).map(|(a, b)| ((a - b) as f64).powi(2)).sum::<f64>() / (npix * 3) as f64;
+        if let Some(e) = &mut self.exposure {
+            let (v_color, v_params) = exposure::apply_backward(&e.params[view_idx], &out.color, &obj.v_color);
+            obj.v_color = v_color;
+            e.step(view_idx, &v_params);
+        }
         let t2 = Instant::now();
 
         let grads = backward(

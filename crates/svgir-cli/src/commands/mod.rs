@@ -5,6 +5,7 @@ pub mod demo;
 pub mod eval;
 pub mod info;
 pub mod inverse;
+pub mod masks;
 pub mod oracle_materials;
 pub mod relight;
 pub mod report;
@@ -39,8 +40,12 @@ impl DataArgs {
 /// Loss weights at their defaults (SPEC 2 or SPEC 6), with each `NAME=VALUE` of `--weight`
 /// applied; a bad name or value is an error that names it.
 pub fn loss_weights<W: svgir_train::NamedWeights>(overrides: &[String]) -> anyhow::Result<W> {
+    loss_weights_over(W::default(), overrides)
+}
+
+/// `base` with the `--weight NAME=VALUE` overrides applied.
+pub fn loss_weights_over<W: svgir_train::NamedWeights>(mut weights: W, overrides: &[String]) -> anyhow::Result<W> {
     use anyhow::Context;
-    let mut weights = W::default();
     for item in overrides {
         let (name, value) = item.split_once('=').with_context(|| format!("--weight {item}: expected NAME=VALUE"))?;
         let value: f32 = value.trim().parse().with_context(|| format!("--weight {item}: {value:?} is not a number"))?;

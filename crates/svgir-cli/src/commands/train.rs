@@ -16,7 +16,16 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 use svgir_core::{Dataset, Image, Rng};
-use svgir_train::{checkpoint, init, BackgroundMode, Stage1, Stage1Config};
+use svgir_train::{checkpoint, init, BackgroundMode, Profile, Stage1, Stage1Config};
+
+/// `--profile`: which defaults to start from.
+#[derive(Clone, Copy, Debug, ValueEnum, PartialEq)]
+pub enum ProfileArg {
+    /// Object if the dataset has foreground masks, capture otherwise.
+    Auto,
+    Object,
+    Capture,
+}
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub enum Bg {
@@ -38,9 +47,17 @@ pub struct TrainArgs {
     /// Seed of every random choice (recorded in config.json).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Background the renders are composited over (and the photos, for RGBA data).
-    #[arg(long, value_enum, default_value_t = Bg::White)]
-    pub background: Bg,
+    /// Defaults for a masked object or a real capture (auto: from the dataset's masks).
+    #[arg(long, value_enum, default_value_t = ProfileArg::Auto)]
+    pub profile: ProfileArg,
+    /// Background the renders are composited over, and the photos for masked data (default:
+    /// white for objects; random for captures, so that Gaussians model the real background).
+    #[arg(long, value_enum)]
+    pub background: Option<Bg>,
+    /// Learn a per-photo affine colour correction (phone captures with varying exposure or white
+    /// balance). Test views are rendered without one.
+    #[arg(long)]
+    pub exposure: bool,
     /// Initial surfels from a point-cloud PLY instead of the dataset's points / a random box.
     #[arg(long)]
     pub init_ply: Option<PathBuf>,
@@ -62,8 +79,8 @@ pub struct TrainArgs {
     /// Append training statistics to RUN/metrics.jsonl every this many iterations.
     #[arg(long, default_value_t = 50)]
     pub log_every: u64,
-    /// Stop densifying at this many Gaussians (default: one per 64 training pixels, against
-    /// overfitting few small photos; 0: no limit).
+    /// Stop densifying at this many Gaussians (object profile default: one per 64 training
+    /// pixels, against overfitting few small photos; capture profile: none; 0: no limit).
     #[arg(long)]
     pub max_gaussians: Option<usize>,
     /// Disable the mask and entropy losses (photos without a meaningful alpha channel).
@@ -98,12 +115,18 @@ pub fn run(args: TrainArgs) -> Result<()> {
         eprintln!("resumed {} at iteration {}", ckpt_path.display(), t.iteration);
         t
     } else {
-        let config = make_config(&args, &dataset)?;
+        let (config, why) = make_config(&args, &dataset)?;
         let mut rng = Rng::new(config.seed);
         let points = if let Some(p) = &args.init_ply {
             svgir_io::ply::read_points_ply(p)?
-        } else if let Some(p) = &dataset.points {
+        } else if let Some(p) = dataset.points.as_ref().filter(|p| !p.positions.is_empty()) {
             p.clone()
+        } else if config.profile == Profile::Capture {
+            // No SfM points: fill the region the cameras surround, at the scene's own scale.
+            let mut pc = init::random_box_points(config.init_points, dataset.camera_extent(), &mut rng);
+            let centre = dataset.camera_centroid();
+            pc.positions.iter_mut().for_each(|p| *p += centre);
+            pc
         } else {
             init::random_box_points(config.init_points, config.init_half_extent, &mut rng)
         };
@@ -112,9 +135,10 @@ pub fn run(args: TrainArgs) -> Result<()> {
             &args.out.join("config.json"),
             &json!({
                 "stage1": config,
+                "profile": { "name": config.profile.name(), "why": why, "defaults": config.profile.describe() },
                 "data": args.data.data,
                 "load": { "resolution": load.resolution, "downscale": load.downscale, "max_views": load.max_views },
-                "init": if args.init_ply.is_some() { "ply" } else if dataset.points.is_some() { "dataset points" } else { "random box" },
+                "init": if args.init_ply.is_some() { "ply" } else if dataset.points.as_ref().is_some_and(|p| !p.positions.is_empty()) { "dataset points" } else { "random box" },
                 "initial_gaussians": surfels.len(),
                 "command": std::env::args().collect::<Vec<_>>(),
             }),
@@ -126,22 +150,37 @@ pub fn run(args: TrainArgs) -> Result<()> {
     finish(&trainer, &dataset, &args.out)
 }
 
-fn make_config(args: &TrainArgs, dataset: &Dataset) -> Result<Stage1Config> {
-    let mut c = Stage1Config::default().scaled_to(args.iterations);
-    c.loss = super::loss_weights(&args.weights)?;
-    c.seed = args.seed;
-    c.background = match args.background {
-        Bg::White => BackgroundMode::White,
-        Bg::Black => BackgroundMode::Black,
-        Bg::Random => BackgroundMode::Random,
-    };
-    c.init_points = args.init_points;
+/// The profile for `args` and `dataset`, with why it was chosen.
+pub fn choose_profile(arg: ProfileArg, dataset: &Dataset) -> (Profile, &'static str) {
+    match arg {
+        ProfileArg::Object => (Profile::Object, "--profile object"),
+        ProfileArg::Capture => (Profile::Capture, "--profile capture"),
+        ProfileArg::Auto if dataset.has_masks() => (Profile::Object, "the dataset has foreground masks"),
+        ProfileArg::Auto => (Profile::Capture, "the dataset has no foreground masks"),
+    }
+}
+
+fn make_config(args: &TrainArgs, dataset: &Dataset) -> Result<(Stage1Config, &'static str)> {
     let pixels: usize = dataset.train.iter().map(|v| (v.image.width * v.image.height) as usize).sum();
-    c.densify.max_gaussians = match args.max_gaussians {
-        Some(0) => usize::MAX,
-        Some(m) => m,
-        None => svgir_train::densify::default_max_gaussians(pixels),
-    };
+    let (profile, why) = choose_profile(args.profile, dataset);
+    eprintln!("profile: {} ({why}): {}", profile.name(), profile.describe());
+    let mut c = Stage1Config::for_profile(profile, args.iterations, pixels);
+    c.loss = super::loss_weights_over(c.loss.clone(), &args.weights)?;
+    c.seed = args.seed;
+    if let Some(bg) = args.background {
+        c.background = match bg {
+            Bg::White => BackgroundMode::White,
+            Bg::Black => BackgroundMode::Black,
+            Bg::Random => BackgroundMode::Random,
+        };
+    }
+    c.exposure = args.exposure;
+    c.init_points = args.init_points;
+    match args.max_gaussians {
+        Some(0) => c.densify.max_gaussians = usize::MAX,
+        Some(m) => c.densify.max_gaussians = m,
+        None => {}
+    }
     // A schedule scaled down to a short run densifies and resets very often (every 10 and
     // 300 iterations at 3000); these let a short run keep 3DGS's cadence instead.
     if let Some(n) = args.densify_every {
@@ -153,9 +192,8 @@ fn make_config(args: &TrainArgs, dataset: &Dataset) -> Result<Stage1Config> {
     if let Some(n) = args.opacity_reset_every {
         c.densify.opacity_reset_interval = n.max(1);
     }
-    let has_alpha = dataset.train.iter().any(|v| v.image.channels == 4 && v.image.data.chunks(4).any(|p| p[3] < 0.5));
-    c.use_mask = !args.no_mask && has_alpha;
-    Ok(c)
+    c.use_mask = !args.no_mask && dataset.has_masks();
+    Ok((c, why))
 }
 
 fn write_json(path: &Path, v: &impl serde::Serialize) -> Result<()> {

@@ -1,0 +1,163 @@
+//! `svgir masks DATASET --out DIR`: foreground masks for an object-centred capture that has
+//! none, derived from a stage-1 reconstruction ([`svgir_train::foreground`]), written as one PNG
+//! per photo (`DIR/NAME.png`, white = object) at the photo's size, so that a person can check
+//! and edit them. Put them in `DATASET/masks/` and the next `svgir train` uses the object profile
+//! with SPEC 2's mask and entropy losses.
+//!
+//! The reconstruction is `--run RUN` (a finished `svgir train` run on this dataset), or, without
+//! it, a short capture-profile stage 1 trained here into `--work`.
+
+use super::train;
+use super::DataArgs;
+use crate::progress;
+use anyhow::{bail, Context, Result};
+use clap::Args;
+use serde_json::json;
+use std::path::PathBuf;
+use svgir_core::{Image, Rng};
+use svgir_train::foreground::{render_share, select_foreground, ForegroundConfig};
+
+#[derive(Args)]
+pub struct MasksArgs {
+    /// The capture (COLMAP or transforms.json); masks are made for every photo, train and test.
+    pub data: PathBuf,
+    /// Folder for the mask PNGs (created); `DATASET/masks` makes the next run use them.
+    #[arg(long, short)]
+    pub out: PathBuf,
+    /// A finished stage-1 run on this dataset to derive the masks from.
+    #[arg(long)]
+    pub run: Option<PathBuf>,
+    /// Without --run: where to train the short stage 1 (default: runs/masks-<dataset name>).
+    #[arg(long)]
+    pub work: Option<PathBuf>,
+    /// Without --run: stage-1 iterations.
+    #[arg(long, default_value_t = 3000)]
+    pub iterations: u64,
+    /// Without --run: train on images downscaled by this factor.
+    #[arg(long, default_value_t = 4.0)]
+    pub downscale: f32,
+    /// Seed of the plane search (and of the stage 1 trained here); recorded in foreground.json.
+    #[arg(long, default_value_t = 0)]
+    pub seed: u64,
+}
+
+pub fn run(args: MasksArgs) -> Result<()> {
+    let run = match &args.run {
+        Some(r) => r.clone(),
+        None => train_reconstruction(&args)?,
+    };
+    let ply = run.join("point_cloud.ply");
+    if !ply.is_file() {
+        bail!("{}: no model (run `svgir train` to the end first, or leave out --run)", ply.display());
+    }
+    let (surfels, _) = svgir_io::read_gaussians_ply(&ply)?;
+    // Masks at the photos' own size: the loader's masks must match the photos.
+    let dataset = svgir_io::load_dataset(&args.data, &svgir_io::LoadOptions::default())?;
+    let cameras: Vec<_> = dataset.train.iter().map(|v| v.camera).collect();
+    let cfg = ForegroundConfig::default();
+    let fg = select_foreground(&surfels, &cameras, &cfg, &mut Rng::new(args.seed))
+        .map_err(|e| anyhow::anyhow!("{}: {e}", args.data.display()))?;
+    eprintln!(
+        "foreground: {} of {} Gaussians ({} where every camera looks{})",
+        fg.selected_count,
+        surfels.len(),
+        fg.candidates,
+        if fg.support.is_some() { "; support plane removed" } else { "" }
+    );
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    let raster = svgir_raster::RasterConfig { near: 0.045 * dataset.camera_extent(), ..Default::default() };
+    let views: Vec<_> = dataset.all_views().collect();
+    let pb = progress::bar(views.len() as u64, "masks");
+    let mut coverage = Vec::new();
+    let mut thumbs = Vec::new();
+    for v in &views {
+        let share = render_share(&surfels, &fg.selected, &v.camera, &raster);
+        let mask: Vec<f32> = share.iter().map(|&s| if s >= 0.5 { 1.0 } else { 0.0 }).collect();
+        coverage.push(mask.iter().sum::<f32>() / mask.len() as f32);
+        let img = Image::from_data(v.camera.width(), v.camera.height(), 1, mask);
+        svgir_io::write_png(args.out.join(format!("{}.png", v.name)), &img, 8)?;
+        thumbs.push(overlay_thumbnail(&v.image, &img, 240));
+        pb.inc(1);
+    }
+    pb.finish();
+    let sheet = contact_sheet(&thumbs, 6);
+    svgir_io::write_png(run.join("masks_overview.png"), &sheet, 8)?;
+    let record = json!({
+        "data": args.data, "run": run, "out": args.out, "seed": args.seed, "config": cfg, "foreground": fg,
+        "mask_coverage": views.iter().zip(&coverage).map(|(v, c)| json!({"view": v.name, "share": c})).collect::<Vec<_>>(),
+    });
+    std::fs::write(run.join("foreground.json"), serde_json::to_string_pretty(&record)?)?;
+    println!(
+        "wrote {} masks to {} (overview: {})",
+        views.len(),
+        args.out.display(),
+        run.join("masks_overview.png").display()
+    );
+    Ok(())
+}
+
+/// A capture-profile stage 1 for the masks (no masks yet, so the profile is forced).
+fn train_reconstruction(args: &MasksArgs) -> Result<PathBuf> {
+    let name = args.data.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_else(|| "data".into());
+    let work = args.work.clone().unwrap_or_else(|| PathBuf::from("runs").join(format!("masks-{name}")));
+    eprintln!("svgir masks: stage 1 ({} iterations) -> {}", args.iterations, work.display());
+    train::run(train::TrainArgs {
+        data: DataArgs { data: args.data.clone(), resolution: None, downscale: Some(args.downscale), max_views: None },
+        out: work.clone(),
+        iterations: args.iterations,
+        seed: args.seed,
+        profile: train::ProfileArg::Capture,
+        background: None,
+        exposure: false,
+        init_ply: None,
+        init_points: 100_000,
+        max_gaussians: None,
+        resume: false,
+        checkpoint_every: 1000,
+        eval_every: 0,
+        eval_views: 8,
+        log_every: 50,
+        no_mask: true,
+        densify_every: None,
+        densify_until: None,
+        opacity_reset_every: None,
+        weights: Vec::new(),
+    })?;
+    Ok(work)
+}
+
+/// The photo at `width` pixels wide, darkened and tinted outside the mask.
+fn overlay_thumbnail(photo: &Image, mask: &Image, width: u32) -> Image {
+    let h = ((photo.height as f32 * width as f32 / photo.width as f32).round() as u32).max(1);
+    let rgb = photo.select_channels(0..3).resize_area(width, h);
+    let m = mask.resize_area(width, h);
+    let data = rgb
+        .data
+        .chunks_exact(3)
+        .zip(&m.data)
+        .flat_map(|(p, &a)| {
+            let dim = |c: f32, t: f32| a * c + (1.0 - a) * (0.25 * c + t);
+            [dim(p[0], 0.3), dim(p[1], 0.0), dim(p[2], 0.3)]
+        })
+        .collect();
+    Image::from_data(width, h, 3, data)
+}
+
+/// Thumbnails in rows of `cols` (cells as large as the largest thumbnail).
+fn contact_sheet(thumbs: &[Image], cols: usize) -> Image {
+    let cw = thumbs.iter().map(|t| t.width).max().unwrap_or(1);
+    let ch = thumbs.iter().map(|t| t.height).max().unwrap_or(1);
+    let rows = thumbs.len().div_ceil(cols).max(1);
+    let mut out = Image::new(cw * cols.min(thumbs.len().max(1)) as u32, ch * rows as u32, 3);
+    for (k, t) in thumbs.iter().enumerate() {
+        let (ox, oy) = ((k % cols) as u32 * cw, (k / cols) as u32 * ch);
+        for y in 0..t.height {
+            for x in 0..t.width {
+                let src = 3 * (y * t.width + x) as usize;
+                let dst = 3 * ((oy + y) * out.width + ox + x) as usize;
+                out.data[dst..dst + 3].copy_from_slice(&t.data[src..src + 3]);
+            }
+        }
+    }
+    out
+}

@@ -1,0 +1,372 @@
+//! Automatic foreground masks for object-centred captures that come without masks, derived from
+//! the stage-1 reconstruction itself (no learned segmentation, no downloaded weights).
+//!
+//! 1. **Focus**: the point nearest to every training camera's optical axis (least squares):
+//!    what the photographer circled.
+//! 2. **Candidates**: Gaussians inside the image of at least `seen_fraction` of the cameras, in
+//!    front of them: the region every photo looks at.
+//! 3. **Support**: if the candidates' dominant plane (RANSAC) holds a large share of them, has
+//!    every camera and the focus on one side, it is what the object stands on; its inliers and
+//!    everything beyond it are background.
+//! 4. **One object**: the connected cluster (26-neighbour voxel grid) with the most candidates
+//!    is the seed; it grows over every Gaussian connected to it above the support and within
+//!    `grow` times its radius (the parts some photos cut off). Floaters and the rest of the
+//!    scene go.
+//! 5. **Masks by rendering**: each view renders the foreground share of its pixels (foreground
+//!    Gaussians carry 1, the rest 0, composited as colour), so occlusion by the background is
+//!    the renderer's; the mask is that share over the pixel's opacity, 0.5 the threshold.
+//!
+//! Every size is relative to the candidates' spread around the focus, so the result does not
+//! depend on the capture's units. All random choices come from the given [`Rng`].
+
+use glam::{DMat3, DVec3, Vec3};
+use serde::{Deserialize, Serialize};
+use svgir_core::{Camera, Rng, Surfels};
+use svgir_raster::{render, Background, ColorSource, Features, RasterConfig, RenderInput};
+
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct ForegroundConfig {
+    /// A candidate is inside at least this share of the cameras' images.
+    pub seen_fraction: f32,
+    /// Image border (share of the image side) a candidate must be inside of.
+    pub image_margin: f32,
+    /// A support plane must hold at least this share of the candidates.
+    pub min_plane_share: f32,
+    /// Plane inlier distance, as a share of the candidates' median distance to the focus.
+    pub plane_tolerance: f32,
+    /// RANSAC plane hypotheses.
+    pub ransac_iterations: usize,
+    /// Connectivity voxel side, as a share of the candidates' median distance to the focus.
+    pub voxel: f32,
+    /// Gaussians below this opacity take no part in the selection (they still render).
+    pub min_opacity: f32,
+    /// The object may extend to this many times the seed cluster's distance from the focus.
+    pub grow: f32,
+}
+
+impl Default for ForegroundConfig {
+    fn default() -> Self {
+        Self {
+            seen_fraction: 0.9,
+            image_margin: 0.02,
+            min_plane_share: 0.1,
+            plane_tolerance: 0.04,
+            ransac_iterations: 500,
+            voxel: 0.05,
+            min_opacity: 0.05,
+            grow: 2.5,
+        }
+    }
+}
+
+/// A plane `n . x = d` with `n` unit, the cameras on its positive side.
+#[derive(Clone, Copy, Debug, Serialize, Deserialize)]
+pub struct Plane {
+    pub normal: Vec3,
+    pub d: f32,
+}
+
+impl Plane {
+    pub fn signed_distance(&self, p: Vec3) -> f32 {
+        self.normal.dot(p) - self.d
+    }
+}
+
+/// What the selection found, for the masks and for the report.
+#[derive(Clone, Debug, Serialize, Deserialize)]
+pub struct Foreground {
+    pub focus: Vec3,
+    pub candidates: usize,
+    pub support: Option<Plane>,
+    /// Per Gaussian: part of the object.
+    #[serde(skip)]
+    pub selected: Vec<bool>,
+    pub selected_count: usize,
+}
+
+/// The point nearest to all cameras' optical axes; `None` when they are (nearly) parallel.
+pub fn focus_point(cameras: &[Camera]) -> Option<Vec3> {
+    let mut a = DMat3::ZERO;
+    let mut b = DVec3::ZERO;
+    for cam in cameras {
+        let d = cam.forward().as_dvec3().normalize();
+        let p = DMat3::IDENTITY - DMat3::from_cols(d * d.x, d * d.y, d * d.z);
+        a += p;
+        b += p * cam.center().as_dvec3();
+    }
+    // Parallel axes leave the system singular along them.
+    let det = a.determinant();
+    (cameras.len() >= 2 && det.abs() > 1e-6 * (cameras.len() as f64).powi(3)).then(|| (a.inverse() * b).as_vec3())
+}
+
+fn inside_image(cam: &Camera, p: Vec3, margin: f32) -> bool {
+    match cam.project(p) {
+        Some((x, y, _)) => {
+            let (w, h) = (cam.width() as f32, cam.height() as f32);
+            x >= margin * w && x <= (1.0 - margin) * w && y >= margin * h && y <= (1.0 - margin) * h
+        }
+        None => false,
+    }
+}
+
+/// Steps 1-4 of the module docs.
+pub fn select_foreground(
+    surfels: &Surfels,
+    cameras: &[Camera],
+    cfg: &ForegroundConfig,
+    rng: &mut Rng,
+) -> Result<Foreground, String> {
+    let focus = focus_point(cameras).ok_or("the cameras' optical axes do not meet: not an object-centred capture")?;
+    let n = surfels.len();
+    let need = (cfg.seen_fraction * cameras.len() as f32).ceil() as usize;
+    let candidate: Vec<bool> = (0..n)
+        .map(|i| {
+            let p = surfels.positions[i];
+            surfels.opacity(i) >= cfg.min_opacity
+                && cameras.iter().filter(|c| inside_image(c, p, cfg.image_margin)).count() >= need
+        })
+        .collect();
+    let idx: Vec<usize> = (0..n).filter(|&i| candidate[i]).collect();
+    if idx.len() < 10 {
+        return Err(format!(
+            "only {} Gaussians lie where every camera looks; is this an object-centred capture?",
+            idx.len()
+        ));
+    }
+    let mut dists: Vec<f32> = idx.iter().map(|&i| (surfels.positions[i] - focus).length()).collect();
+    dists.sort_by(f32::total_cmp);
+    let scale = dists[dists.len() / 2].max(1e-9);
+
+    let mut keep = candidate;
+    let support = support_plane(surfels, &idx, cameras, focus, cfg.plane_tolerance * scale, cfg, rng);
+    if let Some(pl) = support {
+        let tol = cfg.plane_tolerance * scale;
+        for &i in &idx {
+            if pl.signed_distance(surfels.positions[i]) < tol {
+                keep[i] = false;
+            }
+        }
+    }
+    // The seed: the largest cluster of what every camera sees, above the support.
+    let kept: Vec<usize> = idx.iter().copied().filter(|&i| keep[i]).collect();
+    let voxel = cfg.voxel * scale;
+    let seed = Clusters::new(surfels, &kept, voxel);
+    let seed_members = seed.largest().map(|c| seed.members(&[c], n)).unwrap_or_else(|| vec![false; n]);
+    let seed_radius =
+        (0..n).filter(|&i| seed_members[i]).map(|i| (surfels.positions[i] - focus).length()).fold(0.0f32, f32::max);
+    // Grow it over every Gaussian connected to it (parts of the object that some photos cut
+    // off), above the support and within `grow` times the seed's radius.
+    let eligible: Vec<usize> = (0..n)
+        .filter(|&i| {
+            let p = surfels.positions[i];
+            surfels.opacity(i) >= cfg.min_opacity
+                && (p - focus).length() <= cfg.grow * seed_radius
+                && support.is_none_or(|pl| pl.signed_distance(p) >= cfg.plane_tolerance * scale)
+        })
+        .collect();
+    let all = Clusters::new(surfels, &eligible, voxel);
+    let mut comps: Vec<usize> = (0..n)
+        .filter(|&i| seed_members[i])
+        .filter_map(|i| all.label.get(&all.key(surfels.positions[i])).copied())
+        .collect();
+    comps.sort_unstable();
+    comps.dedup();
+    let selected = all.members(&comps, n);
+    let selected_count = selected.iter().filter(|s| **s).count();
+    if selected_count == 0 {
+        return Err("no object left after removing the support plane".into());
+    }
+    Ok(Foreground { focus, candidates: idx.len(), support, selected, selected_count })
+}
+
+/// RANSAC over the candidates' centres; a plane counts as a support only under the module's
+/// conditions (share, every camera and the focus on one side).
+fn support_plane(
+    s: &Surfels,
+    idx: &[usize],
+    cameras: &[Camera],
+    focus: Vec3,
+    tol: f32,
+    cfg: &ForegroundConfig,
+    rng: &mut Rng,
+) -> Option<Plane> {
+    let pts: Vec<Vec3> = idx.iter().map(|&i| s.positions[i]).collect();
+    let mut best: Option<(usize, Plane)> = None;
+    for _ in 0..cfg.ransac_iterations {
+        let (a, b, c) = (pts[rng.below(pts.len())], pts[rng.below(pts.len())], pts[rng.below(pts.len())]);
+        let nrm = (b - a).cross(c - a);
+        if nrm.length_squared() < 1e-20 {
+            continue;
+        }
+        let nrm = nrm.normalize();
+        let pl = Plane { normal: nrm, d: nrm.dot(a) };
+        let count = pts.iter().filter(|p| pl.signed_distance(**p).abs() < tol).count();
+        if best.as_ref().is_none_or(|(c, _)| count > *c) {
+            best = Some((count, pl));
+        }
+    }
+    let (count, mut pl) = best?;
+    if (count as f32) < cfg.min_plane_share * pts.len() as f32 {
+        return None;
+    }
+    // Orient towards the cameras; all of them, and the object's centre, must be on that side.
+    let mean_cam = cameras.iter().map(|c| c.center()).sum::<Vec3>() / cameras.len() as f32;
+    if pl.signed_distance(mean_cam) < 0.0 {
+        pl = Plane { normal: -pl.normal, d: -pl.d };
+    }
+    let all_above = cameras.iter().all(|c| pl.signed_distance(c.center()) > tol);
+    (all_above && pl.signed_distance(focus) > -tol).then_some(pl)
+}
+
+/// Voxel cells of the given Gaussians and their 26-connected components.
+struct Clusters {
+    voxel: f32,
+    cells: std::collections::HashMap<(i64, i64, i64), Vec<usize>>,
+    /// Component of each cell, and each component's Gaussian count.
+    label: std::collections::HashMap<(i64, i64, i64), usize>,
+    sizes: Vec<usize>,
+}
+
+impl Clusters {
+    fn key(&self, p: Vec3) -> (i64, i64, i64) {
+        let v = (p / self.voxel).floor();
+        (v.x as i64, v.y as i64, v.z as i64)
+    }
+
+    fn new(s: &Surfels, idx: &[usize], voxel: f32) -> Self {
+        let mut c = Self { voxel, cells: Default::default(), label: Default::default(), sizes: Vec::new() };
+        for &i in idx {
+            let k = c.key(s.positions[i]);
+            c.cells.entry(k).or_default().push(i);
+        }
+        // Flood fill over occupied cells in a fixed order, so that ties resolve the same way.
+        let mut keys: Vec<_> = c.cells.keys().copied().collect();
+        keys.sort_unstable();
+        for &k in &keys {
+            if c.label.contains_key(&k) {
+                continue;
+            }
+            let id = c.sizes.len();
+            let mut size = 0;
+            let mut stack = vec![k];
+            c.label.insert(k, id);
+            while let Some(q) = stack.pop() {
+                size += c.cells[&q].len();
+                for dz in -1..=1 {
+                    for dy in -1..=1 {
+                        for dx in -1..=1 {
+                            let nb = (q.0 + dx, q.1 + dy, q.2 + dz);
+                            if c.cells.contains_key(&nb) && !c.label.contains_key(&nb) {
+                                c.label.insert(nb, id);
+                                stack.push(nb);
+                            }
+                        }
+                    }
+                }
+            }
+            c.sizes.push(size);
+        }
+        c
+    }
+
+    /// The component with the most Gaussians.
+    fn largest(&self) -> Option<usize> {
+        (0..self.sizes.len()).max_by_key(|&c| (self.sizes[c], std::cmp::Reverse(c)))
+    }
+
+    /// Per-Gaussian flags (over `n`) of the members of `components`.
+    fn members(&self, components: &[usize], n: usize) -> Vec<bool> {
+        let mut out = vec![false; n];
+        for (k, members) in &self.cells {
+            if components.contains(&self.label[k]) {
+                for &i in members {
+                    out[i] = true;
+                }
+            }
+        }
+        out
+    }
+}
+
+/// Soft mask of one view: the foreground's share of each pixel's opacity (0 where nothing is).
+pub fn render_share(surfels: &Surfels, selected: &[bool], camera: &Camera, raster: &RasterConfig) -> Vec<f32> {
+    let feats: Vec<f32> = selected.iter().flat_map(|&s| [if s { 1.0 } else { 0.0 }; 3]).collect();
+    let input = RenderInput {
+        surfels,
+        camera,
+        colors: ColorSource::Features(Features { data: &feats, vertices: 1, channels: 3 }),
+        extra: None,
+        background: Background::Color([0.0; 3]),
+    };
+    let (out, _) = render(&input, raster);
+    out.color
+        .chunks_exact(3)
+        .zip(&out.alpha)
+        .map(|(c, &a)| if a > 1e-3 { (c[0] / a).clamp(0.0, 1.0) } else { 0.0 })
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::{Mat4, Quat, Vec2};
+    use svgir_core::{Intrinsics, ShCoeffs};
+
+    fn ring_cameras(n: usize, radius: f32, height: f32) -> Vec<Camera> {
+        (0..n)
+            .map(|k| {
+                let a = k as f32 / n as f32 * std::f32::consts::TAU;
+                let eye = Vec3::new(radius * a.cos(), radius * a.sin(), height);
+                let c2w = Mat4::look_at_rh(eye, Vec3::ZERO, Vec3::Z).inverse();
+                Camera::from_blender_c2w(c2w, Intrinsics::from_fov_x(0.8, 64, 48)).unwrap()
+            })
+            .collect()
+    }
+
+    /// A ball of Gaussians on a large table, plus a floater: the ball alone is selected, and
+    /// its rendered share is high on the ball's centre and low on the table.
+    #[test]
+    fn ball_on_a_table() {
+        let cams = ring_cameras(12, 4.0, 2.5);
+        let f = focus_point(&cams).unwrap();
+        assert!(f.length() < 1e-3, "focus {f}");
+        let mut rng = Rng::new(1);
+        let mut s = Surfels::with_capacity(0, 0);
+        let q = Quat::IDENTITY;
+        let push = |s: &mut Surfels, p: Vec3, scale: f32| {
+            s.push(p, q, Vec2::splat(scale.ln()), 3.0, ShCoeffs::from_rgb([0.5; 3]));
+        };
+        for _ in 0..2000 {
+            let d = Vec3::new(rng.normal(), rng.normal(), rng.normal()).normalize() * 0.3;
+            push(&mut s, d + Vec3::new(0.0, 0.0, 0.3), 0.03);
+        }
+        let table_start = s.len();
+        for _ in 0..3000 {
+            push(&mut s, Vec3::new(rng.range(-2.0, 2.0), rng.range(-2.0, 2.0), 0.0), 0.05);
+        }
+        push(&mut s, Vec3::new(0.0, 0.0, 1.2), 0.02);
+        let fg = select_foreground(&s, &cams, &ForegroundConfig::default(), &mut Rng::new(2)).unwrap();
+        let pl = fg.support.expect("the table is found");
+        assert!(pl.normal.z > 0.99 && pl.d.abs() < 0.05, "{pl:?}");
+        let ball = fg.selected[..table_start].iter().filter(|x| **x).count();
+        let table = fg.selected[table_start..s.len() - 1].iter().filter(|x| **x).count();
+        assert!(ball > 1700, "ball {ball}");
+        assert!(table < 30, "table {table}");
+        assert!(!fg.selected[s.len() - 1], "floater selected");
+        let cam = &cams[0];
+        let share = render_share(&s, &fg.selected, cam, &RasterConfig::default());
+        let (x, y, _) = cam.project(Vec3::new(0.0, 0.0, 0.3)).unwrap();
+        let at = |x: f32, y: f32| share[y as usize * cam.width() as usize + x as usize];
+        assert!(at(x, y) > 0.9, "ball centre share {}", at(x, y));
+        let (tx, ty, _) = cam.project(Vec3::new(0.5, -1.5, 0.0)).unwrap();
+        assert!(at(tx, ty) < 0.1, "table share {}", at(tx, ty));
+    }
+
+    #[test]
+    fn parallel_cameras_have_no_focus() {
+        let k = Intrinsics::from_fov_x(0.8, 8, 8);
+        let cams: Vec<Camera> =
+            (0..3).map(|i| Camera::from_w2c(glam::Mat3::IDENTITY, Vec3::new(i as f32, 0.0, 0.0), k).unwrap()).collect();
+        assert!(focus_point(&cams).is_none());
+    }
+}
