@@ -79,6 +79,9 @@ pub struct Dataset {
     pub camera_model: String,
     /// Whether the images' alpha is a foreground mask, and its source.
     pub masks: MaskSource,
+    /// Rotation applied to the capture's own world frame on load ([`Dataset::orient_upright`]);
+    /// identity for datasets used as stored.
+    pub world_rotation: glam::Mat3,
 }
 
 impl Dataset {
@@ -97,6 +100,42 @@ impl Dataset {
         self.train.iter().map(|v| v.camera.center()).sum::<Vec3>() / n
     }
 
+    /// Mean of the training cameras' up directions (image -y in world space), unit length;
+    /// `None` without training views or when they cancel out.
+    pub fn mean_camera_up(&self) -> Option<Vec3> {
+        let sum: Vec3 = self.train.iter().map(|v| -v.camera.rotation.row(1)).sum();
+        (sum.length() > 1e-3 * self.train.len() as f32).then(|| sum.normalize())
+    }
+
+    /// Rotates the world by `a` (cameras and points together, about the origin): every image
+    /// stays exactly as it was.
+    pub fn rotate_world(&mut self, a: glam::Mat3) {
+        for v in self.train.iter_mut().chain(self.test.iter_mut()) {
+            // x_cam = R x + t = (R A^T)(A x) + t.
+            v.camera.rotation *= a.transpose();
+            if let Some(n) = &mut v.normal {
+                for p in n.data.chunks_exact_mut(3) {
+                    let r = a * Vec3::from_slice(p);
+                    p.copy_from_slice(&r.to_array());
+                }
+            }
+        }
+        if let Some(pc) = &mut self.points {
+            pc.positions.iter_mut().for_each(|p| *p = a * *p);
+        }
+    }
+
+    /// Turns a capture upright: the rotation taking the cameras' mean up direction to world +Z
+    /// (SPEC's environment maps are +Z up), applied with [`Self::rotate_world`] and returned.
+    /// Photographers hold the camera upright, so this is the room's up to within a few degrees
+    /// (nerfstudio's "up" orientation does the same).
+    pub fn orient_upright(&mut self) -> Option<glam::Mat3> {
+        let up = self.mean_camera_up()?;
+        let a = glam::Mat3::from_quat(glam::Quat::from_rotation_arc(up, Vec3::Z));
+        self.rotate_world(a);
+        Some(a)
+    }
+
     /// Scene extent as 3DGS defines it (SPEC 2): 1.1 x the largest distance of a training camera
     /// from the training cameras' centroid.
     pub fn camera_extent(&self) -> f32 {
@@ -106,5 +145,66 @@ impl Dataset {
         }
         let centroid = self.camera_centroid();
         1.1 * centers.iter().map(|c| (*c - centroid).length()).fold(0.0, f32::max)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::Intrinsics;
+    use glam::{Mat3, Mat4, Quat};
+
+    /// Cameras on a ring looking at the origin, in a world whose up is `up`.
+    fn tilted_dataset(up: Vec3) -> Dataset {
+        let tilt = Mat3::from_quat(Quat::from_rotation_arc(Vec3::Z, up));
+        let views = (0..6)
+            .map(|k| {
+                let a = k as f32;
+                let eye = tilt * Vec3::new(3.0 * a.cos(), 3.0 * a.sin(), 1.5);
+                let c2w = Mat4::look_at_rh(eye, Vec3::ZERO, up).inverse();
+                let camera = Camera::from_blender_c2w(c2w, Intrinsics::from_fov_x(0.8, 32, 24)).unwrap();
+                View {
+                    name: k.to_string(),
+                    camera,
+                    image: Image::new(32, 24, 4),
+                    albedo: None,
+                    normal: None,
+                    roughness: None,
+                    relit: BTreeMap::new(),
+                }
+            })
+            .collect();
+        let points = PointCloud { positions: vec![tilt * Vec3::new(0.2, -0.1, 0.4)], colors: vec![[1.0; 3]] };
+        Dataset {
+            name: "t".into(),
+            root: PathBuf::new(),
+            train: views,
+            test: Vec::new(),
+            points: Some(points),
+            train_light: None,
+            relight_lights: Vec::new(),
+            camera_model: "PINHOLE".into(),
+            masks: MaskSource::None,
+            world_rotation: Mat3::IDENTITY,
+        }
+    }
+
+    #[test]
+    fn orient_upright_turns_the_cameras_up_to_z_and_keeps_the_images() {
+        let up = Vec3::new(0.3, -0.9, 0.2).normalize();
+        let mut ds = tilted_dataset(up);
+        let before: Vec<_> =
+            ds.train.iter().map(|v| v.camera.project(ds.points.as_ref().unwrap().positions[0])).collect();
+        assert!((ds.mean_camera_up().unwrap() - up).length() < 0.2, "the ring's mean up is near the world's up");
+        let a = ds.orient_upright().unwrap();
+        assert!((ds.mean_camera_up().unwrap() - Vec3::Z).length() < 1e-5);
+        assert!((a * up - Vec3::Z).length() < 0.2);
+        let p = ds.points.as_ref().unwrap().positions[0];
+        for (v, b) in ds.train.iter().zip(before) {
+            let (x0, y0, z0) = b.unwrap();
+            let (x, y, z) = v.camera.project(p).unwrap();
+            assert!((x - x0).abs() < 1e-3 && (y - y0).abs() < 1e-3 && (z - z0).abs() < 1e-4);
+            v.camera.validate().unwrap();
+        }
     }
 }

@@ -296,5 +296,6 @@ pub fn load(root: &Path, opts: &LoadOptions) -> Result<Dataset> {
         relight_lights: Vec::new(),
         camera_model: models.join("+"),
         masks,
+        world_rotation: glam::Mat3::IDENTITY,
     })
 }

@@ -105,9 +105,18 @@ pub fn load_dataset(root: impl AsRef<Path>, opts: &LoadOptions) -> Result<Datase
     match detect_layout(root)? {
         Layout::Nerf => nerf::load(dataset_dir(root), opts),
         Layout::TensoIr => tensoir::load(dataset_dir(root), opts),
-        Layout::Colmap => colmap::load(dataset_dir(root), opts),
-        Layout::Transforms => transforms::load(root, opts),
+        Layout::Colmap => colmap::load(dataset_dir(root), opts).map(upright),
+        Layout::Transforms => transforms::load(root, opts).map(upright),
     }
+}
+
+/// Captures come in their reconstruction's arbitrary frame; environment maps and relighting
+/// need +Z up (see [`Dataset::orient_upright`]). Synthetic layouts are +Z up already.
+fn upright(mut ds: Dataset) -> Dataset {
+    if let Some(a) = ds.orient_upright() {
+        ds.world_rotation = a;
+    }
+    ds
 }
 
 fn check_options(opts: &LoadOptions) -> std::result::Result<(), ErrorKind> {

@@ -190,6 +190,7 @@ pub fn load(root: &Path, opts: &LoadOptions) -> Result<Dataset> {
         relight_lights: Vec::new(),
         camera_model: "blender".into(),
         masks,
+        world_rotation: glam::Mat3::IDENTITY,
     })
 }
 

@@ -43,6 +43,10 @@ pub fn dataset_summary(ds: &Dataset) -> String {
     let fov = ds.train.first().map(|v| v.camera.intrinsics.fov_x().to_degrees());
     let fov = fov.map(|f| format!(", fov_x {f:.1} deg")).unwrap_or_default();
     let _ = writeln!(s, "cameras   {}{fov}, extent {:.3}", ds.camera_model, ds.camera_extent());
+    if ds.world_rotation != glam::Mat3::IDENTITY {
+        let angle = glam::Quat::from_mat3(&ds.world_rotation).angle_between(glam::Quat::IDENTITY).to_degrees();
+        let _ = writeln!(s, "up        turned upright: the cameras' mean up is +Z (world rotated by {angle:.1} deg)");
+    }
     let _ = writeln!(s, "masks     {}", masks(&ds.masks));
     let gt = [
         ("albedo", count(&all, |v| v.albedo.is_some())),
@@ -101,6 +105,7 @@ mod tests {
             relight_lights: vec![],
             camera_model: "PINHOLE".into(),
             masks: MaskSource::None,
+            world_rotation: glam::Mat3::IDENTITY,
         };
         let s = dataset_summary(&ds);
         assert!(

@@ -218,5 +218,6 @@ pub fn load(root: &Path, opts: &LoadOptions) -> Result<Dataset> {
         relight_lights,
         camera_model: "blender".into(),
         masks,
+        world_rotation: glam::Mat3::IDENTITY,
     })
 }

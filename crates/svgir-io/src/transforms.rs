@@ -356,6 +356,7 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<Dataset> {
         relight_lights: Vec::new(),
         camera_model: models.into_iter().collect::<Vec<_>>().join("+"),
         masks,
+        world_rotation: glam::Mat3::IDENTITY,
     })
 }
 

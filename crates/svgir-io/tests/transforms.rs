@@ -117,7 +117,7 @@ fn capture_with_distortion_per_frame_intrinsics_and_masks() {
         let e = expect.iter().find(|e| e.name == view.name).unwrap();
         assert_eq!((view.image.width, view.image.height), e.size, "{}", view.name);
         // The camera convention: the world point projects where the hand computation says.
-        let (gx, gy, _) = view.camera.project(POINT).unwrap();
+        let (gx, gy, _) = view.camera.project(ds.world_rotation * POINT).unwrap();
         assert!((gx as f64 - e.pixel.0).abs() < 1e-3 && (gy as f64 - e.pixel.1).abs() < 1e-3, "{}", view.name);
         // The photo was undistorted: the spot sits at the pinhole projection.
         let (sx, sy) = peak(&view.image, 0);

@@ -5,6 +5,7 @@ pub mod adam;
 pub mod checkpoint;
 pub mod composite;
 pub mod config;
+pub mod coverage;
 pub mod densify;
 pub mod exposure;
 pub mod foreground;

@@ -288,6 +288,17 @@ fn evaluate(
     let mut psnr = 0.0;
     let mut ssim = 0.0;
     let mut normal_mae = svgir_metrics::NormalMae::new();
+    // Captures, in the final evaluation: which test pixels a training photo saw.
+    let train_depths: Vec<Vec<f32>> = if out_dir.is_some() && !dataset.has_masks() {
+        let depth = |c| {
+            let o = trainer.render_view(c, bg);
+            svgir_train::coverage::expected_depth(&o.depth, &o.alpha)
+        };
+        dataset.train.iter().map(|v| depth(&v.camera)).collect()
+    } else {
+        Vec::new()
+    };
+    let mut coverage = Vec::new();
     for v in &views {
         let out = trainer.render_view(&v.camera, bg);
         let gt = svgir_train::stage1::target_rgb(&v.image, bg);
@@ -300,6 +311,38 @@ fn evaluate(
         if let Some(gt_n) = &v.normal {
             let alpha: Vec<f32> = v.image.data.chunks(4).map(|p| p[3]).collect();
             normal_mae.add_view(&normal, &gt_n.data, &alpha)?;
+        }
+        if !train_depths.is_empty() {
+            let depth_views: Vec<_> = dataset
+                .train
+                .iter()
+                .zip(&train_depths)
+                .map(|(t, d)| svgir_train::coverage::DepthView { camera: &t.camera, depth: d })
+                .collect();
+            let depth = svgir_train::coverage::expected_depth(&out.depth, &out.alpha);
+            let seen = svgir_train::coverage::seen_count(&v.camera, &depth, &depth_views, 0.03);
+            let m: Vec<f32> = seen.iter().map(|&c| (c > 0) as u8 as f32).collect();
+            let inv: Vec<f32> = m.iter().map(|x| 1.0 - x).collect();
+            let share = m.iter().sum::<f32>() / m.len() as f32;
+            let part = |mask: &[f32]| svgir_metrics::psnr(&pred, &gt, 3, Some(mask)).ok().filter(|p| p.is_finite());
+            coverage
+                .push(json!({"view": v.name, "seen_share": share, "psnr_seen": part(&m), "psnr_unseen": part(&inv)}));
+            if let Some(dir) = out_dir {
+                std::fs::create_dir_all(dir)?;
+                // The photo, tinted magenta where no training photo saw the surface.
+                let tint: Vec<f32> = gt
+                    .chunks_exact(3)
+                    .zip(&m)
+                    .flat_map(|(p, &s)| {
+                        if s > 0.0 {
+                            [p[0], p[1], p[2]]
+                        } else {
+                            [0.5 + 0.5 * p[0], 0.25 * p[1], 0.5 + 0.5 * p[2]]
+                        }
+                    })
+                    .collect();
+                svgir_io::write_png(dir.join(format!("{}_seen.png", v.name)), &Image::from_data(w, h, 3, tint), 8)?;
+            }
         }
         if let Some(dir) = out_dir {
             std::fs::create_dir_all(dir)?;
@@ -319,6 +362,9 @@ fn evaluate(
     }
     let n = views.len().max(1) as f64;
     let mut m = json!({"views": views.len(), "psnr": psnr / n, "ssim": ssim / n});
+    if !coverage.is_empty() {
+        m["coverage"] = json!(coverage);
+    }
     if let Some(mae) = normal_mae.mean_deg() {
         m["normal_mae_deg"] = json!(mae);
     }
