@@ -264,7 +264,7 @@ pub fn load(root: &Path, opts: &LoadOptions) -> Result<Dataset> {
     let dir = sparse_dir(root).ok_or_else(|| ErrorKind::Missing("sparse/cameras.bin".into()).at(root))?;
     let mut model = read_model(&dir)?;
     model.images.sort_by(|a, b| a.name.cmp(&b.name));
-    let masks_dir = Some(root.join("masks")).filter(|d| d.is_dir());
+    let masks_dir = opts.masks.clone().or_else(|| Some(root.join("masks")).filter(|d| d.is_dir()));
     let (test_idx, train_idx): (Vec<usize>, Vec<usize>) = (0..model.images.len()).partition(|i| i % 8 == 0);
     let load_split = |idx: &[usize]| -> Result<Vec<(View, bool)>> {
         let keep = select_views(idx.len(), opts.max_views);

@@ -22,11 +22,14 @@ pub struct LoadOptions {
     pub load_test: bool,
     /// At most this many views per split, evenly spaced over the split (first one included).
     pub max_views: Option<usize>,
+    /// Foreground masks from this folder (named like the photos, as `DATASET/masks/`) instead
+    /// of the dataset's own; captures only (COLMAP, transforms.json).
+    pub masks: Option<std::path::PathBuf>,
 }
 
 impl Default for LoadOptions {
     fn default() -> Self {
-        Self { resolution: None, downscale: None, load_test: true, max_views: None }
+        Self { resolution: None, downscale: None, load_test: true, max_views: None, masks: None }
     }
 }
 
@@ -102,7 +105,19 @@ pub fn detect_layout(root: &Path) -> Result<Layout> {
 pub fn load_dataset(root: impl AsRef<Path>, opts: &LoadOptions) -> Result<Dataset> {
     let root = root.as_ref();
     check_options(opts).at(root)?;
-    match detect_layout(root)? {
+    let layout = detect_layout(root)?;
+    if let (Some(m), Layout::Nerf | Layout::TensoIr) = (&opts.masks, layout) {
+        let why = format!(
+            "a masks folder ({}) is for captures; {} datasets carry masks as alpha",
+            m.display(),
+            layout.name()
+        );
+        return Err(ErrorKind::invalid(why).at(root));
+    }
+    if let Some(m) = opts.masks.as_ref().filter(|m| !m.is_dir()) {
+        return Err(ErrorKind::Missing("masks folder".into()).at(m));
+    }
+    match layout {
         Layout::Nerf => nerf::load(dataset_dir(root), opts),
         Layout::TensoIr => tensoir::load(dataset_dir(root), opts),
         Layout::Colmap => colmap::load(dataset_dir(root), opts).map(upright),

@@ -324,7 +324,14 @@ fn load_view(f: &Frame, json_path: &Path, opts: &LoadOptions) -> Result<(View, b
 pub fn load(path: &Path, opts: &LoadOptions) -> Result<Dataset> {
     let (json_path, dir) = json_and_dir(path);
     let json = read_json(&json_path)?;
-    let cap = parse_capture(&json, &dir).at(&json_path)?;
+    let mut cap = parse_capture(&json, &dir).at(&json_path)?;
+    // A masks folder given on load replaces the frames' own mask paths.
+    if let Some(masks) = &opts.masks {
+        for f in &mut cap.frames {
+            let name = f.image_path.file_name().map(|n| n.to_string_lossy().into_owned()).unwrap_or_default();
+            f.mask_path = Some(crate::mask::find_colmap_mask(masks, &name)?);
+        }
+    }
     let load_split = |idx: &[usize]| -> Result<Vec<(View, bool)>> {
         let keep = select_views(idx.len(), opts.max_views);
         let views: Vec<Result<(View, bool)>> =
@@ -333,7 +340,9 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<Dataset> {
     };
     let train = load_split(&cap.train)?;
     let test = if opts.load_test { load_split(&cap.test)? } else { Vec::new() };
-    let masks = if cap.frames.iter().any(|f| f.mask_path.is_some()) {
+    let masks = if let Some(m) = &opts.masks {
+        MaskSource::Folder(m.clone())
+    } else if cap.frames.iter().any(|f| f.mask_path.is_some()) {
         MaskSource::PerFrame
     } else if train.iter().chain(&test).any(|v| v.1) {
         MaskSource::Alpha

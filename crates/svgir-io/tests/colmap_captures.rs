@@ -156,6 +156,24 @@ fn masks_folder_gives_alpha_before_undistortion() {
         )
     );
     write_png(d.join("masks/a.png"), &mask, 16).unwrap();
+    // The same masks from a folder outside the dataset (`--masks DIR`) replace DATASET/masks.
+    let outside = tmp_dir("colmap-masks-outside");
+    for name in ["a.png", "b.jpg.png", "c.jpeg"] {
+        std::fs::copy(d.join("masks").join(name), outside.join(name)).unwrap();
+    }
+    std::fs::write(d.join("masks/a.png"), b"not a png").unwrap();
+    let given = LoadOptions { masks: Some(outside.clone()), ..Default::default() };
+    let ds = load_dataset(&d, &given).unwrap();
+    assert_eq!(ds.masks, MaskSource::Folder(outside.clone()));
+    for view in ds.all_views() {
+        let (sx, sy) = peak(&view.image, 3);
+        assert!((sx - ex).hypot(sy - ey) < 0.5, "{}: alpha spot at ({sx:.2}, {sy:.2})", view.name);
+    }
+    let missing = LoadOptions { masks: Some(outside.join("nope")), ..Default::default() };
+    let e = load_dataset(&d, &missing).unwrap_err().to_string();
+    assert!(e.contains("nope") && e.contains("missing masks folder"), "{e}");
+    let _ = std::fs::remove_dir_all(&outside);
+    write_png(d.join("masks/a.png"), &mask, 16).unwrap();
     std::fs::remove_file(d.join("masks/b.jpg.png")).unwrap();
     assert_eq!(
         err(&d),

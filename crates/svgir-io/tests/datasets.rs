@@ -66,7 +66,7 @@ fn downscaling_and_subsets() {
     }
     let ds = load_dataset(
         &root,
-        &LoadOptions { resolution: Some(160), load_test: false, max_views: Some(1), downscale: None },
+        &LoadOptions { resolution: Some(160), load_test: false, max_views: Some(1), downscale: None, masks: None },
     )
     .unwrap();
     assert_eq!((ds.train[0].image.width, ds.train[0].image.height), (160, 160));

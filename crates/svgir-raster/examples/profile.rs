@@ -11,7 +11,13 @@ fn main() {
     let problem = match (args.get(2), args.get(3)) {
         (Some(ply), Some(data)) => {
             let (surfels, _) = svgir_io::read_gaussians_ply(ply).expect("PLY");
-            let opts = svgir_io::LoadOptions { resolution: None, downscale: None, load_test: true, max_views: Some(1) };
+            let opts = svgir_io::LoadOptions {
+                resolution: None,
+                downscale: None,
+                load_test: true,
+                max_views: Some(1),
+                masks: None,
+            };
             let ds = svgir_io::load_dataset(data, &opts).expect("dataset");
             let cam = ds.test.first().or(ds.train.first()).expect("a view").camera;
             Problem::with_camera(surfels, cam)

@@ -12,7 +12,7 @@ fn scene() -> Option<Dataset> {
         eprintln!("SKIPPED: {} not found; this test needs ../shared/data", root.display());
         return None;
     }
-    let opts = LoadOptions { resolution: Some(64), downscale: None, load_test: true, max_views: Some(16) };
+    let opts = LoadOptions { resolution: Some(64), downscale: None, load_test: true, max_views: Some(16), masks: None };
     Some(load_dataset(&root, &opts).expect("scene loads"))
 }
 

@@ -15,7 +15,7 @@ fn scene() -> Option<Dataset> {
         eprintln!("SKIPPED: {} not found; this test needs ../shared/data", root.display());
         return None;
     }
-    let opts = LoadOptions { resolution: Some(48), downscale: None, load_test: true, max_views: Some(12) };
+    let opts = LoadOptions { resolution: Some(48), downscale: None, load_test: true, max_views: Some(12), masks: None };
     Some(load_dataset(&root, &opts).expect("scene loads"))
 }
 

@@ -38,7 +38,7 @@ pub struct BenchArgs {
 /// `svgir bench raster --ply --data`: the scene's timing table.
 fn raster_scene(ply: &Path, data: &Path, views: usize, background: [f32; 3], threads: usize) -> Result<String> {
     let (surfels, _) = svgir_io::read_gaussians_ply(ply)?;
-    let opts = svgir_io::LoadOptions { resolution: None, downscale: None, load_test: true, max_views: None };
+    let opts = svgir_io::LoadOptions::default();
     let ds = svgir_io::load_dataset(data, &opts)?;
     let pool = if ds.test.is_empty() { &ds.train } else { &ds.test };
     anyhow::ensure!(!pool.is_empty(), "{}: no views to take cameras from", data.display());

@@ -35,13 +35,14 @@ pub fn run(args: DemoArgs) -> Result<()> {
     let (iterations, iterations2) = if args.quick { (300, 20) } else { (2000, 400) };
     eprintln!("svgir demo: stage 1 on {} ({iterations} iterations) -> {}", data.display(), args.out.display());
     train::run(train::TrainArgs {
-        data: DataArgs { data, resolution: None, downscale: None, max_views: None },
+        data: DataArgs { data, resolution: None, downscale: None, max_views: None, masks: None },
         out: args.out.clone(),
         iterations,
         seed: args.seed,
         profile: train::ProfileArg::Auto,
         background: Some(train::Bg::Black),
         exposure: false,
+        sh_degree: None,
         init_ply: None,
         init_points: if args.quick { 5_000 } else { 20_000 },
         max_gaussians: Some(if args.quick { 5_000 } else { 15_000 }),

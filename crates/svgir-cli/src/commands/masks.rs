@@ -102,13 +102,20 @@ fn train_reconstruction(args: &MasksArgs) -> Result<PathBuf> {
     let work = args.work.clone().unwrap_or_else(|| PathBuf::from("runs").join(format!("masks-{name}")));
     eprintln!("svgir masks: stage 1 ({} iterations) -> {}", args.iterations, work.display());
     train::run(train::TrainArgs {
-        data: DataArgs { data: args.data.clone(), resolution: None, downscale: Some(args.downscale), max_views: None },
+        data: DataArgs {
+            data: args.data.clone(),
+            resolution: None,
+            downscale: Some(args.downscale),
+            max_views: None,
+            masks: None,
+        },
         out: work.clone(),
         iterations: args.iterations,
         seed: args.seed,
         profile: train::ProfileArg::Capture,
         background: None,
         exposure: false,
+        sh_degree: None,
         init_ply: None,
         init_points: 100_000,
         max_gaussians: None,

@@ -29,11 +29,21 @@ pub struct DataArgs {
     /// Load at most this many views per split (for quick experiments).
     #[arg(long)]
     pub max_views: Option<usize>,
+    /// Foreground masks from this folder (one image per photo, named like it, e.g. from
+    /// `svgir masks`) instead of DATASET/masks; captures only.
+    #[arg(long)]
+    pub masks: Option<std::path::PathBuf>,
 }
 
 impl DataArgs {
     pub fn load_options(&self, load_test: bool) -> LoadOptions {
-        LoadOptions { resolution: self.resolution, downscale: self.downscale, load_test, max_views: self.max_views }
+        LoadOptions {
+            resolution: self.resolution,
+            downscale: self.downscale,
+            load_test,
+            max_views: self.max_views,
+            masks: self.masks.clone(),
+        }
     }
 }
 

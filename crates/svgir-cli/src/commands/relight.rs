@@ -56,7 +56,7 @@ pub fn run(args: RelightArgs) -> Result<()> {
     let name = args.envmap.file_stem().map_or("env".into(), |s| s.to_string_lossy().into_owned());
     let out = args.out.clone().unwrap_or_else(|| stage2_dir.join(format!("relit_{name}")));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
-    let opts = svgir_io::LoadOptions { resolution: None, downscale: None, load_test: true, max_views: None };
+    let opts = svgir_io::LoadOptions::default();
     let dataset = svgir_io::load_dataset(&data, &opts)?;
     let mut cams: Vec<(String, Camera)> = dataset.test.iter().map(|v| (v.name.clone(), v.camera)).collect();
     if let Some(first) = dataset.test.first().or(dataset.train.first()) {

@@ -59,6 +59,7 @@ pub fn load_run_dataset(stage1_run: &Path, data: Option<&Path>) -> Result<(Datas
         downscale: load["downscale"].as_f64().map(|v| v as f32),
         load_test: true,
         max_views: load["max_views"].as_u64().map(|v| v as usize),
+        masks: load["masks"].as_str().map(PathBuf::from),
     };
     Ok((svgir_io::load_dataset(&data, &opts)?, data))
 }

@@ -54,6 +54,10 @@ pub struct TrainArgs {
     /// white for objects; random for captures, so that Gaussians model the real background).
     #[arg(long, value_enum)]
     pub background: Option<Bg>,
+    /// Highest SH degree of the view-dependent colour (0-3; default 3, reached one step every 1000
+    /// iterations in the capture profile).
+    #[arg(long, value_parser = clap::value_parser!(u32).range(0..=3))]
+    pub sh_degree: Option<u32>,
     /// Learn a per-photo affine colour correction (phone captures with varying exposure or white
     /// balance). Test views are rendered without one.
     #[arg(long)]
@@ -137,7 +141,7 @@ pub fn run(args: TrainArgs) -> Result<()> {
                 "stage1": config,
                 "profile": { "name": config.profile.name(), "why": why, "defaults": config.profile.describe() },
                 "data": args.data.data,
-                "load": { "resolution": load.resolution, "downscale": load.downscale, "max_views": load.max_views },
+                "load": { "resolution": load.resolution, "downscale": load.downscale, "max_views": load.max_views, "masks": load.masks },
                 "init": if args.init_ply.is_some() { "ply" } else if dataset.points.as_ref().is_some_and(|p| !p.positions.is_empty()) { "dataset points" } else { "random box" },
                 "initial_gaussians": surfels.len(),
                 "command": std::env::args().collect::<Vec<_>>(),
@@ -175,6 +179,9 @@ fn make_config(args: &TrainArgs, dataset: &Dataset) -> Result<(Stage1Config, &'s
         };
     }
     c.exposure = args.exposure;
+    if let Some(d) = args.sh_degree {
+        c.max_sh_degree = d;
+    }
     c.init_points = args.init_points;
     match args.max_gaussians {
         Some(0) => c.densify.max_gaussians = usize::MAX,
