@@ -113,6 +113,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
             relight_directions: if args.quick { 16 } else { 128 },
             relight_lights: svgir_train::relight::RELIGHT_LIGHTS,
             relight_bounces: svgir_train::relight::RELIGHT_BOUNCES,
+            relight_with: Vec::new(),
         },
     })?;
     let report = args.out.join("report.html");

@@ -422,7 +422,15 @@ pub fn run(args: InverseArgs) -> Result<()> {
     }
     let lpips = super::spec8::load_lpips(args.lpips)?;
     let sampling = args.relight.sampling();
-    let eval = super::spec8::evaluate(&s2, &dataset, &out, lpips.as_ref(), args.turntable, sampling)?;
+    let eval = super::spec8::evaluate(
+        &s2,
+        &dataset,
+        &out,
+        lpips.as_ref(),
+        args.turntable,
+        sampling,
+        &args.relight.extra_lights(),
+    )?;
     let its = s2.iteration.max(1) as f64;
     let t = &s2.times;
     let mut eval_out = eval;

@@ -117,23 +117,25 @@ fn stage2_section(dir: &Path) -> String {
     }
     s += "</table><h3>Environment light: learned vs true</h3><div class=row>";
     s += &img_tag(&dir.join("env_learned.png"), "learned").replace("width:192px", "");
-    s += &img_tag(&dir.join("env_true.png"), "true (training light)");
+    if dir.join("env_true.png").exists() {
+        s += &img_tag(&dir.join("env_true.png"), "true (training light)");
+    }
     s += "</div>";
     let mut frames: Vec<PathBuf> = std::fs::read_dir(dir.join("turntable"))
         .map(|d| d.filter_map(|e| e.ok()).map(|e| e.path()).collect())
         .unwrap_or_default();
     frames.sort();
-    if let Some(first) = frames.first() {
-        let light = first
-            .file_name()
-            .unwrap_or_default()
-            .to_string_lossy()
-            .rsplit_once('_')
-            .map_or(String::new(), |x| x.0.to_string());
-        frames.retain(|f| f.file_name().unwrap_or_default().to_string_lossy().starts_with(&format!("{light}_")));
-        let step = frames.len().div_ceil(8).max(1);
+    // One turntable row per light (frames are LIGHT_NNN.png).
+    let light_of = |f: &PathBuf| {
+        f.file_name().unwrap_or_default().to_string_lossy().rsplit_once('_').map_or(String::new(), |x| x.0.to_string())
+    };
+    let mut lights: Vec<String> = frames.iter().map(light_of).collect();
+    lights.dedup();
+    for light in lights {
+        let mine: Vec<&PathBuf> = frames.iter().filter(|f| light_of(f) == light).collect();
+        let step = mine.len().div_ceil(8).max(1);
         let _ = write!(s, "<h3>Relit turntable ({light})</h3><div class=row>");
-        for f in frames.iter().step_by(step) {
+        for f in mine.iter().step_by(step) {
             s += &img_tag(f, &f.file_name().unwrap_or_default().to_string_lossy());
         }
         s += "</div>";
@@ -166,7 +168,10 @@ fn stage2_section(dir: &Path) -> String {
             pairs.push((format!("gt_relit_{l}"), format!("relit_{l}")));
         }
         for (gt, ours) in pairs {
-            s += &img_tag(&test.join(format!("{stem}_{gt}.png")), &format!("{stem} {gt}"));
+            let gt_path = test.join(format!("{stem}_{gt}.png"));
+            if gt_path.exists() {
+                s += &img_tag(&gt_path, &format!("{stem} {gt}"));
+            }
             s += &img_tag(&test.join(format!("{stem}_{ours}.png")), &format!("{stem} ours: {ours}"));
         }
         s += "</div>";

@@ -9,14 +9,14 @@ use super::eval::{default_lpips_weights, LpipsNet};
 use anyhow::{Context, Result};
 use serde_json::json;
 use std::path::{Path, PathBuf};
-use svgir_core::{Dataset, Image};
+use svgir_core::{Dataset, Image, LightInfo};
 use svgir_metrics::{evaluate_pair, ImageMetrics, Lpips, SsimVariant};
 use svgir_train::relight::{RelightSampling, Relighter};
 use svgir_train::stage1::alpha_of;
 use svgir_train::Stage2;
 
 /// How the evaluation relights (SPEC 7), for `svgir inverse` and `svgir eval`.
-#[derive(clap::Args, Clone, Copy, Debug)]
+#[derive(clap::Args, Clone, Debug)]
 pub struct EvalRelightArgs {
     /// Directions per Gaussian when relighting for the evaluation (SPEC 7: 384; memory is
     /// Gaussians x K x 16 bytes).
@@ -30,9 +30,25 @@ pub struct EvalRelightArgs {
     /// the evaluation (0: Eqn 13 alone).
     #[arg(long, default_value_t = svgir_train::relight::RELIGHT_BOUNCES)]
     pub relight_bounces: usize,
+    /// Also relight under these HDR maps (strength 1): test views and a turntable, without
+    /// metrics (a capture has no relit ground truth). Repeatable.
+    #[arg(long = "relight-with", value_name = "MAP.hdr")]
+    pub relight_with: Vec<PathBuf>,
 }
 
 impl EvalRelightArgs {
+    /// `--relight-with` maps as lights named by their file stems.
+    pub fn extra_lights(&self) -> Vec<LightInfo> {
+        self.relight_with
+            .iter()
+            .map(|p| LightInfo {
+                name: p.file_stem().map_or("map".into(), |s| s.to_string_lossy().into_owned()),
+                envmap_path: Some(p.clone()),
+                strength: 1.0,
+            })
+            .collect()
+    }
+
     pub fn sampling(&self) -> RelightSampling {
         RelightSampling {
             directions: self.relight_directions,
@@ -80,14 +96,20 @@ pub fn load_lpips(net: LpipsNet) -> Result<Option<Lpips>> {
 /// at the training cameras' mean distance and 20 degrees elevation, with `like`'s intrinsics.
 pub fn turntable_cameras(ds: &Dataset, like: &svgir_core::Camera, frames: usize) -> Vec<svgir_core::Camera> {
     use glam::{Mat4, Vec3};
-    let centers: Vec<Vec3> = ds.train.iter().map(|v| v.camera.center()).collect();
-    let dist = centers.iter().map(|c| c.length()).sum::<f32>() / centers.len().max(1) as f32;
-    let elev = 20f32.to_radians();
+    // About the point every camera looks at (the origin for the synthetic scenes), at the
+    // cameras' mean distance and elevation, +Z up.
+    let cams: Vec<_> = ds.train.iter().map(|v| v.camera).collect();
+    let centre = svgir_train::foreground::focus_point(&cams).unwrap_or(Vec3::ZERO);
+    let offsets: Vec<Vec3> = cams.iter().map(|c| c.center() - centre).collect();
+    let n = offsets.len().max(1) as f32;
+    let dist = offsets.iter().map(|o| o.length()).sum::<f32>() / n;
+    let elev = (offsets.iter().map(|o| (o.z / o.length().max(1e-9)).clamp(-1.0, 1.0).asin()).sum::<f32>() / n)
+        .clamp(-1.2, 1.2);
     (0..frames)
         .filter_map(|f| {
             let az = std::f32::consts::TAU * f as f32 / frames as f32;
-            let eye = dist * Vec3::new(elev.cos() * az.cos(), elev.cos() * az.sin(), elev.sin());
-            let back = eye.normalize();
+            let back = Vec3::new(elev.cos() * az.cos(), elev.cos() * az.sin(), elev.sin());
+            let eye = centre + dist * back;
             let right = Vec3::Z.cross(back).normalize();
             let up = back.cross(right);
             let c2w = Mat4::from_cols(right.extend(0.0), up.extend(0.0), back.extend(0.0), eye.extend(1.0));
@@ -126,6 +148,7 @@ pub fn evaluate(
     lpips: Option<&Lpips>,
     turntable: usize,
     sampling: RelightSampling,
+    extra_lights: &[LightInfo],
 ) -> Result<serde_json::Value> {
     let dir = out.join("test");
     std::fs::create_dir_all(&dir)?;
@@ -155,8 +178,15 @@ pub fn evaluate(
             &Image::from_data(w, h, 1, r.roughness.clone()),
         )?;
         svgir_io::write_exr(dir.join(format!("{}_normal.exr", v.name)), &Image::from_data(w, h, 3, r.normal.clone()))?;
-        if let Some(gt) = &v.albedo {
-            scale_acc.add_view(&r.albedo, &gt.data, &mask)?;
+        match &v.albedo {
+            Some(gt) => scale_acc.add_view(&r.albedo, &gt.data, &mask)?,
+            // No truth to scale against: the albedo as learned, for a person to look at.
+            None => png(
+                &dir.join(format!("{}_albedo.png", v.name)),
+                w,
+                h,
+                r.albedo.iter().map(|c| svgir_core::color::linear_to_srgb(c.clamp(0.0, 1.0))).collect(),
+            )?,
         }
         if let Some(gt) = &v.normal {
             normal_mae.add_view(&r.normal, &gt.data, &mask)?;
@@ -205,7 +235,8 @@ pub fn evaluate(
     // Relighting (SPEC 7): K micro-buffers, one-bounce indirect per light.
     let mut per_light = serde_json::Map::new();
     let mut all = Vec::new();
-    let relighter = if ds.relight_lights.iter().any(|l| l.envmap_path.is_some()) {
+    let lights: Vec<&LightInfo> = ds.relight_lights.iter().chain(extra_lights).collect();
+    let relighter = if lights.iter().any(|l| l.envmap_path.is_some()) {
         let r = Relighter::new(s2, sampling)?;
         eprintln!(
             "relighting: traced K = {} directions and {} lights in {:.1} s",
@@ -218,15 +249,20 @@ pub fn evaluate(
     } else {
         None
     };
-    for light in &ds.relight_lights {
+    for light in lights {
         let (Some(path), Some(relighter)) = (&light.envmap_path, &relighter) else { continue };
         let t0 = std::time::Instant::now();
         let lit = relighter.prepare(s2, svgir_io::read_envmap(path, light.strength, s2.config.env_height)?)?;
         eprintln!("relighting: one-bounce light under {} in {:.1} s", light.name, t0.elapsed().as_secs_f64());
         let mut ms = Vec::new();
         for (v, (_, mask)) in ds.test.iter().zip(&renders) {
-            let Some(gt) = v.relit.get(&light.name) else { continue };
             let r = relighter.render(s2, &v.camera, black, &lit, scale)?;
+            let Some(gt) = v.relit.get(&light.name) else {
+                // No truth (a capture, or a map given with --relight-with): the picture only.
+                let img = r.image.iter().map(|c| c.clamp(0.0, 1.0)).collect();
+                png(&dir.join(format!("{}_relit_{}.png", v.name, light.name)), r.width, r.height, img)?;
+                continue;
+            };
             // SPEC 8: the predicted colour and the photo are both composited with the GT mask on
             // black, so the prediction enters as straight colour (not already multiplied by its
             // own opacity, which would count the coverage twice at edges).
@@ -260,7 +296,9 @@ pub fn evaluate(
             }
         }
         all.extend_from_slice(&ms);
-        per_light.insert(light.name.clone(), mean_json(&ms));
+        if !ms.is_empty() {
+            per_light.insert(light.name.clone(), mean_json(&ms));
+        }
     }
     if !all.is_empty() {
         result["relight"] = json!({"mean": mean_json(&all), "per_light": per_light});
