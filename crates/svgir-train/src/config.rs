@@ -215,6 +215,9 @@ impl Stage1Config {
                 c.background = BackgroundMode::Random;
                 c.loss.l1 = 0.8;
                 c.loss.ssim = 0.2;
+                // Runs shorter than 1000 iterations (tests, previews) start densifying earlier
+                // so that they densify at all.
+                c.densify.from_iter = (iterations / 10).min(500);
                 c.densify.until_iter = (iterations / 2).min(15_000);
                 c.densify.grad_threshold = 2e-4;
                 c.densify.max_gaussians = usize::MAX;

@@ -30,7 +30,7 @@ pub struct ForegroundConfig {
     pub seen_fraction: f32,
     /// Image border (share of the image side) a candidate must be inside of.
     pub image_margin: f32,
-    /// A support plane must hold at least this share of the candidates.
+    /// A support plane must hold at least this share of the opaque Gaussians.
     pub min_plane_share: f32,
     /// Plane inlier distance, as a share of the candidates' median distance to the focus.
     pub plane_tolerance: f32,
@@ -42,6 +42,9 @@ pub struct ForegroundConfig {
     pub min_opacity: f32,
     /// The object may extend to this many times the seed cluster's distance from the focus.
     pub grow: f32,
+    /// Connectivity voxel of the growth, as a multiple of `voxel` (coarser: it bridges the
+    /// sparser, fainter Gaussians of the parts few photos see).
+    pub grow_voxel: f32,
 }
 
 impl Default for ForegroundConfig {
@@ -55,6 +58,7 @@ impl Default for ForegroundConfig {
             voxel: 0.05,
             min_opacity: 0.05,
             grow: 2.5,
+            grow_voxel: 2.0,
         }
     }
 }
@@ -76,8 +80,17 @@ impl Plane {
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Foreground {
     pub focus: Vec3,
+    /// Median distance of the candidates from the focus: the unit of every tolerance.
+    pub scale: f32,
     pub candidates: usize,
     pub support: Option<Plane>,
+    /// Gaussians within the plane tolerance of the support.
+    pub support_inliers: usize,
+    /// Size and radius (from the focus) of the seed cluster.
+    pub seed_count: usize,
+    pub seed_radius: f32,
+    /// Candidates' heights above the support: 10th, 50th and 90th percentiles (in `scale`).
+    pub candidate_heights: Option<[f32; 3]>,
     /// Per Gaussian: part of the object.
     #[serde(skip)]
     pub selected: Vec<bool>,
@@ -138,7 +151,20 @@ pub fn select_foreground(
     let scale = dists[dists.len() / 2].max(1e-9);
 
     let mut keep = candidate;
-    let support = support_plane(surfels, &idx, cameras, focus, cfg.plane_tolerance * scale, cfg, rng);
+    // The support is searched among every opaque Gaussian: a table is large, and photos framed
+    // on the object show only part of it.
+    let opaque: Vec<usize> = (0..n).filter(|&i| surfels.opacity(i) >= cfg.min_opacity).collect();
+    let tol = cfg.plane_tolerance * scale;
+    let (support, support_inliers) = match support_plane(surfels, &opaque, cameras, focus, tol, cfg, rng) {
+        Some((pl, c)) => (Some(pl), c),
+        None => (None, 0),
+    };
+    let candidate_heights = support.map(|pl| {
+        let mut h: Vec<f32> = idx.iter().map(|&i| pl.signed_distance(surfels.positions[i]) / scale).collect();
+        h.sort_by(f32::total_cmp);
+        let q = |f: f32| h[((h.len() - 1) as f32 * f) as usize];
+        [q(0.1), q(0.5), q(0.9)]
+    });
     if let Some(pl) = support {
         let tol = cfg.plane_tolerance * scale;
         for &i in &idx {
@@ -164,7 +190,7 @@ pub fn select_foreground(
                 && support.is_none_or(|pl| pl.signed_distance(p) >= cfg.plane_tolerance * scale)
         })
         .collect();
-    let all = Clusters::new(surfels, &eligible, voxel);
+    let all = Clusters::new(surfels, &eligible, voxel * cfg.grow_voxel);
     let mut comps: Vec<usize> = (0..n)
         .filter(|&i| seed_members[i])
         .filter_map(|i| all.label.get(&all.key(surfels.positions[i])).copied())
@@ -176,7 +202,18 @@ pub fn select_foreground(
     if selected_count == 0 {
         return Err("no object left after removing the support plane".into());
     }
-    Ok(Foreground { focus, candidates: idx.len(), support, selected, selected_count })
+    Ok(Foreground {
+        focus,
+        scale,
+        candidates: idx.len(),
+        support,
+        support_inliers,
+        seed_count: seed_members.iter().filter(|s| **s).count(),
+        seed_radius,
+        candidate_heights,
+        selected,
+        selected_count,
+    })
 }
 
 /// RANSAC over the candidates' centres; a plane counts as a support only under the module's
@@ -189,7 +226,7 @@ fn support_plane(
     tol: f32,
     cfg: &ForegroundConfig,
     rng: &mut Rng,
-) -> Option<Plane> {
+) -> Option<(Plane, usize)> {
     let pts: Vec<Vec3> = idx.iter().map(|&i| s.positions[i]).collect();
     let mut best: Option<(usize, Plane)> = None;
     for _ in 0..cfg.ransac_iterations {
@@ -215,7 +252,7 @@ fn support_plane(
         pl = Plane { normal: -pl.normal, d: -pl.d };
     }
     let all_above = cameras.iter().all(|c| pl.signed_distance(c.center()) > tol);
-    (all_above && pl.signed_distance(focus) > -tol).then_some(pl)
+    (all_above && pl.signed_distance(focus) > tol).then_some((pl, count))
 }
 
 /// Voxel cells of the given Gaussians and their 26-connected components.
@@ -312,12 +349,13 @@ mod tests {
     use glam::{Mat4, Quat, Vec2};
     use svgir_core::{Intrinsics, ShCoeffs};
 
+    /// `n` cameras on a ring looking at (0, 0, 0.3), the centre of the test's ball.
     fn ring_cameras(n: usize, radius: f32, height: f32) -> Vec<Camera> {
         (0..n)
             .map(|k| {
                 let a = k as f32 / n as f32 * std::f32::consts::TAU;
                 let eye = Vec3::new(radius * a.cos(), radius * a.sin(), height);
-                let c2w = Mat4::look_at_rh(eye, Vec3::ZERO, Vec3::Z).inverse();
+                let c2w = Mat4::look_at_rh(eye, Vec3::new(0.0, 0.0, 0.3), Vec3::Z).inverse();
                 Camera::from_blender_c2w(c2w, Intrinsics::from_fov_x(0.8, 64, 48)).unwrap()
             })
             .collect()
@@ -329,7 +367,7 @@ mod tests {
     fn ball_on_a_table() {
         let cams = ring_cameras(12, 4.0, 2.5);
         let f = focus_point(&cams).unwrap();
-        assert!(f.length() < 1e-3, "focus {f}");
+        assert!((f - Vec3::new(0.0, 0.0, 0.3)).length() < 1e-3, "focus {f}");
         let mut rng = Rng::new(1);
         let mut s = Surfels::with_capacity(0, 0);
         let q = Quat::IDENTITY;
