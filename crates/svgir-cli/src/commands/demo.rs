@@ -114,6 +114,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
             relight_lights: svgir_train::relight::RELIGHT_LIGHTS,
             relight_bounces: svgir_train::relight::RELIGHT_BOUNCES,
             relight_with: Vec::new(),
+            relight_strength: None,
         },
     })?;
     let report = args.out.join("report.html");

@@ -34,6 +34,10 @@ pub struct EvalRelightArgs {
     /// metrics (a capture has no relit ground truth). Repeatable.
     #[arg(long = "relight-with", value_name = "MAP.hdr")]
     pub relight_with: Vec<PathBuf>,
+    /// Strength of the --relight-with maps (default: each map scaled to the mean radiance of
+    /// the learned light, so relit pictures are exposed like the photos).
+    #[arg(long)]
+    pub relight_strength: Option<f32>,
 }
 
 impl EvalRelightArgs {
@@ -44,7 +48,8 @@ impl EvalRelightArgs {
             .map(|p| LightInfo {
                 name: p.file_stem().map_or("map".into(), |s| s.to_string_lossy().into_owned()),
                 envmap_path: Some(p.clone()),
-                strength: 1.0,
+                // NaN: matched to the learned light in `evaluate`.
+                strength: self.relight_strength.unwrap_or(f32::NAN),
             })
             .collect()
     }
@@ -252,7 +257,12 @@ pub fn evaluate(
     for light in lights {
         let (Some(path), Some(relighter)) = (&light.envmap_path, &relighter) else { continue };
         let t0 = std::time::Instant::now();
-        let lit = relighter.prepare(s2, svgir_io::read_envmap(path, light.strength, s2.config.env_height)?)?;
+        let map = if light.strength.is_nan() {
+            exposure_matched(path, &env, s2.config.env_height)?
+        } else {
+            svgir_io::read_envmap(path, light.strength, s2.config.env_height)?
+        };
+        let lit = relighter.prepare(s2, map)?;
         eprintln!("relighting: one-bounce light under {} in {:.1} s", light.name, t0.elapsed().as_secs_f64());
         let mut ms = Vec::new();
         for (v, (_, mask)) in ds.test.iter().zip(&renders) {
@@ -304,6 +314,18 @@ pub fn evaluate(
         result["relight"] = json!({"mean": mean_json(&all), "per_light": per_light});
     }
     Ok(result)
+}
+
+/// The map at `path` scaled so that its mean luminance equals `like`'s (a capture's learned
+/// light), so the object relit under it is exposed as in the photos.
+fn exposure_matched(path: &Path, like: &svgir_core::EnvMap, height: u32) -> Result<svgir_core::EnvMap> {
+    let lum = |c: [f32; 3]| 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2];
+    let unit = svgir_io::read_envmap(path, 1.0, height)?;
+    let m = lum(unit.mean_radiance());
+    anyhow::ensure!(m > 0.0 && m.is_finite(), "{}: the map is black", path.display());
+    let strength = lum(like.mean_radiance()) / m;
+    eprintln!("relighting: {} at strength {strength:.3} (the learned light's mean luminance)", path.display());
+    Ok(svgir_io::read_envmap(path, strength, height)?)
 }
 
 /// The scene table's header (markdown), one [`table_row`] per stage-2 run below it.
