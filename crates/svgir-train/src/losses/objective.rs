@@ -54,8 +54,9 @@ pub fn stage1_objective(
     let npix = width * height;
     let mut v_color = vec![0.0f32; npix * 3];
     let l1 = l1_loss(out.color, target.rgb, w.l1, &mut v_color);
-    let (ssim, v_ssim) = svgir_metrics::ssim_with_grad(out.color, target.rgb, svgir_metrics::Shape::new(width, height, 3))
-        .expect("render and target have the same shape");
+    let (ssim, v_ssim) =
+        svgir_metrics::ssim_with_grad(out.color, target.rgb, svgir_metrics::Shape::new(width, height, 3))
+            .expect("render and target have the same shape");
     for (g, s) in v_color.iter_mut().zip(&v_ssim) {
         // The loss term is weight * (1 - SSIM).
         *g -= w.ssim * s;

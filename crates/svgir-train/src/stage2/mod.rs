@@ -16,40 +16,31 @@
 //!    through the rasteriser, the shading and the activations; one Adam step per group.
 
 mod config;
+pub mod objective;
 mod render;
 mod sun_search;
 
 pub use crate::composite::Coverage;
 pub use config::{EnvInit, GreyLight, Stage2Config, Stage2Rates, Stage2Weights, DEFAULT_TRACE_EPS};
+pub use objective::EXTRA_CHANNELS;
 pub use render::{BackShading, PbrRender, Shading};
 pub use sun_search::SunSearch;
 
 use crate::adam::AdamGroup;
-use crate::composite::{pbr_composite, pbr_composite_backward};
-use crate::losses::depth_normal::depth_normal_loss;
-use crate::losses::l1::l1_loss;
-use crate::losses::smoothness::{depth_guide, edge_aware_smoothness, BACKGROUND_GUIDE};
 use crate::orient::orient_normals;
 use crate::stage1::{alpha_of, psnr_of_mse, target_rgb, PhaseTimes};
 use glam::Vec3;
+use objective::{extra_features, extra_features_backward, stage2_objective, Stage2Outputs, Stage2Target};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 use svgir_core::{Camera, Dataset, Image, Rng, Surfels};
 use svgir_pbr::{
-    faces, negated, radiance_consistency, radiance_consistency_backward, shade_sides_backward, shade_sides_into,
+    negated, radiance_consistency, radiance_consistency_backward, shade_sides_backward, shade_sides_into,
     split_by_side, ColourProjector, ConsistencyInputs, DirectionCache, EnvLight, Indirect, PbrError, PbrGrads,
     ShadeInputs, ShadeOutput, ShadeParams, Side, SvgMaterials,
 };
 use svgir_raster::{backward, render, Background, ColorSource, Features, OutputGrads, RasterConfig, RenderInput};
 use svgir_trace::{brightest_texels, concentrate_lobe, BrightLights, Bvh, GatherParams, MicroBuffer};
-
-/// Extra channels rasterised with the PBR image: albedo (3), roughness (1), shading normal (3).
-pub const EXTRA_CHANNELS: usize = 7;
-/// Opacity floor when turning composited sums into per-pixel values (SPEC 3).
-const MIN_OPACITY: f32 = crate::composite::MIN_OPACITY as f32;
-/// Depth guide of the normal smoothness: neighbours 1% apart in depth weigh e^-1. A pixel spans
-/// ~0.3% of the depth on our 256-px scenes at normal incidence, ~1.5% at 80 degrees.
-const NORMAL_SMOOTHING_SHARPNESS: f32 = 100.0;
 
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Stage2Step {
@@ -306,29 +297,9 @@ impl Stage2 {
         ShadeParams { visibility: self.config.visibility, diffuse: self.config.diffuse, ..ShadeParams::default() }
     }
 
-    /// +1 or -1 per Gaussian: whether its oriented normal faces `camera`. Splatted normals are
-    /// flipped to face the camera, as the rasteriser does for geometric normals (SPEC 1), so the
-    /// normal buffer and Eqn 18 compare like with like.
+    /// +1 or -1 per Gaussian: whether its oriented normal faces `camera` ([`objective::facing`]).
     fn facing(&self, camera: &Camera) -> Vec<f32> {
-        let c = camera.center();
-        self.normals
-            .iter()
-            .zip(&self.surfels.positions)
-            .map(|(n, p)| if faces(*n, *p, c) { 1.0 } else { -1.0 })
-            .collect()
-    }
-
-    /// Per-vertex extra channels (albedo, roughness, camera-facing shading normal).
-    fn extra_features(act: &svgir_pbr::ActivatedMaterials, facing: &[f32]) -> Vec<f32> {
-        let nv = act.roughness.len();
-        let m = act.m;
-        let mut out = Vec::with_capacity(nv * EXTRA_CHANNELS);
-        for v in 0..nv {
-            out.extend_from_slice(&act.albedo[3 * v..3 * v + 3]);
-            out.push(act.roughness[v]);
-            out.extend(act.normals[3 * v..3 * v + 3].iter().map(|x| x * facing[v / m]));
-        }
-        out
+        objective::facing(&self.normals, &self.surfels.positions, camera.center())
     }
 
     pub fn step(&mut self, dataset: &Dataset) -> Result<Stage2Step, PbrError> {
@@ -354,10 +325,7 @@ impl Stage2 {
             .unwrap_or_else(|| [self.rng.uniform(), self.rng.uniform(), self.rng.uniform()]);
         let gt = target_rgb(&view.image, bg);
         let cam = &view.camera;
-        let (w, h) = (cam.width() as usize, cam.height() as usize);
-        let npix = w * h;
         let m = cfg.vertices;
-        let n = self.surfels.len();
         let t0 = Instant::now();
 
         // 1. SH pass.
@@ -410,7 +378,7 @@ impl Stage2 {
         let (mut shaded, mut scratch) = (ShadeOutput::new(), ShadeOutput::new());
         shade_sides_into(&front, back.as_ref(), &mut shaded, &mut scratch)?;
         let facing = self.facing(cam);
-        let extra = Self::extra_features(&act, &facing);
+        let extra = extra_features(&act, &facing);
         let pbr_input = RenderInput {
             surfels: &self.surfels,
             camera: cam,
@@ -421,65 +389,19 @@ impl Stage2 {
         let (pbr_out, pbr_state) = render(&pbr_input, &self.raster);
         let t1 = Instant::now();
 
-        // 3. Losses on the PBR image (see `composite`) and the SH image.
+        // 3. Eqn 15's per-pixel terms on the PBR image (see `composite`), its material buffers
+        // and the SH image (`objective`), then the per-Gaussian ones.
         let cover = photo_coverage(cfg.pbr_coverage, &view.image);
-        let image = pbr_composite(&pbr_out.color, &pbr_out.alpha, cover.as_deref(), bg);
-        let mut v_image = vec![0.0f32; npix * 3];
-        let l1_pbr = l1_loss(&image, &gt, wts.l1, &mut v_image);
-        let shape = svgir_metrics::Shape::new(w, h, 3);
-        let (ssim_pbr, g) = svgir_metrics::ssim_with_grad(&image, &gt, shape).expect("same shape");
-        v_image.iter_mut().zip(&g).for_each(|(v, g)| *v -= wts.ssim * g);
-        let mut loss = wts.l1 * l1_pbr + wts.ssim * (1.0 - ssim_pbr);
-
-        let mut v_sh_color = vec![0.0f32; npix * 3];
-        let l1_sh = l1_loss(&sh_out.color, &gt, wts.l1, &mut v_sh_color);
-        let (ssim_sh, g) = svgir_metrics::ssim_with_grad(&sh_out.color, &gt, shape).expect("same shape");
-        v_sh_color.iter_mut().zip(&g).for_each(|(v, g)| *v -= wts.ssim * g);
-        loss += wts.l1 * l1_sh + wts.ssim * (1.0 - ssim_sh);
-
-        let (v_color, mut v_alpha) =
-            pbr_composite_backward(&pbr_out.color, &pbr_out.alpha, cover.as_deref(), bg, &v_image);
-
-        // Material buffers (opacity detached in the division) with edge-aware smoothness
-        // (Eqn 17) against the photo, and the shading-normal / depth-normal loss (Eqn 18).
-        let mut v_extra = vec![0.0f32; npix * EXTRA_CHANNELS];
-        let ex = &pbr_out.extra;
-        let mut alb = vec![0.0f32; npix * 3];
-        let mut rough = vec![0.0f32; npix];
-        let mut nsum = vec![0.0f32; npix * 3];
-        for p in 0..npix {
-            let inv = 1.0 / pbr_out.alpha[p].max(MIN_OPACITY);
-            for c in 0..3 {
-                alb[3 * p + c] = ex[EXTRA_CHANNELS * p + c] * inv;
-                nsum[3 * p + c] = ex[EXTRA_CHANNELS * p + 4 + c];
-            }
-            rough[p] = ex[EXTRA_CHANNELS * p + 3] * inv;
-        }
-        let mut v_alb = vec![0.0f32; npix * 3];
-        let mut v_rough = vec![0.0f32; npix];
-        loss += wts.smooth_albedo * edge_aware_smoothness(&alb, 3, &gt, 3, w, h, wts.smooth_albedo, &mut v_alb);
-        loss +=
-            wts.smooth_roughness * edge_aware_smoothness(&rough, 1, &gt, 3, w, h, wts.smooth_roughness, &mut v_rough);
-        let mut v_nrm = vec![0.0f32; npix * 3];
-        if wts.smooth_normal > 0.0 {
-            let guide = depth_guide(&pbr_out.depth, &pbr_out.alpha, NORMAL_SMOOTHING_SHARPNESS);
-            let nrm: Vec<f32> = (0..npix * 3)
-                .map(|i| if guide[i / 3] == BACKGROUND_GUIDE { 0.0 } else { nsum[i] / pbr_out.alpha[i / 3] })
-                .collect();
-            loss += wts.smooth_normal * edge_aware_smoothness(&nrm, 3, &guide, 1, w, h, wts.smooth_normal, &mut v_nrm);
-        }
-        let (ln, g_n) = depth_normal_loss(&pbr_out.depth, &pbr_out.alpha, &nsum, cam);
-        loss += wts.normal * ln;
-        for p in 0..npix {
-            let inv = 1.0 / pbr_out.alpha[p].max(MIN_OPACITY);
-            for c in 0..3 {
-                v_extra[EXTRA_CHANNELS * p + c] = v_alb[3 * p + c] * inv;
-                v_extra[EXTRA_CHANNELS * p + 4 + c] = wts.normal * g_n.v_normal[3 * p + c] + v_nrm[3 * p + c] * inv;
-            }
-            v_extra[EXTRA_CHANNELS * p + 3] = v_rough[p] * inv;
-            v_alpha[p] += wts.normal * g_n.v_opacity[p];
-        }
-        let v_depth: Vec<f32> = g_n.v_depth_sum.iter().map(|g| wts.normal * g).collect();
+        let target = Stage2Target { rgb: &gt, cover: cover.as_deref(), background: bg };
+        let outputs = Stage2Outputs {
+            color: &pbr_out.color,
+            alpha: &pbr_out.alpha,
+            depth: &pbr_out.depth,
+            extra: &pbr_out.extra,
+            sh_color: &sh_out.color,
+        };
+        let obj = stage2_objective(wts, &outputs, &target, cam);
+        let mut loss = obj.loss;
 
         // Radiance consistency (Eqn 14/16).
         let cons_in = ConsistencyInputs {
@@ -518,12 +440,12 @@ impl Stage2 {
             &pbr_state,
             &pbr_out,
             &OutputGrads {
-                color: Some(&v_color),
-                alpha: Some(&v_alpha),
-                depth: Some(&v_depth),
+                color: Some(&obj.v_color),
+                alpha: Some(&obj.v_alpha),
+                depth: Some(&obj.v_depth),
                 normal: None,
                 distortion: None,
-                extra: Some(&v_extra),
+                extra: Some(&obj.v_extra),
             },
         );
         let g_sh = backward(
@@ -531,20 +453,13 @@ impl Stage2 {
             &self.raster,
             &sh_state,
             &sh_out,
-            &OutputGrads { color: Some(&v_sh_color), ..Default::default() },
+            &OutputGrads { color: Some(&obj.v_sh_color), ..Default::default() },
         );
         let mut pg: PbrGrads = shade_sides_backward(&front, back.as_ref(), &g_pbr.v_color_features)?;
         if let Some(c) = &cons_grads {
             pg.add_scaled(c, 1.0);
         }
-        for v in 0..n * m {
-            let e = &g_pbr.v_extra[EXTRA_CHANNELS * v..EXTRA_CHANNELS * (v + 1)];
-            for c in 0..3 {
-                pg.v_albedo[3 * v + c] += e[c];
-                pg.v_normals[3 * v + c] += facing[v / m] * e[4 + c];
-            }
-            pg.v_roughness[v] += e[3];
-        }
+        extra_features_backward(&g_pbr.v_extra, m, &facing, &mut pg.v_albedo, &mut pg.v_roughness, &mut pg.v_normals);
         let mg = self.materials.backward(&self.normals, &pg.v_albedo, &pg.v_roughness, &pg.v_normals)?;
         let mut v_offset = mg.v_normal_offset;
         v_offset.iter_mut().zip(&v_reg).for_each(|(g, r)| *g += wts.normal_offset * r);
@@ -591,7 +506,7 @@ impl Stage2 {
         Ok(Stage2Step {
             iteration: self.iteration,
             loss,
-            psnr_pbr: psnr_of_mse(mse(&image)),
+            psnr_pbr: psnr_of_mse(mse(&obj.image)),
             psnr_sh: psnr_of_mse(mse(&sh_out.color)),
             consistency: cons_loss,
             rho: self.rho,

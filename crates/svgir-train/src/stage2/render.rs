@@ -3,7 +3,8 @@
 //! and relighting; training's own forward pass lives in [`super::Stage2::step`], which also keeps
 //! what the backward needs.
 
-use super::{Stage2, EXTRA_CHANNELS, MIN_OPACITY};
+use super::objective::{extra_features, EXTRA_CHANNELS, MIN_OPACITY};
+use super::Stage2;
 use crate::composite::pbr_composite;
 use glam::Vec3;
 use svgir_core::Camera;
@@ -127,7 +128,7 @@ impl Stage2 {
         let back = back_side(&front, shading.back.as_ref(), &back_vis, back_normals.as_deref());
         let (mut shaded, mut scratch) = (ShadeOutput::new(), ShadeOutput::new());
         shade_sides_into(&front, back.as_ref(), &mut shaded, &mut scratch)?;
-        let extra = Self::extra_features(&act, &self.facing(camera));
+        let extra = extra_features(&act, &self.facing(camera));
         let input = RenderInput {
             surfels: &self.surfels,
             camera,
