@@ -14,9 +14,20 @@ fn statue() -> Option<PathBuf> {
     if root.exists() {
         Some(root)
     } else {
-        eprintln!("SKIPPED: {} not found; this test needs ../shared/data", root.display());
+        missing_data(&root.display().to_string());
         None
     }
+}
+
+/// A folder of `../shared/data` that a test needs is missing (`what` names it). With
+/// `SVGIR_REQUIRE_DATA=1` (set by `.ci/run`) the test fails; otherwise it prints `SKIPPED` and
+/// the caller returns.
+fn missing_data(what: &str) {
+    let msg = format!("{what} not found; this test needs ../shared/data");
+    if std::env::var("SVGIR_REQUIRE_DATA").is_ok_and(|v| v == "1") {
+        panic!("SVGIR_REQUIRE_DATA=1: {msg}");
+    }
+    eprintln!("SKIPPED: {msg}");
 }
 
 fn json(path: &Path) -> serde_json::Value {

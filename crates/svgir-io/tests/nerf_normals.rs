@@ -11,6 +11,8 @@
 //! over 5 test views). A normal with any negative component is
 //! lost, so these cannot serve as ground truth and the NeRF loader does not load them.
 
+mod common;
+
 use glam::Vec3;
 use std::path::PathBuf;
 use svgir_core::color::srgb_to_linear;
@@ -20,7 +22,7 @@ use svgir_io::{load_dataset, read_image, LoadOptions};
 fn lego_normal_pass_is_not_a_unit_normal_encoding() {
     let root = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/nerf_synthetic/lego_400"));
     if !root.exists() {
-        eprintln!("SKIPPED: {} not found", root.display());
+        common::missing_data(&root.display().to_string());
         return;
     }
     let ds = load_dataset(&root, &LoadOptions { max_views: Some(5), ..Default::default() }).unwrap();

@@ -247,7 +247,7 @@ fn data(rel: &str) -> Option<PathBuf> {
     if p.exists() {
         Some(p)
     } else {
-        eprintln!("SKIPPED: {} not found", p.display());
+        common::missing_data(&p.display().to_string());
         None
     }
 }

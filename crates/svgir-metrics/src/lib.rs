@@ -1,7 +1,7 @@
 //! svgir-metrics: image-quality metrics as the standard evaluations compute them (SPEC 8).
 //!
-//! - [`psnr`]: PSNR on [0,1] images, optionally over a mask.
-//! - [`ssim`]: SSIM, 3DGS/2DGS variant (zero-padded, also the training loss, with its gradient in
+//! - [`psnr`](mod@psnr): PSNR on \[0,1\] images, optionally over a mask.
+//! - [`ssim`](mod@ssim): SSIM, 3DGS/2DGS variant (zero-padded, also the training loss, with its gradient in
 //!   [`ssim_backward`]) and TensoIR's `rgb_ssim` (valid filtering, clipped variances).
 //! - [`lpips`]: LPIPS v0.1 with VGG16 / AlexNet, weights from safetensors bytes.
 //! - [`geometry`]: normal mean angular error, albedo per-channel median scale.
@@ -54,7 +54,7 @@ impl ImageMetrics {
 }
 
 /// PSNR / SSIM / LPIPS of `pred` against `gt` (RGB, or RGBA whose alpha is dropped), as SPEC 8
-/// evaluates a view: both clamped to [0,1]; with `mask` (one GT alpha per pixel) both are first
+/// evaluates a view: both clamped to \[0,1\]; with `mask` (one GT alpha per pixel) both are first
 /// composited on black by it (`rgb * mask`), then every metric runs on the full image.
 pub fn evaluate_pair(
     pred: &Image,

@@ -1,4 +1,4 @@
-//! Holding the learned light's colour smooth (our option; README "Where we differ").
+//! Holding the learned light's colour smooth (our option; docs/method.md, "Where svgir differs").
 //!
 //! Each texel's parameter `p_c` (per channel c) splits into a grey part, the channel mean `m`,
 //! and a colour part `q_c = p_c - m` (under `EnvActivation::Exp` a log-chroma: the ratios between

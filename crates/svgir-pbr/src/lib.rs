@@ -1,17 +1,18 @@
 //! svgir-pbr: the physically-based shading of SVG-IR stage 2.
 //!
 //! - [`material`]: spatially-varying Gaussian materials, M vertices per surfel (SPEC 3).
-//! - [`env`]: the learnable lat-long environment light (SPEC 4).
+//! - [`env`](mod@env): the learnable lat-long environment light (SPEC 4).
 //! - [`env_colour`]: holding that light grey or its colour smooth (our option).
-//! - [`shade`] / [`shade_backward`]: the per-vertex rendering equation with visibility and
-//!   indirect light from the micro-buffers (SPEC 4, 5) and its gradients.
+//! - [`shade`](mod@shade) / [`shade_backward`](mod@shade_backward): the per-vertex rendering
+//!   equation with visibility and indirect light from the micro-buffers (SPEC 4, 5) and its
+//!   gradients.
 //! - [`two_sided`]: shading each Gaussian on the side its camera sees (our option).
 //! - [`direction_cache`]: the frozen micro-buffer directions' env-map lookups, computed once
 //!   per stage 2 (`shade_into_cached` / `shade_backward_cached`; bit-identical, ~8 B / sample).
 //! - [`consistency`]: the radiance consistency loss (SPEC 6, Eqn 14/16; 9.3, 9.6).
 //! - [`grads`]: the gradient bundle shared by shading and consistency.
 //! - [`activation`]: sigmoid / softplus, generic so the f64 instantiation is the test oracle.
-//! - [`bench`]: the timing table behind `svgir bench`.
+//! - [`bench`](mod@bench): the timing table behind `svgir bench`.
 //!
 //! A stage-2 step, in order: `act = materials.activated(&mb.normals)`, `env = light.radiance()`;
 //! `shade_into(&ShadeInputs { mats: act.view(), env_geom: &env, env: &env.data,

@@ -14,7 +14,7 @@
 //! the per-(i,k) work (direction, env taps, V, L) is done once and shared by the M vertices.
 //! Direct (`V L_env`) and indirect parts are kept apart for the visualisation buffers.
 //!
-//! The GGX specular is split ([`crate::specular`]): per vertex (alpha, k, g(n.v)) once per
+//! The GGX specular is split (`crate::specular`): per vertex (alpha, k, g(n.v)) once per
 //! Gaussian, per (i, k) the half vector and Fresnel, leaving two dots and a division per
 //! (vertex, direction). Directions come from a per-call table of the K Fibonacci directions
 //! rotated by each Gaussian's azimuth (equal to `MicroBuffer::direction` up to f32 rounding).
@@ -22,10 +22,10 @@
 //! The env taps depend only on the (frozen) directions and the map size, so stage 2 computes them
 //! once in a [`crate::DirectionCache`] and passes it to [`shade_into_cached`] (bit-identical to
 //! the uncached path, which looks them up per sample). Traced radiance is decoded from f16 with
-//! a branch-light conversion ([`half_to_f32`]).
+//! a branch-light conversion (`half_to_f32`).
 //!
 //! Work split: rayon over Gaussians, each task owns its M x 3 outputs; no allocation per Gaussian.
-//! Nothing is saved for backward: [`crate::shade_backward`] recomputes the per-(i,k) samples,
+//! Nothing is saved for backward: [`crate::shade_backward()`] recomputes the per-(i,k) samples,
 //! which is cheaper than storing N x K x 3 lights.
 
 use crate::direction_cache::DirectionCache;

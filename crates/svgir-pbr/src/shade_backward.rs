@@ -1,4 +1,4 @@
-//! Backward of [`crate::shade`]: given `v_color = dL/dc_i^m` (N x M x 3), the gradients with
+//! Backward of [`crate::shade()`]: given `v_color = dL/dc_i^m` (N x M x 3), the gradients with
 //! respect to the activated vertex albedo, roughness and unit shading normals, the environment
 //! radiance texels and rho (a [`PbrGrads`]). V, L and the directions are frozen (SPEC 5, 6).
 //!
@@ -106,7 +106,7 @@ fn backward_gaussian<F: Float>(
     }
 }
 
-/// Gradients of `sum v_color . c` (the colours of [`crate::shade`] with the same inputs).
+/// Gradients of `sum v_color . c` (the colours of [`crate::shade()`] with the same inputs).
 pub fn shade_backward<F: Float>(inp: &ShadeInputs<F>, v_color: &[F]) -> Result<PbrGrads<F>, PbrError> {
     shade_backward_cached(inp, None, v_color)
 }

@@ -54,7 +54,7 @@ struct PixB<F> {
     ncon: u32,
 }
 
-/// Backward in scalar type `F` (see [`crate::backward`] for the f32 entry point).
+/// Backward in scalar type `F` (see [`crate::backward()`] for the f32 entry point).
 pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     input: &RenderInputOf<F, P>,
     cfg: &RasterConfig,

@@ -7,10 +7,10 @@
 //! `w` the camera depth. Its rows are 2DGS's `T_u, T_v, T_w`; the pixel centre `(i + 0.5, j + 0.5)`
 //! gives the planes `k = x T_w - T_u`, `l = y T_w - T_v` whose cross product is the hit `(u, v)`.
 //! See [`splat`] for the per-pixel rules (filter, cut-offs), [`preprocess`] for culling and the
-//! screen box, [`forward`] / [`backward`] for compositing.
+//! screen box, [`forward`] / [`backward`](mod@backward) for compositing.
 //!
-//! Every kernel is generic over [`Real`]: training uses `f32` ([`render`], [`backward`]); the
-//! tests run the same code in `f64` against finite differences of the dense [`reference`] renderer.
+//! Every kernel is generic over [`Real`]: training uses `f32` ([`render`], [`backward()`]); the
+//! tests run the same code in `f64` against finite differences of the dense [`reference`](mod@reference) renderer.
 
 pub mod backward;
 pub mod bench;
@@ -183,7 +183,7 @@ pub struct RenderOutputOf<F> {
 }
 pub type RenderOutput = RenderOutputOf<f32>;
 
-/// What [`backward`] needs from [`render`]: per-Gaussian projected data and SH colours, the tile
+/// What [`backward()`] needs from [`render`]: per-Gaussian projected data and SH colours, the tile
 /// lists sorted by (depth, id), and per pixel the final T, the count of list entries up to the
 /// last composited one, and the distortion moments `sum w m`, `sum w m^2`.
 #[derive(Clone, Debug, Default)]

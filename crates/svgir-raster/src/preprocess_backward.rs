@@ -2,7 +2,7 @@
 //! projected centre, opacity, flipped normal, SH colour) to the raw parameters (position, raw
 //! quaternion, log-scales, opacity logit, SH coefficients).
 //!
-//! Work split: called once per Gaussian from the parallel reduction in [`crate::backward`];
+//! Work split: called once per Gaussian from the parallel reduction in [`crate::backward()`];
 //! everything is recomputed from the raw parameters (nothing beyond the splat record is saved).
 
 use crate::preprocess::{col, quat_to_rot, Cam, Splat};

@@ -1,4 +1,5 @@
-//! Energy-conserving diffuse layering, an option beside SPEC 4's BRDF (README, "Where we differ").
+//! Energy-conserving diffuse layering, an option beside SPEC 4's BRDF (docs/method.md, "Where svgir
+//! differs from SPEC").
 //!
 //! SPEC 4 adds the lobes: `f = a/pi + S`. Cycles' Principled BSDF, which renders the synthetic
 //! ground truth, puts the diffuse base *under* the dielectric specular layer and dims it by the

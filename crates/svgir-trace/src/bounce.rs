@@ -1,5 +1,5 @@
 //! Further bounces of indirect light for relighting, from the micro-buffers (our addition to
-//! SPEC 7; see the README).
+//! SPEC 7; see docs/method.md).
 //!
 //! Eqn 13's one-bounce term L1b lights j by what its hit Gaussian h reflects of the environment
 //! h sees *unoccluded*; the light h receives from its own occluded directions is dropped. In a

@@ -1,5 +1,5 @@
-//! Bright texels of the environment map as directional lights (our addition; README "Where we
-//! differ").
+//! Bright texels of the environment map as directional lights (our addition; docs/method.md,
+//! "Where svgir differs from SPEC").
 //!
 //! SPEC 4 estimates the light integral with K Fibonacci directions of weight 2pi/K each. A sun
 //! in a 32 x 64 map is one texel of ~0.01 sr holding up to 60% of the map's power (the training

@@ -6,8 +6,8 @@
 //! - [`traverse`]: all hits front to back in (t, id) order and the transmittance march (Eqn 12).
 //! - [`microbuffer`]: per-Gaussian K-direction visibility / radiance / first-hit buffers.
 //! - [`gather`] / [`gather_backward`]: the one-bounce indirect term (Eqn 13) and its gradients.
-//! - [`reference`]: brute-force tracer used by the tests.
-//! - [`bench`]: the timing table behind `svgir bench trace`.
+//! - [`reference`](mod@reference): brute-force tracer used by the tests.
+//! - [`bench`](mod@bench): the timing table behind `svgir bench trace`.
 //!
 //! The maths is in `svgir-shading`; this crate does no I/O and prints nothing.
 

@@ -1,6 +1,8 @@
 //! End-to-end stage-1 tests on a real scene, downscaled: training improves test PSNR, and a
 //! resumed run continues bit-identically.
 
+mod common;
+
 use std::path::PathBuf;
 use svgir_core::{Dataset, Rng};
 use svgir_io::{load_dataset, LoadOptions};
@@ -9,7 +11,7 @@ use svgir_train::{checkpoint, init, BackgroundMode, Stage1, Stage1Config};
 fn scene() -> Option<Dataset> {
     let root = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/synthetic/bowl_fruit_128"));
     if !root.exists() {
-        eprintln!("SKIPPED: {} not found; this test needs ../shared/data", root.display());
+        common::missing_data(&root.display().to_string());
         return None;
     }
     let opts = LoadOptions { resolution: Some(64), downscale: None, load_test: true, max_views: Some(16), masks: None };

@@ -2,6 +2,8 @@
 //! image's PSNR on test views, and a resumed run continues bit-identically, with and without
 //! directional lights and the sun gathered into one of them.
 
+mod common;
+
 use std::path::PathBuf;
 use svgir_core::{Dataset, Rng, Surfels};
 use svgir_io::{load_dataset, LoadOptions};
@@ -12,7 +14,7 @@ use svgir_train::{checkpoint, init, BackgroundMode, Stage1, Stage1Config, Stage2
 fn scene() -> Option<Dataset> {
     let root = PathBuf::from(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/synthetic/bowl_fruit_128"));
     if !root.exists() {
-        eprintln!("SKIPPED: {} not found; this test needs ../shared/data", root.display());
+        common::missing_data(&root.display().to_string());
         return None;
     }
     let opts = LoadOptions { resolution: Some(48), downscale: None, load_test: true, max_views: Some(12), masks: None };

@@ -135,3 +135,14 @@ pub fn opencv_distort(k: [f64; 4], u: f64, v: f64) -> (f64, f64) {
     let radial = 1.0 + k1 * r2 + k2 * r2 * r2;
     (u * radial + 2.0 * p1 * u * v + p2 * (r2 + 2.0 * u * u), v * radial + 2.0 * p2 * u * v + p1 * (r2 + 2.0 * v * v))
 }
+
+/// A folder of `../shared/data` that a test needs is missing (`what` names it). With
+/// `SVGIR_REQUIRE_DATA=1` (set by `.ci/run`) the test fails; otherwise it prints `SKIPPED` and
+/// the caller returns.
+pub fn missing_data(what: &str) {
+    let msg = format!("{what} not found; this test needs ../shared/data");
+    if std::env::var("SVGIR_REQUIRE_DATA").is_ok_and(|v| v == "1") {
+        panic!("SVGIR_REQUIRE_DATA=1: {msg}");
+    }
+    eprintln!("SKIPPED: {msg}");
+}

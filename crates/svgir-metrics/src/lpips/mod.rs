@@ -1,5 +1,5 @@
 //! LPIPS v0.1 (Zhang et al. 2018) with the VGG16 and AlexNet backbones, as the `lpips` package
-//! computes it: RGB in [0,1] -> [-1,1] -> ScalingLayer `(x - shift) / scale` -> backbone features at
+//! computes it: RGB in \[0,1\] -> \[-1,1\] -> ScalingLayer `(x - shift) / scale` -> backbone features at
 //! five taps -> unit-normalise each feature vector over channels (`x / (|x| + 1e-10)`) -> squared
 //! difference -> 1x1 linear head (non-negative weights) -> spatial mean -> sum over taps.
 //!

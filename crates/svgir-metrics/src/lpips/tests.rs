@@ -12,6 +12,16 @@ fn load_png(name: &str) -> Image {
     Image::from_data(img.width(), img.height(), 3, data)
 }
 
+/// Data the test needs is missing (`what` names it). With `SVGIR_REQUIRE_DATA=1` (set by
+/// `.ci/run`) the test fails; otherwise it prints `SKIPPED` and the caller returns.
+fn missing_data(what: &str) {
+    let msg = format!("{what} not found; this test needs ../shared/data");
+    if std::env::var("SVGIR_REQUIRE_DATA").is_ok_and(|v| v == "1") {
+        panic!("SVGIR_REQUIRE_DATA=1: {msg}");
+    }
+    eprintln!("SKIPPED: {msg}");
+}
+
 /// Numbers after `key` on the line that starts with `prefix` in EXPECTED.txt.
 fn expected_numbers(text: &str, prefix: &str) -> Vec<f32> {
     let line = text.lines().find(|l| l.starts_with(prefix)).unwrap_or_else(|| panic!("no line {prefix}"));
@@ -25,7 +35,7 @@ fn expected_numbers(text: &str, prefix: &str) -> Vec<f32> {
 #[test]
 fn reproduces_reference_distances() {
     let Ok(text) = std::fs::read_to_string(format!("{DATA}/EXPECTED.txt")) else {
-        eprintln!("SKIPPED: LPIPS reference data not found at {DATA}");
+        missing_data(&format!("LPIPS reference data ({DATA}/EXPECTED.txt)"));
         return;
     };
     let (r, p0, p1) = (load_png("ex_ref.png"), load_png("ex_p0.png"), load_png("ex_p1.png"));
@@ -105,7 +115,7 @@ fn bench_table_runs() {
         std::fs::read(format!("{DATA}/lpips_vgg_v0.1.safetensors")),
         std::fs::read(format!("{DATA}/lpips_alex_v0.1.safetensors")),
     ) else {
-        eprintln!("SKIPPED: LPIPS weights not found at {DATA}");
+        missing_data(&format!("LPIPS weights ({DATA}/lpips_*_v0.1.safetensors)"));
         return;
     };
     let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
