@@ -164,19 +164,19 @@ pub struct Stage1Config {
     /// The defaults this configuration started from.
     #[serde(default)]
     pub profile: Profile,
-    /// Near plane as a fraction of the camera extent (0.2 world units at the synthetic scenes'
-    /// extent of about 4.4).
-    #[serde(default = "default_near_fraction")]
-    pub near_fraction: f32,
+    /// Near plane as a fraction of the camera extent, for captures in arbitrary units; `None`:
+    /// the rasteriser's 0.2 world units, the synthetic scenes' setting (their cameras are 4 units
+    /// away).
+    #[serde(default)]
+    pub near_fraction: Option<f32>,
     /// Learn a per-image affine colour correction (exposure / white balance of phone photos).
     /// Test views are rendered without one.
     #[serde(default)]
     pub exposure: bool,
 }
 
-fn default_near_fraction() -> f32 {
-    0.045
-}
+/// [`Stage1Config::near_fraction`] of captures: 0.2 units at an extent of 4.4.
+pub const CAPTURE_NEAR_FRACTION: f32 = 0.045;
 
 impl Default for Stage1Config {
     fn default() -> Self {
@@ -193,7 +193,7 @@ impl Default for Stage1Config {
             densify: DensifyConfig::default(),
             use_mask: true,
             profile: Profile::Object,
-            near_fraction: default_near_fraction(),
+            near_fraction: None,
             exposure: false,
         }
     }
@@ -213,6 +213,7 @@ impl Stage1Config {
                 // 3DGS's real-data settings, in absolute iterations: its 7k results are snapshots
                 // of the 30k schedule, so a short run keeps the cadence instead of compressing it.
                 c.background = BackgroundMode::Random;
+                c.near_fraction = Some(CAPTURE_NEAR_FRACTION);
                 c.loss.l1 = 0.8;
                 c.loss.ssim = 0.2;
                 // Runs shorter than 1000 iterations (tests, previews) start densifying earlier

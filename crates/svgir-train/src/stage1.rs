@@ -116,7 +116,7 @@ impl Stage1 {
         // The distortion output costs a division per composited pixel; only pay when it is in the loss.
         let raster = RasterConfig {
             distortion: config.loss.distortion > 0.0,
-            near: config.near_fraction * extent,
+            near: config.near_fraction.map_or(RasterConfig::default().near, |f| f * extent),
             ..RasterConfig::default()
         };
         let exposure = config.exposure.then(|| ExposureCorrection::new(dataset.train.len()));

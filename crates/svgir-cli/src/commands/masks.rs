@@ -65,7 +65,10 @@ pub fn run(args: MasksArgs) -> Result<()> {
         if fg.support.is_some() { "; support plane removed" } else { "" }
     );
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
-    let raster = svgir_raster::RasterConfig { near: 0.045 * dataset.camera_extent(), ..Default::default() };
+    let raster = svgir_raster::RasterConfig {
+        near: svgir_train::config::CAPTURE_NEAR_FRACTION * dataset.camera_extent(),
+        ..Default::default()
+    };
     let views: Vec<_> = dataset.all_views().collect();
     let pb = progress::bar(views.len() as u64, "masks");
     let mut coverage = Vec::new();

@@ -200,6 +200,10 @@ fn make_config(args: &TrainArgs, dataset: &Dataset) -> Result<(Stage1Config, &'s
         c.densify.opacity_reset_interval = n.max(1);
     }
     c.use_mask = !args.no_mask && dataset.has_masks();
+    // Captures come in arbitrary units: their near plane follows the cameras, whatever the profile.
+    if matches!(svgir_io::detect_layout(&dataset.root), Ok(svgir_io::Layout::Colmap | svgir_io::Layout::Transforms)) {
+        c.near_fraction = Some(svgir_train::config::CAPTURE_NEAR_FRACTION);
+    }
     Ok((c, why))
 }
 
