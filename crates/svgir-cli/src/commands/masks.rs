@@ -53,6 +53,15 @@ pub fn run(args: MasksArgs) -> Result<()> {
     let (surfels, _) = svgir_io::read_gaussians_ply(&ply)?;
     // Masks at the photos' own size: the loader's masks must match the photos.
     let dataset = svgir_io::load_dataset(&args.data, &svgir_io::LoadOptions::default())?;
+    if !dataset.camera_model.split('+').all(|m| m.contains("PINHOLE")) {
+        // Photos are undistorted on load and masks applied before that, so these masks, drawn in
+        // the undistorted geometry, are off by the lens's displacement (small near the centre).
+        eprintln!(
+            "warning: {} has distorted cameras ({}): the masks are drawn in the undistorted geometry",
+            args.data.display(),
+            dataset.camera_model
+        );
+    }
     let cameras: Vec<_> = dataset.train.iter().map(|v| v.camera).collect();
     let cfg = ForegroundConfig::default();
     let fg = select_foreground(&surfels, &cameras, &cfg, &mut Rng::new(args.seed))
