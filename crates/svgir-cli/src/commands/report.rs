@@ -109,13 +109,16 @@ fn stage2_section(dir: &Path) -> String {
     else {
         return String::new();
     };
-    let mut s = String::from("<h2>Stage 2: materials, light, relighting (SPEC 8 evaluation)</h2><table><tr><th>metric</th><th>value</th></tr>");
+    let mut table =
+        String::from("<h3>Stage 2 metrics (SPEC 8 evaluation)</h3><table><tr><th>metric</th><th>value</th></tr>");
     let mut rows = Vec::new();
     flatten("", &eval, &mut rows);
     for (k, v) in rows {
-        let _ = write!(s, "<tr><td>{k}</td><td>{v}</td></tr>");
+        let _ = write!(table, "<tr><td>{k}</td><td>{v}</td></tr>");
     }
-    s += "</table><h3>Environment light: learned vs true</h3><div class=row>";
+    table += "</table>";
+    let mut s = String::from("<h2>Relit object, materials and light (stage 2)</h2>");
+    s += "<h3>Environment light: learned vs true</h3><div class=row>";
     s += &img_tag(&dir.join("env_learned.png"), "learned").replace("width:192px", "");
     if dir.join("env_true.png").exists() {
         s += &img_tag(&dir.join("env_true.png"), "true (training light)");
@@ -176,7 +179,7 @@ fn stage2_section(dir: &Path) -> String {
         }
         s += "</div>";
     }
-    s
+    s + &table
 }
 
 pub fn write_report(run: &Path, out: &Path) -> Result<()> {
@@ -211,7 +214,9 @@ img{image-rendering:pixelated;width:192px}figcaption{font-size:12px}.plot{margin
     );
     let _ = write!(html, "<h1>svgir run: {}</h1>", run.display());
     let _ = write!(html, "<p>data: <code>{}</code></p>", config["data"].as_str().unwrap_or("?"));
-    html += "<h2>Test metrics</h2>";
+    // Results first: the relit object, its materials and light (stage 2), then stage 1.
+    html += &stage2_section(&run.join("stage2"));
+    html += "<h2>Stage 1: test metrics</h2>";
     html += &metrics_table(&eval);
     if !timings.is_null() {
         html += "<h2>Time per iteration (ms)</h2>";
@@ -246,7 +251,6 @@ img{image-rendering:pixelated;width:192px}figcaption{font-size:12px}.plot{margin
         }
         html += "</div>";
     }
-    html += &stage2_section(&run.join("stage2"));
     let _ = write!(html, "<h2>Configuration</h2><pre>{}</pre></body></html>", serde_json::to_string_pretty(&config)?);
     let tmp = out.with_extension("html.tmp");
     std::fs::write(&tmp, html).with_context(|| format!("writing {}", tmp.display()))?;
