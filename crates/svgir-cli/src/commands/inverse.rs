@@ -88,17 +88,22 @@ pub struct InverseArgs {
     /// Initial learned light: SPEC 4's per-texel random init, or a uniform grey at its mean.
     #[arg(long, value_enum, default_value_t = EnvInitArg::Random)]
     pub env_init: EnvInitArg,
-    /// Learning rate of the indirect scale rho (SPEC 6: 0.01; 0 keeps rho = 1).
-    #[arg(long, default_value_t = 0.01)]
-    pub rho_lr: f32,
+    /// Defaults of the eight settings below marked (profile): `measured`, the settings behind the
+    /// README's table (4 lights, exp light, sun at 400, sun search on 4 views, rho fixed,
+    /// materials from 500, layered diffuse, two-sided); `spec`, SPEC 6's literal ones.
+    #[arg(long, value_enum, default_value_t = InverseProfile::Measured)]
+    pub profile: InverseProfile,
+    /// (profile) Learning rate of the indirect scale rho (SPEC 6: 0.01; 0 keeps rho = 1).
+    #[arg(long)]
+    pub rho_lr: Option<f32>,
     /// Learning rate of the albedo (SPEC 6: 0.01).
     #[arg(long, default_value_t = 0.01)]
     pub albedo_lr: f32,
     /// Light warm-up: hold the materials (albedo, roughness, normal offsets) at their initial
     /// values for this many iterations, so that the light must explain shading and shadows
-    /// first (0: train them from the start, as SPEC 6).
-    #[arg(long, default_value_t = 0)]
-    pub materials_from: u64,
+    /// first (0: train them from the start, as SPEC 6). (profile)
+    #[arg(long)]
+    pub materials_from: Option<u64>,
     /// Factor on the light's learning rate after the warm-up (--materials-from): below 1 the
     /// light mostly keeps what it learned while the materials were held.
     #[arg(long, default_value_t = 1.0)]
@@ -114,7 +119,7 @@ pub struct InverseArgs {
     pub light_colour_degree: Option<u32>,
     /// BRDF diffuse lobe: SPEC 4 adds it to the specular one; `layered` dims it by the specular
     /// layer's albedo, as Cycles' Principled BSDF (which renders the synthetic scenes) does.
-    /// Default: added. With --resume it replaces the checkpoint's model (e.g. to re-evaluate).
+    /// (profile) With --resume it replaces the checkpoint's model (e.g. to re-evaluate).
     #[arg(long, value_enum)]
     pub diffuse: Option<DiffuseArg>,
     /// What blends the PBR image with the background in the photo loss: SPEC 3's `render`
@@ -125,32 +130,36 @@ pub struct InverseArgs {
     pub pbr_coverage: CoverageArg,
     /// Shade every Gaussian on the side its camera sees (thin walls are one layer of surfels seen
     /// from both sides), tracing a second set of micro-buffers over the back hemispheres: twice
-    /// the tracing time and micro-buffer memory. Default: SPEC 4's oriented side only.
-    #[arg(long)]
+    /// the tracing time and micro-buffer memory. (profile)
+    #[arg(long, conflicts_with = "one_sided")]
     pub two_sided: bool,
+    /// SPEC 4's oriented side only (the `spec` profile's default).
+    #[arg(long)]
+    pub one_sided: bool,
     /// Shade this many of the learned map's brightest texels as directional lights with traced
     /// visibility and no clamp (re-selected every --lights-every iterations; relighting splits
-    /// the new map by --relight-lights). For training lights with a sun; 0: SPEC 4's K samples alone.
-    #[arg(long, default_value_t = 0)]
-    pub lights: usize,
+    /// the new map by --relight-lights). For training lights with a sun; 0: SPEC 4's K samples
+    /// alone. (profile)
+    #[arg(long)]
+    pub lights: Option<usize>,
     #[arg(long, default_value_t = 100)]
     pub lights_every: u64,
     /// Radiance of the learned map: SPEC 4's 2 softplus(x), or exp(x), which can reach a sun's
-    /// radiance within a schedule (use with --lights).
-    #[arg(long, value_enum, default_value_t = EnvActivationArg::Softplus)]
-    pub env_activation: EnvActivationArg,
+    /// radiance within a schedule (use with --lights). (profile)
+    #[arg(long, value_enum)]
+    pub env_activation: Option<EnvActivationArg>,
     /// At this iteration, gather the learned map's brightest lobe (within --sun-radius degrees)
     /// into one texel, shaded from then on as a directional light (a sun; needs --lights; use
-    /// with --env-activation exp so its radiance stays trainable). 0: never.
-    #[arg(long, default_value_t = 0)]
-    pub sun_at: u64,
+    /// with --env-activation exp so its radiance stays trainable). 0: never. (profile)
+    #[arg(long)]
+    pub sun_at: Option<u64>,
     #[arg(long, default_value_t = Stage2Config::default().sun_radius_deg)]
     pub sun_radius: f32,
     /// Search the sun's direction off the map's texel grid at --sun-at and every
     /// --sun-search-every iterations after, scoring directions on this many training views
-    /// (0: never; the sun stays at its texel's centre).
-    #[arg(long, default_value_t = 0)]
-    pub sun_search_views: usize,
+    /// (0: never; the sun stays at its texel's centre). (profile)
+    #[arg(long)]
+    pub sun_search_views: Option<usize>,
     #[arg(long, default_value_t = Stage2Config::default().sun_search_every)]
     pub sun_search_every: u64,
     /// The first sun search first scans a cone of this half-angle (degrees) around the gathered
@@ -266,6 +275,47 @@ pub enum EnvInitArg {
     Uniform,
 }
 
+/// `svgir inverse --profile`: which defaults the (profile) settings take.
+#[derive(Clone, Copy, Debug, clap::ValueEnum, PartialEq, serde::Serialize)]
+pub enum InverseProfile {
+    /// The best measured settings (the README's table).
+    Measured,
+    /// SPEC 6's literal settings, for reproducing the paper.
+    Spec,
+}
+
+/// The (profile) settings after the profile's defaults and the user's options.
+struct Resolved {
+    rho_lr: f32,
+    materials_from: u64,
+    diffuse: DiffuseArg,
+    two_sided: bool,
+    lights: usize,
+    env_activation: EnvActivationArg,
+    sun_at: u64,
+    sun_search_views: usize,
+}
+
+impl Resolved {
+    fn of(a: &InverseArgs) -> Self {
+        let m = a.profile == InverseProfile::Measured;
+        Self {
+            rho_lr: a.rho_lr.unwrap_or(if m { 0.0 } else { 0.01 }),
+            materials_from: a.materials_from.unwrap_or(if m { 500 } else { 0 }),
+            diffuse: a.diffuse.unwrap_or(if m { DiffuseArg::Layered } else { DiffuseArg::Added }),
+            two_sided: if a.one_sided { false } else { a.two_sided || m },
+            lights: a.lights.unwrap_or(if m { 4 } else { 0 }),
+            env_activation: a.env_activation.unwrap_or(if m {
+                EnvActivationArg::Exp
+            } else {
+                EnvActivationArg::Softplus
+            }),
+            sun_at: a.sun_at.unwrap_or(if m { 400 } else { 0 }),
+            sun_search_views: a.sun_search_views.unwrap_or(if m { 4 } else { 0 }),
+        }
+    }
+}
+
 pub fn run(args: InverseArgs) -> Result<()> {
     anyhow::ensure!(
         (0.0..=1.0).contains(&args.visibility_cut),
@@ -291,6 +341,8 @@ pub fn run(args: InverseArgs) -> Result<()> {
     let out = args.out.clone().unwrap_or_else(|| args.run.join("stage2"));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
 
+    let p = Resolved::of(&args);
+    eprintln!("stage 2 profile: {:?}", args.profile);
     let config = Stage2Config {
         iterations: args.iterations,
         seed: args.seed,
@@ -304,14 +356,14 @@ pub fn run(args: InverseArgs) -> Result<()> {
             EnvInitArg::Uniform => EnvInit::Uniform,
         },
         lr: Stage2Rates {
-            rho: args.rho_lr,
+            rho: p.rho_lr,
             albedo: args.albedo_lr,
             env: if args.train_true_light { 0.0 } else { Stage2Rates::default().env },
             ..Stage2Rates::default()
         },
-        lights: args.lights,
+        lights: p.lights,
         lights_every: args.lights_every.max(1),
-        env_activation: match args.env_activation {
+        env_activation: match p.env_activation {
             EnvActivationArg::Softplus => EnvActivation::Softplus,
             EnvActivationArg::Exp => EnvActivation::Exp,
         },
@@ -322,16 +374,16 @@ pub fn run(args: InverseArgs) -> Result<()> {
         trace_visibility_alpha_gain: args.visibility_alpha_gain,
         trace_radiance_sh_degree: args.traced_sh_degree,
         trace_linear_radiance: args.traced_radiance == TracedRadianceArg::Linear,
-        sun_at: args.sun_at,
+        sun_at: p.sun_at,
         sun_radius_deg: args.sun_radius,
-        materials_from: args.materials_from,
+        materials_from: p.materials_from,
         env_lr_after_warm_up: args.env_lr_after_warm_up,
         grey_light: args.grey_light.model(),
         light_colour_degree: args.light_colour_degree,
-        diffuse: args.diffuse.map_or(Diffuse::Added, DiffuseArg::model),
+        diffuse: p.diffuse.model(),
         pbr_coverage: args.pbr_coverage.model(),
-        two_sided: args.two_sided,
-        sun_search_views: args.sun_search_views,
+        two_sided: p.two_sided,
+        sun_search_views: p.sun_search_views,
         sun_search_every: args.sun_search_every,
         sun_search_cone_deg: args.sun_search_cone,
         weights: super::loss_weights::<Stage2Weights>(&args.weights)?,
@@ -353,7 +405,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         }
         s2
     } else {
-        let meta = json!({"stage2": config, "data": data, "stage1_run": args.run, "command": std::env::args().collect::<Vec<_>>()});
+        let meta = json!({"stage2": config, "profile": args.profile, "data": data, "stage1_run": args.run, "command": std::env::args().collect::<Vec<_>>()});
         std::fs::write(out.join("config.json"), serde_json::to_string_pretty(&meta)?)?;
         let _ = std::fs::remove_file(out.join("metrics.jsonl"));
         eprintln!("stage 2: tracing {} Gaussians x {} directions...", stage1.surfels.len(), config.directions);
