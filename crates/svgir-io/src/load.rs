@@ -179,7 +179,7 @@ pub fn check_size(img: &Image, view: usize, want: (u32, u32), path: &Path) -> Re
     Ok(())
 }
 
-/// Reads a view's image file, reporting an absent file as "missing <what>".
+/// Reads a view's image file, reporting an absent file as "missing WHAT".
 pub fn read_view_image(path: &Path, what: &str) -> Result<Image> {
     crate::image_io::read_image(path).map_err(|e| match e.kind {
         ErrorKind::NotFound => ErrorKind::Missing(what.to_string()).at(path),

@@ -10,7 +10,7 @@
 //!   onto COLMAP's parameter vectors and photos are undistorted on load ([`undistort_image`]).
 //!   OPENCV's `k4` is nerfstudio's r^8 radial term, which COLMAP's models lack: a nonzero one is
 //!   refused rather than silently dropped. Other models (`EQUIRECTANGULAR`, ...) are refused.
-//! - `transform_matrix`: camera-to-world in OpenGL/Blender axes ([`Camera::from_blender_c2w`]).
+//! - `transform_matrix`: camera-to-world in OpenGL/Blender axes ([`svgir_core::Camera::from_blender_c2w`]).
 //! - `file_path`, `mask_path`: relative to the json's folder. A mask's grey value becomes the
 //!   photo's alpha before undistortion; as in nerfstudio, all frames have a mask or none does.
 //! - Split: `train_filenames` and `test_filenames` (else `val_filenames`) when present, a list

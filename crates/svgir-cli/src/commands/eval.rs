@@ -59,7 +59,7 @@ pub struct EvalArgs {
     pub lpips_weights: Option<PathBuf>,
     #[arg(long, value_enum, default_value_t = SsimKind::Padded)]
     pub ssim: SsimKind,
-    /// Background for RGBA images, as r,g,b in [0,1].
+    /// Background for RGBA images, as r,g,b in `[0, 1]`.
     #[arg(long, default_value = "0,0,0", value_parser = parse_rgb)]
     pub background: [f32; 3],
     /// Write the per-image and mean metrics here as JSON.

@@ -27,7 +27,7 @@ pub struct MasksArgs {
     /// A finished stage-1 run on this dataset to derive the masks from.
     #[arg(long)]
     pub run: Option<PathBuf>,
-    /// Without --run: where to train the short stage 1 (default: runs/masks-<dataset name>).
+    /// Without --run: where to train the short stage 1 (default: `runs/masks-NAME`, NAME the dataset folder).
     #[arg(long)]
     pub work: Option<PathBuf>,
     /// Without --run: stage-1 iterations.

@@ -26,7 +26,7 @@ pub struct RelightArgs {
     /// Turntable frames to render as well (0: only the dataset's test cameras).
     #[arg(long, default_value_t = 0)]
     pub turntable: usize,
-    /// Output folder (default RUN/stage2/relit_<map name>).
+    /// Output folder (default `RUN/stage2/relit_MAP`, MAP the map file name).
     #[arg(long)]
     pub out: Option<PathBuf>,
     /// Directions per Gaussian (SPEC 7: 384; memory is Gaussians x K x 16 bytes).
