@@ -14,7 +14,7 @@ fn quick_demo_writes_a_report_with_metrics() {
     let status = svgir().args(["--threads", "2", "demo", "--quick", "--out"]).arg(&out).status().expect("runs");
     assert!(status.success(), "svgir demo --quick failed");
     let html = std::fs::read_to_string(out.join("report.html")).expect("report.html written");
-    for needle in ["Stage 1: test metrics", "psnr", "Stage 2", "relight", "albedo", "data:image/png;base64,"] {
+    for needle in ["Stage 1: test metrics", "PSNR (dB)", "Stage 2", "relight", "albedo", "data:image/png;base64,"] {
         assert!(html.contains(needle), "report lacks {needle:?}");
     }
     let eval: serde_json::Value =

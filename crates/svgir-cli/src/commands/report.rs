@@ -77,14 +77,46 @@ fn svg_plot(points: &[(f64, f64)], title: &str, xlabel: &str) -> String {
 }
 
 fn metrics_table(v: &Value) -> String {
+    let mut rows = Vec::new();
+    flatten("", v, &mut rows);
     let mut s = String::from("<table><tr><th>metric</th><th>value</th></tr>");
-    if let Some(o) = v.as_object() {
-        for (k, v) in o {
-            let val = v.as_f64().map_or_else(|| v.to_string(), |f| format!("{f:.4}"));
-            let _ = write!(s, "<tr><td>{k}</td><td>{val}</td></tr>");
-        }
+    for (k, v) in rows {
+        let _ = write!(s, "<tr><td>{}</td><td>{v}</td></tr>", label(&k));
     }
     s + "</table>"
+}
+
+/// A readable label for a flattened metric key (`relight.per_light.night.psnr` -> `relit under
+/// night: PSNR (dB)`); unknown parts are kept as they are.
+fn label(key: &str) -> String {
+    let parts: Vec<&str> = key.split('.').collect();
+    let word = |p: &str| -> String {
+        match p {
+            "nvs" => "novel views".into(),
+            "psnr" => "PSNR (dB)".into(),
+            "ssim" => "SSIM".into(),
+            "lpips" => "LPIPS".into(),
+            "albedo" => "albedo (median-scaled)".into(),
+            "albedo_scale" => "albedo scale (R, G, B)".into(),
+            "roughness_mse" => "roughness MSE".into(),
+            "normal_mae_deg" => "normal MAE (deg)".into(),
+            "relight" => "relighting".into(),
+            "mean" => "mean".into(),
+            "views" => "test views".into(),
+            "gaussians" => "Gaussians".into(),
+            "trace_seconds" => "tracing (s)".into(),
+            "ms_per_iteration" => "time per iteration (ms)".into(),
+            "relight_directions" => "relighting directions K".into(),
+            "relight_lights" => "relighting directional lights".into(),
+            "relight_bounces" => "relighting extra bounces".into(),
+            other => other.replace('_', " "),
+        }
+    };
+    match parts.as_slice() {
+        ["relight", "per_light", light, m] => format!("relit under {light}: {}", word(m)),
+        [head, m] => format!("{}: {}", word(head), word(m)),
+        _ => parts.iter().map(|p| word(p)).collect::<Vec<_>>().join(": "),
+    }
 }
 
 /// Flatten nested metrics into `a.b.c -> value` rows.
@@ -114,7 +146,7 @@ fn stage2_section(dir: &Path) -> String {
     let mut rows = Vec::new();
     flatten("", &eval, &mut rows);
     for (k, v) in rows {
-        let _ = write!(table, "<tr><td>{k}</td><td>{v}</td></tr>");
+        let _ = write!(table, "<tr><td>{}</td><td>{v}</td></tr>", label(&k));
     }
     table += "</table>";
     let mut s = String::from("<h2>Relit object, materials and light (stage 2)</h2>");
@@ -260,6 +292,14 @@ img{image-rendering:pixelated;width:192px}figcaption{font-size:12px}.plot{margin
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn labels_are_readable() {
+        assert_eq!(super::label("relight.per_light.night.psnr"), "relit under night: PSNR (dB)");
+        assert_eq!(super::label("nvs.lpips"), "novel views: LPIPS");
+        assert_eq!(super::label("normal_mae_deg"), "normal MAE (deg)");
+        assert_eq!(super::label("ms_per_iteration.forward"), "time per iteration (ms): forward");
+    }
+
     #[test]
     fn base64_matches_rfc4648_vectors() {
         assert_eq!(super::base64(b""), "");
