@@ -150,9 +150,14 @@ fn stage2_section(dir: &Path) -> String {
     }
     table += "</table>";
     let mut s = String::from("<h2>Relit object, materials and light (stage 2)</h2>");
-    s += "<h3>Environment light: learned vs true</h3><div class=row>";
+    let has_truth = dir.join("env_true.png").exists();
+    let _ = write!(
+        s,
+        "<h3>Environment light: {}</h3><div class=row>",
+        if has_truth { "learned vs true" } else { "learned" }
+    );
     s += &img_tag(&dir.join("env_learned.png"), "learned").replace("width:192px", "");
-    if dir.join("env_true.png").exists() {
+    if has_truth {
         s += &img_tag(&dir.join("env_true.png"), "true (training light)");
     }
     s += "</div>";
