@@ -16,6 +16,8 @@
 //! input, and the production loss's difference quotient in opacity is compared with `v_alpha`
 //! plus the detached part (the mirror's derivative in that separate input).
 
+mod common;
+
 use glam::{Mat4, Vec3};
 use svgir_core::{Camera, Intrinsics, Rng};
 use svgir_metrics::{Shape, SsimVariant};
@@ -267,27 +269,8 @@ fn stage1_gradients_match_finite_differences_of_the_production_loss() {
     let mut rng = Rng::new(7);
     for &(name, start, len, h) in &BLOCKS {
         // Each output's 6 steepest entries, which the f32 loss resolves best, and 6 at random.
-        let mut order: Vec<usize> = (start..start + len).collect();
-        order.sort_by(|&a, &b| slope[b].abs().total_cmp(&slope[a].abs()));
-        let sample = order[..6].iter().copied().chain((0..6).map(|_| start + rng.below(len)));
-        for (k, i) in sample.enumerate() {
-            let (mut xp, mut xm) = (s.x.clone(), s.x.clone());
-            let h = s.step(i, start, h);
-            xp[i] = (s.x[i] as f64 + h) as f32;
-            xm[i] = (s.x[i] as f64 - h) as f32;
-            let step = xp[i] as f64 - xm[i] as f64;
-            let fd = (s.prod(&xp).loss as f64 - s.prod(&xm).loss as f64) / step;
-            let noise = 8.0 * f32::EPSILON as f64 * loss / step;
-            if k < 6 {
-                assert!(slope[i].abs() > 4.0 * noise, "{name}: the check must resolve the steepest entries");
-            }
-            assert!(
-                (fd - slope[i]).abs() <= 0.02 * slope[i].abs() + noise,
-                "{name}[{}]: finite difference {fd:e} vs gradient {:e} (noise {noise:e})",
-                i - start,
-                slope[i]
-            );
-        }
+        let at = |x: &[f32]| s.prod(x).loss as f64;
+        common::check_sampled_entries(name, (start, len), &s.x, &slope, loss, &mut rng, |i| s.step(i, start, h), at);
     }
     for trial in 0..4 {
         let dir: Vec<f64> = (0..N_IN).map(|_| 2.0 * rng.uniform_f64() - 1.0).collect();

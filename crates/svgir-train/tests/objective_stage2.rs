@@ -15,6 +15,8 @@
 //! smoothness, and the opacity factor of Eqn 18. The mirror takes those as separate inputs
 //! (`det`); the production loss's slope is the gradient plus the mirror's slope in them.
 
+mod common;
+
 use glam::{Mat4, Vec3};
 use svgir_core::color::linear_to_srgb;
 use svgir_core::{Camera, Intrinsics, Rng};
@@ -291,27 +293,10 @@ fn stage2_gradients_match_finite_differences_of_the_production_loss() {
         let loss = s.prod(&s.x).loss as f64;
         let mut rng = Rng::new(7);
         for &(name, start, len, h, scaled) in &BLOCKS {
-            let mut order: Vec<usize> = (start..start + len).collect();
-            order.sort_by(|&a, &b| slope[b].abs().total_cmp(&slope[a].abs()));
-            let sample = order[..6].iter().copied().chain((0..6).map(|_| start + rng.below(len)));
-            for (k, i) in sample.enumerate() {
-                let h = s.step(i, start, h, scaled);
-                let (mut xp, mut xm) = (s.x.clone(), s.x.clone());
-                xp[i] = (s.x[i] as f64 + h) as f32;
-                xm[i] = (s.x[i] as f64 - h) as f32;
-                let step = xp[i] as f64 - xm[i] as f64;
-                let fd = (s.prod(&xp).loss as f64 - s.prod(&xm).loss as f64) / step;
-                let noise = 8.0 * f32::EPSILON as f64 * loss / step;
-                if k < 6 {
-                    assert!(slope[i].abs() > 4.0 * noise, "{name}: the check must resolve the steepest entries");
-                }
-                assert!(
-                    (fd - slope[i]).abs() <= 0.02 * slope[i].abs() + noise,
-                    "photo cover {photo_cover} {name}[{}]: difference {fd:e} vs slope {:e} (noise {noise:e})",
-                    i - start,
-                    slope[i]
-                );
-            }
+            let what = format!("photo cover {photo_cover} {name}");
+            let at = |x: &[f32]| s.prod(x).loss as f64;
+            let step = |i| s.step(i, start, h, scaled);
+            common::check_sampled_entries(&what, (start, len), &s.x, &slope, loss, &mut rng, step, at);
         }
         for trial in 0..3 {
             let dir: Vec<f64> = (0..N_IN).map(|_| 2.0 * rng.uniform_f64() - 1.0).collect();
