@@ -161,6 +161,9 @@ pub struct Stage1Config {
     pub densify: DensifyConfig,
     /// Use the mask and entropy losses (datasets with a meaningful alpha channel).
     pub use_mask: bool,
+    /// The depth-distortion term (`loss.distortion`) applies from this iteration on (2DGS: 3000).
+    #[serde(default)]
+    pub distortion_from: u64,
     /// The defaults this configuration started from.
     #[serde(default)]
     pub profile: Profile,
@@ -192,6 +195,7 @@ impl Default for Stage1Config {
             loss: LossWeights::default(),
             densify: DensifyConfig::default(),
             use_mask: true,
+            distortion_from: 0,
             profile: Profile::Object,
             near_fraction: None,
             exposure: false,
@@ -200,6 +204,16 @@ impl Default for Stage1Config {
 }
 
 impl Stage1Config {
+    /// The loss weights at iteration `it` (1-based): the distortion weight is 0 before
+    /// `distortion_from`.
+    pub fn weights_at(&self, it: u64) -> LossWeights {
+        let mut w = self.loss.clone();
+        if it < self.distortion_from {
+            w.distortion = 0.0;
+        }
+        w
+    }
+
     /// The defaults of `profile` for a run of `iterations` on `training_pixels` pixels.
     pub fn for_profile(profile: Profile, iterations: u64, training_pixels: usize) -> Self {
         match profile {
@@ -259,6 +273,16 @@ mod tests {
             assert_eq!(changed, 1, "{name}");
         }
         assert!(W::default().set("no_such_weight", 1.0).is_none());
+    }
+
+    #[test]
+    fn distortion_starts_at_its_iteration() {
+        let mut c = Stage1Config::default();
+        c.loss.distortion = 100.0;
+        c.distortion_from = 3000;
+        assert_eq!(c.weights_at(2999).distortion, 0.0);
+        assert_eq!(c.weights_at(3000).distortion, 100.0);
+        assert_eq!(c.weights_at(2999).l1, c.loss.l1);
     }
 
     #[test]

@@ -171,7 +171,7 @@ impl Stage1 {
         let corrected = self.exposure.as_ref().map(|e| exposure::apply(&e.params[view_idx], &out.color));
         let color = corrected.as_deref().unwrap_or(&out.color);
         let mut obj = stage1_objective(
-            &cfg.loss,
+            &cfg.weights_at(it),
             t_frac,
             cfg.use_mask,
             &ObjectiveInput {

@@ -43,6 +43,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         background: Some(train::Bg::Black),
         exposure: false,
         sh_degree: None,
+        distortion_from: 0,
         init_ply: None,
         init_points: if args.quick { 5_000 } else { 20_000 },
         max_gaussians: Some(if args.quick { 5_000 } else { 15_000 }),

@@ -128,6 +128,7 @@ fn train_reconstruction(args: &MasksArgs) -> Result<PathBuf> {
         background: None,
         exposure: false,
         sh_degree: None,
+        distortion_from: 0,
         init_ply: None,
         init_points: 100_000,
         max_gaussians: None,

@@ -54,6 +54,9 @@ pub struct TrainArgs {
     /// white for objects; random for captures, so that Gaussians model the real background).
     #[arg(long, value_enum)]
     pub background: Option<Bg>,
+    /// The distortion weight (`--weight distortion=X`) applies from this iteration (2DGS: 3000).
+    #[arg(long, default_value_t = 0)]
+    pub distortion_from: u64,
     /// Highest SH degree of the view-dependent colour (0-3; default 3, reached one step every 1000
     /// iterations in the capture profile).
     #[arg(long, value_parser = clap::value_parser!(u32).range(0..=3))]
@@ -179,6 +182,7 @@ fn make_config(args: &TrainArgs, dataset: &Dataset) -> Result<(Stage1Config, &'s
         };
     }
     c.exposure = args.exposure;
+    c.distortion_from = args.distortion_from;
     if let Some(d) = args.sh_degree {
         c.max_sh_degree = d;
     }
