@@ -242,15 +242,7 @@ fn stage1_gradients_match_finite_differences_of_an_f64_mirror() {
         let g = s.prod_grad();
         for &(name, start, len, _) in &BLOCKS {
             let fd: Vec<f64> = (start..start + len).map(|i| s.mirror_fd(i)).collect();
-            let scale = fd.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            assert!(scale > 0.0, "{name}: the loss must depend on it");
-            for (k, f) in fd.iter().enumerate() {
-                let a = g[start + k];
-                assert!(
-                    (a - f).abs() <= 2e-5 * f.abs() + 2e-6 * scale,
-                    "mask {use_mask} {name}[{k}]: production {a:e} vs f64 finite difference {f:e} (block max {scale:e})"
-                );
-            }
+            common::check_block_against_mirror(&format!("mask {use_mask} {name}"), &g[start..start + len], &fd);
         }
     }
 }

@@ -268,15 +268,8 @@ fn stage2_gradients_match_finite_differences_of_an_f64_mirror() {
         let g = s.prod_grad(&s.x);
         for &(name, start, len, _, _) in &BLOCKS {
             let fd: Vec<f64> = (start..start + len).map(|i| s.mirror_fd(i, false)).collect();
-            let scale = fd.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-            assert!(scale > 0.0, "{name}: the loss must depend on it");
-            for (k, f) in fd.iter().enumerate() {
-                let a = g[start + k];
-                assert!(
-                    (a - f).abs() <= 2e-5 * f.abs() + 2e-6 * scale,
-                    "photo cover {photo_cover} {name}[{k}]: production {a:e} vs f64 difference {f:e} (max {scale:e})"
-                );
-            }
+            let what = format!("photo cover {photo_cover} {name}");
+            common::check_block_against_mirror(&what, &g[start..start + len], &fd);
         }
     }
 }

@@ -50,3 +50,18 @@ pub fn check_sampled_entries(
         );
     }
 }
+
+/// Every entry of one output's gradient `grad` against the f64 mirror's central differences
+/// `fd`, to 2e-5 relative plus 2e-6 of the block's largest difference (which must be non-zero:
+/// the loss must depend on the output). `what` names the output in messages.
+#[allow(dead_code)]
+pub fn check_block_against_mirror(what: &str, grad: &[f64], fd: &[f64]) {
+    let scale = fd.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    assert!(scale > 0.0, "{what}: the loss must depend on it");
+    for (k, (a, f)) in grad.iter().zip(fd).enumerate() {
+        assert!(
+            (a - f).abs() <= 2e-5 * f.abs() + 2e-6 * scale,
+            "{what}[{k}]: production {a:e} vs f64 finite difference {f:e} (block max {scale:e})"
+        );
+    }
+}
