@@ -197,12 +197,13 @@ pub fn save(trainer: &Stage1, path: &Path) -> Result<(), CheckpointError> {
     arrays.push(("stats.accum_weight".into(), bytes(&st.accum_weight)));
     push_groups(&mut arrays, &trainer.groups);
     let ex = trainer.exposure.as_ref();
-    let ex_flat = |f: &dyn Fn(usize) -> Vec<f32>| -> Vec<f32> {
-        ex.map(|e| (0..e.params.len()).flat_map(f).collect()).unwrap_or_default()
+    // Every photo's correction and Adam moments, one row per photo (empty without corrections).
+    let rows = |f: fn(&ExposureCorrection, usize) -> &[f32]| -> Vec<f32> {
+        ex.map(|e| (0..e.params.len()).flat_map(|i| f(e, i).iter().copied()).collect()).unwrap_or_default()
     };
-    let ex_params = ex_flat(&|i| ex.unwrap().params[i].to_vec());
-    let ex_m = ex_flat(&|i| ex.unwrap().adam[i].m.clone());
-    let ex_v = ex_flat(&|i| ex.unwrap().adam[i].v.clone());
+    let ex_params = rows(|e, i| &e.params[i]);
+    let ex_m = rows(|e, i| &e.adam[i].m);
+    let ex_v = rows(|e, i| &e.adam[i].v);
     if ex.is_some() {
         arrays.push(("exposure.params".into(), bytes(&ex_params)));
         arrays.push(("exposure.m".into(), bytes(&ex_m)));

@@ -132,14 +132,9 @@ pub fn select_foreground(
     let focus = focus_point(cameras).ok_or("the cameras' optical axes do not meet: not an object-centred capture")?;
     let n = surfels.len();
     let need = (cfg.seen_fraction * cameras.len() as f32).ceil() as usize;
-    let candidate: Vec<bool> = (0..n)
-        .map(|i| {
-            let p = surfels.positions[i];
-            surfels.opacity(i) >= cfg.min_opacity
-                && cameras.iter().filter(|c| inside_image(c, p, cfg.image_margin)).count() >= need
-        })
-        .collect();
-    let idx: Vec<usize> = (0..n).filter(|&i| candidate[i]).collect();
+    let opaque: Vec<usize> = (0..n).filter(|&i| surfels.opacity(i) >= cfg.min_opacity).collect();
+    let seen_by_all = |p: Vec3| cameras.iter().filter(|c| inside_image(c, p, cfg.image_margin)).count() >= need;
+    let idx: Vec<usize> = opaque.iter().copied().filter(|&i| seen_by_all(surfels.positions[i])).collect();
     if idx.len() < 10 {
         return Err(format!(
             "only {} Gaussians lie where every camera looks; is this an object-centred capture?",
@@ -150,10 +145,8 @@ pub fn select_foreground(
     dists.sort_by(f32::total_cmp);
     let scale = dists[dists.len() / 2].max(1e-9);
 
-    let mut keep = candidate;
     // The support is searched among every opaque Gaussian: a table is large, and photos framed
     // on the object show only part of it.
-    let opaque: Vec<usize> = (0..n).filter(|&i| surfels.opacity(i) >= cfg.min_opacity).collect();
     let tol = cfg.plane_tolerance * scale;
     let (support, support_inliers) = match support_plane(surfels, &opaque, cameras, focus, tol, cfg, rng) {
         Some((pl, c)) => (Some(pl), c),
@@ -165,16 +158,9 @@ pub fn select_foreground(
         let q = |f: f32| h[((h.len() - 1) as f32 * f) as usize];
         [q(0.1), q(0.5), q(0.9)]
     });
-    if let Some(pl) = support {
-        let tol = cfg.plane_tolerance * scale;
-        for &i in &idx {
-            if pl.signed_distance(surfels.positions[i]) < tol {
-                keep[i] = false;
-            }
-        }
-    }
+    let above_support = |p: Vec3| support.is_none_or(|pl| pl.signed_distance(p) >= tol);
     // The seed: the largest cluster of what every camera sees, above the support.
-    let kept: Vec<usize> = idx.iter().copied().filter(|&i| keep[i]).collect();
+    let kept: Vec<usize> = idx.iter().copied().filter(|&i| above_support(surfels.positions[i])).collect();
     let voxel = cfg.voxel * scale;
     let seed = Clusters::new(surfels, &kept, voxel);
     let seed_members = seed.largest().map(|c| seed.members(&[c], n)).unwrap_or_else(|| vec![false; n]);
@@ -182,12 +168,12 @@ pub fn select_foreground(
         (0..n).filter(|&i| seed_members[i]).map(|i| (surfels.positions[i] - focus).length()).fold(0.0f32, f32::max);
     // Grow it over every Gaussian connected to it (parts of the object that some photos cut
     // off), above the support and within `grow` times the seed's radius.
-    let eligible: Vec<usize> = (0..n)
+    let eligible: Vec<usize> = opaque
+        .iter()
+        .copied()
         .filter(|&i| {
             let p = surfels.positions[i];
-            surfels.opacity(i) >= cfg.min_opacity
-                && (p - focus).length() <= cfg.grow * seed_radius
-                && support.is_none_or(|pl| pl.signed_distance(p) >= cfg.plane_tolerance * scale)
+            (p - focus).length() <= cfg.grow * seed_radius && above_support(p)
         })
         .collect();
     let all = Clusters::new(surfels, &eligible, voxel * cfg.grow_voxel);

@@ -320,12 +320,14 @@ pub fn evaluate(
 /// light), so the object relit under it is exposed as in the photos.
 fn exposure_matched(path: &Path, like: &svgir_core::EnvMap, height: u32) -> Result<svgir_core::EnvMap> {
     let lum = |c: [f32; 3]| 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2];
-    let unit = svgir_io::read_envmap(path, 1.0, height)?;
-    let m = lum(unit.mean_radiance());
+    let mut map = svgir_io::read_envmap(path, 1.0, height)?;
+    let m = lum(map.mean_radiance());
     anyhow::ensure!(m > 0.0 && m.is_finite(), "{}: the map is black", path.display());
     let strength = lum(like.mean_radiance()) / m;
     eprintln!("relighting: {} at strength {strength:.3} (the learned light's mean luminance)", path.display());
-    Ok(svgir_io::read_envmap(path, strength, height)?)
+    // Radiance is strength x map value: scale the map read once at strength 1.
+    map.data.iter_mut().flatten().for_each(|c| *c *= strength);
+    Ok(map)
 }
 
 /// The scene table's header (markdown), one [`table_row`] per stage-2 run below it.

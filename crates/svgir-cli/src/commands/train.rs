@@ -313,6 +313,12 @@ fn evaluate(
     } else {
         Vec::new()
     };
+    let depth_views: Vec<_> = dataset
+        .train
+        .iter()
+        .zip(&train_depths)
+        .map(|(t, d)| svgir_train::coverage::DepthView { camera: &t.camera, depth: d })
+        .collect();
     let mut coverage = Vec::new();
     for v in &views {
         let out = trainer.render_view(&v.camera, bg);
@@ -327,13 +333,7 @@ fn evaluate(
             let alpha: Vec<f32> = v.image.data.chunks(4).map(|p| p[3]).collect();
             normal_mae.add_view(&normal, &gt_n.data, &alpha)?;
         }
-        if !train_depths.is_empty() {
-            let depth_views: Vec<_> = dataset
-                .train
-                .iter()
-                .zip(&train_depths)
-                .map(|(t, d)| svgir_train::coverage::DepthView { camera: &t.camera, depth: d })
-                .collect();
+        if !depth_views.is_empty() {
             let depth = svgir_train::coverage::expected_depth(&out.depth, &out.alpha);
             let seen = svgir_train::coverage::seen_count(&v.camera, &depth, &depth_views, 0.03);
             let m: Vec<f32> = seen.iter().map(|&c| (c > 0) as u8 as f32).collect();
@@ -401,7 +401,7 @@ fn normal_image(sum_n: &[f32], alpha: &[f32], w: u32, h: u32) -> Vec<f32> {
 /// Expected depth normalised to [0, 1] between its 2nd and 98th percentiles over the object
 /// (near = dark; robust to a few floaters), background 1.
 fn depth_image(sum_z: &[f32], alpha: &[f32], w: u32, h: u32) -> Image {
-    let d: Vec<f32> = sum_z.iter().zip(alpha).map(|(z, a)| if *a > 0.5 { z / a } else { f32::NAN }).collect();
+    let d = svgir_train::coverage::expected_depth(sum_z, alpha);
     let mut fin: Vec<f32> = d.iter().copied().filter(|x| x.is_finite()).collect();
     fin.sort_by(f32::total_cmp);
     let pct = |q: f32| fin.get(((fin.len().saturating_sub(1)) as f32 * q) as usize).copied().unwrap_or(0.0);
