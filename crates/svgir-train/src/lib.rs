@@ -11,6 +11,7 @@ pub mod exposure;
 pub mod foreground;
 pub mod init;
 pub mod losses;
+pub mod oracle_materials;
 pub mod orient;
 pub mod relight;
 pub mod stage1;

@@ -79,9 +79,9 @@ pub fn run(args: BenchArgs) -> Result<()> {
         Kernel::Trace => svgir_trace::bench::bench_table(threads),
         Kernel::Pbr => svgir_pbr::bench::bench_table(threads),
         Kernel::Lpips => {
-            let vgg = super::eval::default_lpips_weights(super::eval::LpipsNet::Vgg)
+            let vgg = svgir_eval::lpips_weights::default_lpips_weights(svgir_metrics::Net::Vgg)
                 .context("LPIPS VGG weights not found")?;
-            let alex = super::eval::default_lpips_weights(super::eval::LpipsNet::Alex)
+            let alex = svgir_eval::lpips_weights::default_lpips_weights(svgir_metrics::Net::Alex)
                 .context("LPIPS Alex weights not found")?;
             svgir_metrics::lpips::bench_table(&std::fs::read(vgg)?, &std::fs::read(alex)?, threads)?
         }

@@ -10,14 +10,27 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use serde_json::json;
 use std::path::{Path, PathBuf};
-use svgir_core::Image;
+use svgir_eval::lpips_weights::default_lpips_weights;
+use svgir_eval::spec8::rgb;
 use svgir_metrics::{Shape, SsimVariant};
 
+/// Which LPIPS network scores the images.
 #[derive(Clone, Copy, Debug, ValueEnum)]
 pub enum LpipsNet {
     Vgg,
     Alex,
     None,
+}
+
+impl LpipsNet {
+    /// The metrics crate's network, `None` for no LPIPS.
+    pub fn net(self) -> Option<svgir_metrics::Net> {
+        match self {
+            LpipsNet::Vgg => Some(svgir_metrics::Net::Vgg),
+            LpipsNet::Alex => Some(svgir_metrics::Net::Alex),
+            LpipsNet::None => None,
+        }
+    }
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -73,27 +86,6 @@ pub fn parse_rgb(s: &str) -> Result<[f32; 3], String> {
     v.try_into().map_err(|_| "expected r,g,b".to_string())
 }
 
-pub fn rgb(img: &Image, bg: [f32; 3]) -> Image {
-    match img.channels {
-        4 => img.composite_over(bg),
-        3 => img.clone(),
-        1 => Image::from_data(img.width, img.height, 3, img.data.iter().flat_map(|v| [*v; 3]).collect()),
-        _ => img.select_channels(0..3),
-    }
-}
-
-pub fn default_lpips_weights(net: LpipsNet) -> Option<PathBuf> {
-    let name = match net {
-        LpipsNet::Vgg => "lpips_vgg_v0.1.safetensors",
-        LpipsNet::Alex => "lpips_alex_v0.1.safetensors",
-        LpipsNet::None => return None,
-    };
-    let exe_dir = std::env::current_exe().ok().and_then(|p| p.parent().map(Path::to_path_buf));
-    let candidates =
-        [Some(PathBuf::from("../shared/data/lpips")), exe_dir.map(|d| d.join("../../../shared/data/lpips"))];
-    candidates.into_iter().flatten().map(|d| d.join(name)).find(|p| p.exists())
-}
-
 /// (prediction, ground truth) file pairs to compare, with a display name.
 fn pairs(args: &EvalArgs) -> Result<Vec<(String, PathBuf, PathBuf)>> {
     let (dir, list) = match (&args.pred, args.run.as_slice()) {
@@ -131,7 +123,8 @@ fn pairs(args: &EvalArgs) -> Result<Vec<(String, PathBuf, PathBuf)>> {
 
 /// The stage-2 folder of `run`: `run` itself or `run/stage2`, if its config.json is stage 2's.
 fn stage2_folder(run: &Path) -> Option<PathBuf> {
-    let is_stage2 = |d: &Path| super::read_json(&d.join("config.json"), "").is_ok_and(|c| c.get("stage2").is_some());
+    let is_stage2 =
+        |d: &Path| svgir_eval::read_json(&d.join("config.json"), "").is_ok_and(|c| c.get("stage2").is_some());
     [run.to_path_buf(), run.join("stage2")].into_iter().find(|d| is_stage2(d))
 }
 
@@ -147,17 +140,17 @@ fn scene_name(dir: &Path) -> String {
 
 /// SPEC 8 on each stage-2 run (or its saved `eval.json` with `--cached`).
 fn run_stage2(args: &EvalArgs, dirs: &[PathBuf]) -> Result<()> {
-    let lpips = if args.cached { None } else { super::spec8::load_lpips(args.lpips)? };
+    let lpips = if args.cached { None } else { svgir_eval::load_lpips(args.lpips.net())? };
     let sampling = args.relight.sampling();
     let mut rows = Vec::new();
     for dir in dirs {
         let saved_path = dir.join("eval.json");
-        let read_saved = || super::read_json(&saved_path, "evaluate without --cached");
+        let read_saved = || svgir_eval::read_json(&saved_path, "evaluate without --cached");
         let result = if args.cached {
             read_saved()?
         } else {
             let cfg_path = dir.join("config.json");
-            let cfg = super::read_json(&cfg_path, "")?;
+            let cfg = svgir_eval::read_json(&cfg_path, "")?;
             // The stage-1 run: RUN for RUN/stage2, else the one the config records.
             let stage1 = match dir.parent() {
                 Some(p) if dir.ends_with("stage2") && p.join("config.json").exists() => p.to_path_buf(),
@@ -166,11 +159,11 @@ fn run_stage2(args: &EvalArgs, dirs: &[PathBuf]) -> Result<()> {
                 ),
             };
             let data = args.data.clone().or_else(|| cfg["data"].as_str().map(PathBuf::from));
-            let (dataset, _) = super::spec8::load_run_dataset(&stage1, data.as_deref())?;
+            let (dataset, _) = svgir_eval::load_run_dataset(&stage1, data.as_deref())?;
             let s2 = svgir_train::checkpoint::load_stage2(&dir.join("checkpoint.bin"))?;
             eprintln!("{}: SPEC 8 evaluation on {} test views", dir.display(), dataset.test.len());
             let fresh =
-                super::spec8::evaluate(&s2, &dataset, dir, lpips.as_ref(), 0, sampling, &args.relight.extra_lights())?;
+                svgir_eval::evaluate(&s2, &dataset, dir, lpips.as_ref(), 0, sampling, &args.relight.extra_lights())?;
             // Keep what `svgir inverse` recorded beside the metrics (timings, sizes).
             let mut merged = read_saved().unwrap_or_else(|_| json!({}));
             for (k, v) in fresh.as_object().into_iter().flatten() {
@@ -181,12 +174,12 @@ fn run_stage2(args: &EvalArgs, dirs: &[PathBuf]) -> Result<()> {
             merged
         };
         println!("{} ({} test views)", dir.display(), result["views"]);
-        println!("{}", super::spec8::metric_table(&result));
+        println!("{}", svgir_eval::table::metric_table(&result));
         rows.push((scene_name(dir), dir.display().to_string(), result));
     }
-    println!("{}", super::spec8::TABLE_HEADER);
+    println!("{}", svgir_eval::table::TABLE_HEADER);
     for (name, _, r) in &rows {
-        println!("{}", super::spec8::table_row(name, r));
+        println!("{}", svgir_eval::table::table_row(name, r));
     }
     if let Some(path) = &args.json {
         let all: serde_json::Map<String, serde_json::Value> = rows.into_iter().map(|(_, d, r)| (d, r)).collect();
@@ -214,21 +207,16 @@ pub fn run(args: EvalArgs) -> Result<()> {
         }
     }
     let pairs = pairs(&args)?;
-    let lpips = match args.lpips {
-        LpipsNet::None => None,
-        net => {
+    let lpips = match args.lpips.net() {
+        None => None,
+        Some(net) => {
             let path =
                 args.lpips_weights.clone().or_else(|| default_lpips_weights(net)).with_context(|| {
                     "LPIPS weights not found: pass --lpips-weights FILE (or --lpips none)".to_string()
                 })?;
             let bytes = std::fs::read(&path).with_context(|| format!("{}: cannot read", path.display()))?;
-            let kind = if matches!(net, LpipsNet::Vgg) {
-                svgir_metrics::lpips::Net::Vgg
-            } else {
-                svgir_metrics::lpips::Net::Alex
-            };
             Some(
-                svgir_metrics::lpips::Lpips::from_safetensors(&bytes, kind)
+                svgir_metrics::lpips::Lpips::from_safetensors(&bytes, net)
                     .with_context(|| format!("{}", path.display()))?,
             )
         }

@@ -336,7 +336,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         "--light-colour-degree {} is above 3",
         args.light_colour_degree.unwrap_or(0)
     );
-    let (dataset, data) = super::spec8::load_run_dataset(&args.run, args.data.as_deref())?;
+    let (dataset, data) = svgir_eval::load_run_dataset(&args.run, args.data.as_deref())?;
     let stage1 = checkpoint::load(&args.run.join("checkpoint.bin"), &dataset)?;
     let out = args.out.clone().unwrap_or_else(|| args.run.join("stage2"));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
@@ -455,14 +455,14 @@ pub fn run(args: InverseArgs) -> Result<()> {
     pb.finish();
     checkpoint::save_stage2(&s2, &ckpt)?;
     if args.oracle_materials {
-        let st = super::oracle_materials::apply(&mut s2, &dataset)?;
+        let st = svgir_train::oracle_materials::apply(&mut s2, &dataset)?;
         eprintln!(
             "oracle materials: ground truth from {} training views on {} of {} Gaussians",
             st.views, st.assigned, st.total
         );
         anyhow::ensure!(st.views > 0, "--oracle-materials: the training views have no albedo/roughness maps");
         if args.oracle_fit_epochs > 0 {
-            let loss = super::oracle_materials::fit(&mut s2, &dataset, args.oracle_fit_epochs)?;
+            let loss = svgir_train::oracle_materials::fit(&mut s2, &dataset, args.oracle_fit_epochs)?;
             eprintln!(
                 "oracle materials: fitted to the training views' maps, {} epochs, last loss {loss:.5}",
                 args.oracle_fit_epochs
@@ -472,9 +472,9 @@ pub fn run(args: InverseArgs) -> Result<()> {
     if args.oracle_light {
         set_true_light(&mut s2, &dataset)?;
     }
-    let lpips = super::spec8::load_lpips(args.lpips)?;
+    let lpips = svgir_eval::load_lpips(args.lpips.net())?;
     let sampling = args.relight.sampling();
-    let eval = super::spec8::evaluate(
+    let eval = svgir_eval::evaluate(
         &s2,
         &dataset,
         &out,

@@ -6,7 +6,6 @@ pub mod eval;
 pub mod info;
 pub mod inverse;
 pub mod masks;
-pub mod oracle_materials;
 pub mod relight;
 pub mod report;
 pub mod spec8;
@@ -65,15 +64,6 @@ pub fn loss_weights_over<W: svgir_train::NamedWeights>(mut weights: W, overrides
             .with_context(|| format!("--weight {item}: no weight named {name:?} (one of {})", W::NAMES.join(", ")))?;
     }
     Ok(weights)
-}
-
-/// A JSON file (a run's `config.json` or `eval.json`); errors name the file, and a missing or
-/// unreadable one says `missing_hint` (e.g. which command writes it) when that is not empty.
-pub fn read_json(path: &std::path::Path, missing_hint: &str) -> anyhow::Result<serde_json::Value> {
-    use anyhow::Context;
-    let hint = if missing_hint.is_empty() { String::new() } else { format!(" ({missing_hint})") };
-    let text = std::fs::read_to_string(path).with_context(|| format!("{}: cannot read{hint}", path.display()))?;
-    serde_json::from_str(&text).with_context(|| format!("{}: not JSON", path.display()))
 }
 
 #[cfg(test)]

@@ -4,11 +4,11 @@
 //! (rho = 1, radiance not clamped), and the dataset's test cameras (and optionally a turntable)
 //! are rendered to PNG.
 
-use super::spec8::turntable_cameras;
 use anyhow::{Context, Result};
 use clap::Args;
 use std::path::PathBuf;
 use svgir_core::{Camera, Image};
+use svgir_eval::turntable_cameras;
 use svgir_train::checkpoint;
 use svgir_train::relight::{RelightSampling, Relighter};
 
@@ -44,7 +44,7 @@ pub struct RelightArgs {
 pub fn run(args: RelightArgs) -> Result<()> {
     let stage2_dir = args.run.join("stage2");
     let cfg_path = stage2_dir.join("config.json");
-    let cfg = super::read_json(&cfg_path, "run `svgir inverse` first")?;
+    let cfg = svgir_eval::read_json(&cfg_path, "run `svgir inverse` first")?;
     let data = PathBuf::from(cfg["data"].as_str().with_context(|| format!("{}: no data path", cfg_path.display()))?);
     let s2 = checkpoint::load_stage2(&stage2_dir.join("checkpoint.bin"))?;
     let env = svgir_io::read_envmap(&args.envmap, args.strength, s2.config.env_height)?;

@@ -44,9 +44,7 @@ use svgir_shading::{brdf, hemisphere};
 /// Environment radiance clamp inside the rendering equation in our pipeline (SPEC 4).
 const ENV_MAX: f32 = 64.0;
 
-#[path = "common/mesh.rs"]
-mod mesh;
-use mesh::{read_mesh, Bvh, Hit, Mesh};
+use svgir_diagnose::mesh::{read_mesh, Bvh, Hit, Mesh};
 
 // ---------------------------------------------------------------------------------------------
 // Lights and shading.

@@ -10,7 +10,7 @@
 //! With `--initial-materials` the materials are reset to stage 2's initial ones (as at the first
 //! search, before the warm-up releases them), keeping the checkpoint's light.
 //!
-//! `cargo run --release -p svgir-cli --example sun_probe -- CHECKPOINT DATA [--initial-materials] [EVERY=4] [x,y,z ...]`
+//! `cargo run --release -p svgir-diagnose --bin sun_probe -- CHECKPOINT DATA [--initial-materials] [EVERY=4] [x,y,z ...]`
 
 use anyhow::{Context, Result};
 use glam::Vec3;

@@ -1,20 +1,22 @@
 //! Triangle mesh (binary little-endian PLY) and a small median-split BVH over it, for the
-//! diagnostic examples that compare our surfel pipeline with a scene's ground-truth mesh.
+//! diagnostics that compare our surfel pipeline with a scene's ground-truth mesh.
 //! Diagnostic only: no SAH, no SIMD; correct and simple.
-
-#![allow(dead_code)] // each example uses part of it
 
 use anyhow::{bail, Context, Result};
 use glam::Vec3;
 use std::path::Path;
 
+/// A triangle mesh: vertex positions, optional vertex normals, triangles.
 pub struct Mesh {
+    /// Vertex positions.
     pub verts: Vec<Vec3>,
     /// Per-vertex normals from the file (zero if absent).
     pub vnormals: Vec<Vec3>,
+    /// Triangles as vertex indices.
     pub idx: Vec<[u32; 3]>,
 }
 
+/// Reads a binary little-endian PLY with `vertex` (x, y, z, optional nx, ny, nz) and `face` elements.
 pub fn read_mesh(path: &Path) -> Result<Mesh> {
     let bytes = std::fs::read(path).with_context(|| format!("{}", path.display()))?;
     let end = bytes.windows(11).position(|w| w == b"end_header\n").context("no end_header")? + 11;
@@ -85,6 +87,7 @@ pub fn read_mesh(path: &Path) -> Result<Mesh> {
     Ok(Mesh { verts, vnormals, idx: tris })
 }
 
+/// A BVH node: bounds and either two children or a triangle range.
 #[derive(Clone, Copy)]
 pub struct Node {
     lo: Vec3,
@@ -95,7 +98,9 @@ pub struct Node {
     count: u32,
 }
 
+/// A median-split BVH over a mesh's triangles.
 pub struct Bvh {
+    /// Nodes, the root first.
     pub nodes: Vec<Node>,
     /// Triangles in BVH order, with their index in the mesh.
     tris: Vec<([Vec3; 3], u32)>,
@@ -104,13 +109,18 @@ pub struct Bvh {
 /// A closest hit: distance, mesh triangle, barycentrics (of vertices 1 and 2).
 #[derive(Clone, Copy)]
 pub struct Hit {
+    /// Ray distance.
     pub t: f32,
+    /// Index of the triangle in the mesh.
     pub tri: u32,
+    /// Barycentric of vertex 1.
     pub u: f32,
+    /// Barycentric of vertex 2.
     pub v: f32,
 }
 
 impl Bvh {
+    /// Builds the BVH by median splits along the longest axis.
     pub fn build(mesh: &Mesh) -> Bvh {
         let mut tris: Vec<([Vec3; 3], u32)> =
             mesh.idx.iter().enumerate().map(|(i, t)| (t.map(|k| mesh.verts[k as usize]), i as u32)).collect();

@@ -5,7 +5,7 @@
 //! mean traced visibility. Low visibility at grazing cosines means the surfel's own surface
 //! occludes the light (neighbouring coplanar disks).
 //!
-//! `cargo run --release -p svgir-cli --example light_visibility -- CKPT MAP STRENGTH [COUNT]`
+//! `cargo run --release -p svgir-diagnose --bin light_visibility -- CKPT MAP STRENGTH [COUNT]`
 
 use anyhow::{Context, Result};
 use svgir_trace::brightest_texels;

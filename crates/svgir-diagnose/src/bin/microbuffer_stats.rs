@@ -4,7 +4,7 @@
 //! with V = 0; hit rays with V > 0.2 either pass through a surface (too few or too transparent
 //! surfels along the ray) or only graze the faint rim of a surfel; this count cannot tell which.
 //!
-//! `cargo run --release -p svgir-cli --example microbuffer_stats -- CHECKPOINT`
+//! `cargo run --release -p svgir-diagnose --bin microbuffer_stats -- CHECKPOINT`
 
 use anyhow::Result;
 

@@ -1,4 +1,4 @@
-//! `svgir inverse --oracle-materials`: a diagnostic that replaces the learned albedo and
+//! The oracle materials (`svgir inverse --oracle-materials`): a diagnostic that replaces the learned albedo and
 //! roughness by the dataset's ground truth before the evaluation, so the relighting scores
 //! measure our geometry, visibility, one-bounce indirect and shading with perfect materials: the
 //! ceiling of the relighting pipeline on that scene, to compare with the learned materials.
@@ -10,22 +10,27 @@
 //! splatted albedo and roughness against the training views' maps, L2 over the mask), which is
 //! what the learned materials could reach at best. Normal offsets and opacities stay as learned.
 
-use anyhow::Result;
+use crate::adam::AdamGroup;
+use crate::orient::visible_from;
+use crate::Stage2;
 use svgir_core::Dataset;
 use svgir_pbr::material::{albedo_raw_for, roughness_raw_for};
+use svgir_pbr::PbrError;
 use svgir_raster::{backward, render, Background, ColorSource, Features, OutputGrads, RenderInput};
-use svgir_train::adam::AdamGroup;
-use svgir_train::orient::visible_from;
-use svgir_train::Stage2;
 
 /// How many Gaussians got ground-truth materials, and from how many views.
 pub struct OracleStats {
+    /// Gaussians that took ground-truth materials.
     pub assigned: usize,
+    /// All Gaussians.
     pub total: usize,
+    /// Training views with ground-truth albedo and roughness.
     pub views: usize,
 }
 
-pub fn apply(s2: &mut Stage2, ds: &Dataset) -> Result<OracleStats> {
+/// Gives every Gaussian seen by a training view the mean ground-truth albedo and roughness at its
+/// centre's pixel, on all its vertices.
+pub fn apply(s2: &mut Stage2, ds: &Dataset) -> Result<OracleStats, PbrError> {
     let n = s2.surfels.len();
     // Per Gaussian: albedo r, g, b, roughness, count.
     let mut acc = vec![[0.0f64; 5]; n];
@@ -72,7 +77,7 @@ pub fn apply(s2: &mut Stage2, ds: &Dataset) -> Result<OracleStats> {
 /// mean over GT-masked pixels of the squared error of the splatted albedo and roughness, each
 /// divided by the rendered opacity as the evaluation does (no gradient through the opacity,
 /// which stays fixed). Returns the last epoch's mean loss.
-pub fn fit(s2: &mut Stage2, ds: &Dataset, epochs: usize) -> Result<f64> {
+pub fn fit(s2: &mut Stage2, ds: &Dataset, epochs: usize) -> Result<f64, PbrError> {
     const CH: usize = 4;
     let m = s2.materials.m;
     let rows = s2.materials.albedo_raw.len() / (3 * m);
@@ -96,7 +101,7 @@ pub fn fit(s2: &mut Stage2, ds: &Dataset, epochs: usize) -> Result<f64> {
             };
             let (out, state) = render(&input, &s2.raster);
             let npix = out.alpha.len();
-            let mask: Vec<bool> = svgir_train::stage1::alpha_of(&v.image).iter().map(|a| *a > 0.5).collect();
+            let mask: Vec<bool> = crate::stage1::alpha_of(&v.image).iter().map(|a| *a > 0.5).collect();
             let count = mask.iter().filter(|b| **b).count().max(1) as f32;
             let ac = alb.channels as usize;
             let mut v_extra = vec![0.0f32; npix * CH];

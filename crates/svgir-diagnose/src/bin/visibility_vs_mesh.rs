@@ -12,16 +12,13 @@
 //!   steep ones), and leaks by whether the traced ray hit anything at all (a miss: a hole in the
 //!   surfels; a hit with V >= 0.5: a surface too transparent or only grazed at its faint rim).
 //!
-//! `cargo run --release -p svgir-cli --example visibility_vs_mesh -- CHECKPOINT DATA [--stride N] [--snap F]`
-
-#[path = "common/mesh.rs"]
-mod mesh;
+//! `cargo run --release -p svgir-diagnose --bin visibility_vs_mesh -- CHECKPOINT DATA [--stride N] [--snap F]`
 
 use anyhow::{Context, Result};
 use glam::Vec3;
-use mesh::{read_mesh, Bvh};
 use rayon::prelude::*;
 use std::path::Path;
+use svgir_diagnose::mesh::{read_mesh, Bvh};
 
 /// Elevation bins of `n . w` (SPEC 4's lowest direction is at sin 10 deg = 0.17).
 const ELEV: [f32; 4] = [0.0, 0.3, 0.6, 1.01];
@@ -135,7 +132,7 @@ fn main() -> Result<()> {
             let p = s2.surfels.positions[j];
             // Snap the centre onto the mesh along +-n: the nearer crossing after which the mesh is
             // open along +n (inside a thin wall, the nearer crossing can be the far side).
-            let normal_at = |h: &mesh::Hit| {
+            let normal_at = |h: &svgir_diagnose::mesh::Hit| {
                 let t = mesh.idx[h.tri as usize].map(|i| mesh.vnormals[i as usize]);
                 (t[0] * (1.0 - h.u - h.v) + t[1] * h.u + t[2] * h.v).normalize_or_zero()
             };
