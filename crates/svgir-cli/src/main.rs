@@ -26,10 +26,12 @@ enum Command {
     /// Describe a dataset: views, resolution, camera model, ground truth present.
     Info(commands::info::InfoArgs),
     /// Stage 1: fit Gaussian surfels with SH colour (geometry + radiance field) to a dataset.
+    #[command(after_help = "Research switches and loss weights: `svgir train --help`.")]
     Train(commands::train::TrainArgs),
     /// Foreground masks for a capture without them, from a stage-1 reconstruction (PNGs to check and edit).
     Masks(commands::masks::MasksArgs),
     /// Stage 2: recover materials and lighting on a stage-1 run, relight and evaluate (SPEC 6-8).
+    #[command(after_help = "Research switches, ablations and diagnostics: `svgir inverse --help`.")]
     Inverse(commands::inverse::InverseArgs),
     /// Render a stage-2 model under a new HDR environment map.
     Relight(commands::relight::RelightArgs),

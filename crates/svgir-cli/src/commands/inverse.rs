@@ -25,50 +25,52 @@ pub struct InverseArgs {
     /// Dataset (default: the one recorded in RUN/config.json).
     #[arg(long)]
     pub data: Option<PathBuf>,
+    /// Stage-2 iterations (SPEC 6: 20000).
     #[arg(long, default_value_t = 20_000)]
     pub iterations: u64,
     /// Diagnostic: before the evaluation, replace the learned albedo and roughness by the
     /// ground truth of the training views projected onto each Gaussian (the relighting ceiling
     /// of this geometry and shading with perfect materials). Not a result: it reads ground truth.
-    #[arg(long)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub oracle_materials: bool,
     /// With --oracle-materials: passes over the training views fitting the vertex materials to
     /// the ground-truth maps through the rasteriser after the per-Gaussian projection (0: the
     /// projection alone, constant per Gaussian).
-    #[arg(long, default_value_t = 6)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 6)]
     pub oracle_fit_epochs: usize,
     /// Diagnostic: before the evaluation, replace the learned light by the dataset's training
     /// light (its brightest texels as directional lights when --lights > 0), so NVS measures
     /// the model under the true light. Not a result: it reads ground truth.
-    #[arg(long)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub oracle_light: bool,
     /// Diagnostic: train the materials under the dataset's true training light, held fixed
     /// (its brightest texels as directional lights when --lights > 0): how well the materials
     /// are recovered when the light is known. Not a result: it reads ground truth.
-    #[arg(long)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub train_true_light: bool,
+    /// Seed of every random choice (recorded in the run's config.json).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
     /// Gaussian vertices per surfel: 1 (constant material), 2, 4 or 6.
-    #[arg(long, default_value_t = 4)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 4)]
     pub vertices: usize,
     /// Micro-buffer directions per Gaussian (SPEC 4: 64 for training).
-    #[arg(long, default_value_t = 64)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 64)]
     pub directions: usize,
     /// Ablation: ignore visibility (V = 1).
-    #[arg(long)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub no_visibility: bool,
     /// Ablation: no indirect light.
-    #[arg(long)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub no_indirect: bool,
     /// Ablation: no radiance-consistency loss.
-    #[arg(long)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub no_consistency: bool,
     /// LPIPS network for the evaluation.
     #[arg(long, value_enum, default_value_t = LpipsNet::Vgg)]
     pub lpips: LpipsNet,
     /// Append training statistics to OUT/metrics.jsonl every this many iterations.
-    #[arg(long, default_value_t = 25)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 25)]
     pub log_every: u64,
     /// Continue the stage-2 run in the output folder from its checkpoint (up to --iterations,
     /// which may extend a finished run).
@@ -86,117 +88,117 @@ pub struct InverseArgs {
     #[command(flatten)]
     pub relight: super::spec8::EvalRelightArgs,
     /// Initial learned light: SPEC 4's per-texel random init, or a uniform grey at its mean.
-    #[arg(long, value_enum, default_value_t = EnvInitArg::Random)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, value_enum, default_value_t = EnvInitArg::Random)]
     pub env_init: EnvInitArg,
-    /// Defaults of the eight settings below marked (profile): `measured`, the settings behind the
+    /// Defaults of the eight advanced settings marked (profile) in `--help`: `measured`, the settings behind the
     /// README's table (4 lights, exp light, sun at 400, sun search on 4 views, rho fixed,
     /// materials from 500, layered diffuse, two-sided); `spec`, SPEC 6's literal ones.
     #[arg(long, value_enum, default_value_t = InverseProfile::Measured)]
     pub profile: InverseProfile,
     /// (profile) Learning rate of the indirect scale rho (SPEC 6: 0.01; 0 keeps rho = 1).
-    #[arg(long)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub rho_lr: Option<f32>,
     /// Learning rate of the albedo (SPEC 6: 0.01).
-    #[arg(long, default_value_t = 0.01)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 0.01)]
     pub albedo_lr: f32,
     /// Light warm-up: hold the materials (albedo, roughness, normal offsets) at their initial
     /// values for this many iterations, so that the light must explain shading and shadows
     /// first (0: train them from the start, as SPEC 6). (profile)
-    #[arg(long)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub materials_from: Option<u64>,
     /// Factor on the light's learning rate after the warm-up (--materials-from): below 1 the
     /// light mostly keeps what it learned while the materials were held.
-    #[arg(long, default_value_t = 1.0)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 1.0)]
     pub env_lr_after_warm_up: f32,
     /// Hold the learned light grey: `warm-up` while the materials are held (`--materials-from`),
     /// `always`, or `off` (SPEC 6). A grey light leaves the objects' colours to the albedo.
-    #[arg(long, value_enum, default_value_t = GreyLightArg::Off)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, value_enum, default_value_t = GreyLightArg::Off)]
     pub grey_light: GreyLightArg,
     /// With --grey-light: instead of grey, keep the light's colour within spherical harmonics of
     /// this degree (0-3) and each texel's brightness free (a blue sky over green ground, but no
     /// coloured glow round the sun).
-    #[arg(long)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub light_colour_degree: Option<u32>,
     /// BRDF diffuse lobe: SPEC 4 adds it to the specular one; `layered` dims it by the specular
     /// layer's albedo, as Cycles' Principled BSDF (which renders the synthetic scenes) does.
     /// (profile) With --resume it replaces the checkpoint's model (e.g. to re-evaluate).
-    #[arg(long, value_enum)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, value_enum)]
     pub diffuse: Option<DiffuseArg>,
     /// What blends the PBR image with the background in the photo loss: SPEC 3's `render`
     /// opacity, or the `photo`'s alpha, as the evaluation composites the prediction. With the
     /// render's, a surface can look darker by being thinner over the black background, which the
     /// evaluation divides out again.
-    #[arg(long, value_enum, default_value_t = CoverageArg::Render)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, value_enum, default_value_t = CoverageArg::Render)]
     pub pbr_coverage: CoverageArg,
     /// Shade every Gaussian on the side its camera sees (thin walls are one layer of surfels seen
     /// from both sides), tracing a second set of micro-buffers over the back hemispheres: twice
     /// the tracing time and micro-buffer memory. (profile)
-    #[arg(long, conflicts_with = "one_sided")]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, conflicts_with = "one_sided")]
     pub two_sided: bool,
     /// SPEC 4's oriented side only (the `spec` profile's default).
-    #[arg(long)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub one_sided: bool,
     /// Shade this many of the learned map's brightest texels as directional lights with traced
     /// visibility and no clamp (re-selected every --lights-every iterations; relighting splits
     /// the new map by --relight-lights). For training lights with a sun; 0: SPEC 4's K samples
     /// alone. (profile)
-    #[arg(long)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub lights: Option<usize>,
-    #[arg(long, default_value_t = 100)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 100)]
     pub lights_every: u64,
     /// Radiance of the learned map: SPEC 4's 2 softplus(x), or exp(x), which can reach a sun's
     /// radiance within a schedule (use with --lights). (profile)
-    #[arg(long, value_enum)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, value_enum)]
     pub env_activation: Option<EnvActivationArg>,
     /// At this iteration, gather the learned map's brightest lobe (within --sun-radius degrees)
     /// into one texel, shaded from then on as a directional light (a sun; needs --lights; use
     /// with --env-activation exp so its radiance stays trainable). 0: never. (profile)
-    #[arg(long)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub sun_at: Option<u64>,
-    #[arg(long, default_value_t = Stage2Config::default().sun_radius_deg)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = Stage2Config::default().sun_radius_deg)]
     pub sun_radius: f32,
     /// Search the sun's direction off the map's texel grid at --sun-at and every
     /// --sun-search-every iterations after, scoring directions on this many training views
     /// (0: never; the sun stays at its texel's centre). (profile)
-    #[arg(long)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub sun_search_views: Option<usize>,
-    #[arg(long, default_value_t = Stage2Config::default().sun_search_every)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = Stage2Config::default().sun_search_every)]
     pub sun_search_every: u64,
     /// The first sun search first scans a cone of this half-angle (degrees) around the gathered
     /// sun on rings 15 degrees apart (0: compass search alone).
-    #[arg(long, default_value_t = 0.0)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 0.0)]
     pub sun_search_cone: f32,
     /// Tracing: continuation offset after a hit, world units (SPEC 5: 0.05, which lets light
     /// leak through surfaces made of overlapping surfels; see `DEFAULT_TRACE_EPS`).
-    #[arg(long, default_value_t = Stage2Config::default().trace_eps)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = Stage2Config::default().trace_eps)]
     pub trace_eps: f32,
     /// Tracing: extra continuation offset in multiples of the hit surfel's max scale.
-    #[arg(long, default_value_t = Stage2Config::default().trace_eps_scale)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = Stage2Config::default().trace_eps_scale)]
     pub trace_eps_scale: f32,
     /// Tracing: rays start this many of their own surfel's max scales away (3: the rim of its
     /// 3-sigma disk, so neighbours on the same surface do not occlude it).
-    #[arg(long, default_value_t = Stage2Config::default().trace_start_scale)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = Stage2Config::default().trace_start_scale)]
     pub trace_start_scale: f32,
     /// Tracing: visibility is 0 where the final transmittance is below this (SPEC 5: 0.2; higher
     /// treats partly transparent surfaces as opaque, against light leaking through them).
-    #[arg(long, default_value_t = Stage2Config::default().trace_visibility_cut)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = Stage2Config::default().trace_visibility_cut)]
     pub visibility_cut: f32,
     /// Tracing: each hit occludes with min(0.99, gain x alpha) in the visibility march only (SPEC
     /// 5: 1; the traced radiance is unchanged). Against light leaking through surfaces.
-    #[arg(long, default_value_t = Stage2Config::default().trace_visibility_alpha_gain)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = Stage2Config::default().trace_visibility_alpha_gain)]
     pub visibility_alpha_gain: f32,
     /// Colour space of the traced SH radiance used as indirect light (SPEC 5): stage 1 fits the
     /// SH to sRGB photos, so `linear` decodes each hit's colour before it lights linear shading;
     /// `srgb` uses it as it is, as the reference code does.
-    #[arg(long, value_enum, default_value_t = TracedRadianceArg::from_config(&Stage2Config::default()))]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, value_enum, default_value_t = TracedRadianceArg::from_config(&Stage2Config::default()))]
     pub traced_radiance: TracedRadianceArg,
     /// Highest SH degree of the traced radiance used as indirect light (SPEC 5: 3); 0 uses each
     /// hit's mean colour, since the micro-buffer rays see surfaces from directions no camera did.
-    #[arg(long, default_value_t = Stage2Config::default().trace_radiance_sh_degree)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = Stage2Config::default().trace_radiance_sh_degree)]
     pub traced_sh_degree: u32,
     /// Loss weight, repeatable: l1, ssim, consistency, normal, smooth_albedo, smooth_roughness,
     /// normal_offset or env_tv (defaults: SPEC 6, Eqn 15).
-    #[arg(long = "weight", value_name = "NAME=VALUE")]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long = "weight", value_name = "NAME=VALUE")]
     pub weights: Vec<String>,
 }
 

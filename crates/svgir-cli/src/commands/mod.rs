@@ -1,5 +1,9 @@
 //! One module per subcommand.
 
+/// The help heading of research switches, ablations and diagnostics: listed by `--help`, left
+/// out of `-h` so that the everyday options fit on one screen.
+pub const ADVANCED: &str = "Advanced (research switches, ablations, diagnostics)";
+
 pub mod bench;
 pub mod demo;
 pub mod eval;

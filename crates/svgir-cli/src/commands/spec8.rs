@@ -10,15 +10,15 @@ use svgir_train::relight::RelightSampling;
 pub struct EvalRelightArgs {
     /// Directions per Gaussian when relighting for the evaluation (SPEC 7: 384; memory is
     /// Gaussians x K x 16 bytes).
-    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_DIRECTIONS)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = svgir_train::relight::RELIGHT_DIRECTIONS)]
     pub relight_directions: usize,
     /// Brightest texels of each relighting map shaded as directional lights with traced
     /// visibility when relighting for the evaluation (0: the K directions alone, as SPEC 7).
-    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_LIGHTS)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = svgir_train::relight::RELIGHT_LIGHTS)]
     pub relight_lights: usize,
     /// Diffuse bounces of indirect light added to SPEC 7's one-bounce term when relighting for
     /// the evaluation (0: Eqn 13 alone).
-    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_BOUNCES)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = svgir_train::relight::RELIGHT_BOUNCES)]
     pub relight_bounces: usize,
     /// Also relight under these HDR maps (strength 1): test views and a turntable, without
     /// metrics (a capture has no relit ground truth). Repeatable.

@@ -52,10 +52,10 @@ pub struct TrainArgs {
     pub profile: ProfileArg,
     /// Background the renders are composited over, and the photos for masked data (default:
     /// white for objects; random for captures, so that Gaussians model the real background).
-    #[arg(long, value_enum)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, value_enum)]
     pub background: Option<Bg>,
     /// The distortion weight (`--weight distortion=X`) applies from this iteration (2DGS: 3000).
-    #[arg(long, default_value_t = 0)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 0)]
     pub distortion_from: u64,
     /// Highest SH degree of the view-dependent colour (0-3; default 3, reached one step every 1000
     /// iterations in the capture profile).
@@ -66,10 +66,10 @@ pub struct TrainArgs {
     #[arg(long)]
     pub exposure: bool,
     /// Initial surfels from a point-cloud PLY instead of the dataset's points / a random box.
-    #[arg(long)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub init_ply: Option<PathBuf>,
     /// Number of random initial points when the dataset has none.
-    #[arg(long, default_value_t = 100_000)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 100_000)]
     pub init_points: usize,
     /// Continue the run in --out from its checkpoint (bit-identical continuation).
     #[arg(long)]
@@ -81,31 +81,31 @@ pub struct TrainArgs {
     #[arg(long, default_value_t = 0)]
     pub eval_every: u64,
     /// Evaluate on at most this many test views during training (all at the end).
-    #[arg(long, default_value_t = 8)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 8)]
     pub eval_views: usize,
     /// Append training statistics to RUN/metrics.jsonl every this many iterations.
-    #[arg(long, default_value_t = 50)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 50)]
     pub log_every: u64,
     /// Stop densifying at this many Gaussians (object profile default: one per 64 training
     /// pixels, against overfitting few small photos; capture profile: none; 0: no limit).
-    #[arg(long)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub max_gaussians: Option<usize>,
     /// Disable the mask and entropy losses (photos without a meaningful alpha channel).
-    #[arg(long)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub no_mask: bool,
     /// Override the scaled schedule: densify every N iterations (3DGS: 100).
-    #[arg(long)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub densify_every: Option<u64>,
     /// Override the scaled schedule: stop densifying at this iteration (3DGS: 15000 of 30000).
-    #[arg(long)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub densify_until: Option<u64>,
     /// Override the scaled schedule: reset opacities every N iterations while densifying (3DGS: 3000).
-    #[arg(long)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub opacity_reset_every: Option<u64>,
     /// Loss weight, repeatable: l1, ssim, mask, normal_start, normal_ramp, entropy or distortion
     /// (defaults: SPEC 2; the depth-normal weight ramps from normal_start to
     /// normal_start + normal_ramp over the run).
-    #[arg(long = "weight", value_name = "NAME=VALUE")]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long = "weight", value_name = "NAME=VALUE")]
     pub weights: Vec<String>,
 }
 
