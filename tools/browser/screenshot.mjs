@@ -65,6 +65,6 @@ async function main() {
   }
 }
 
-if (import.meta.url === 'file://' + process.argv[1] || process.argv[1]?.endsWith('screenshot.mjs')) {
+if (process.argv[1]?.endsWith('screenshot.mjs')) {
   main().catch((e) => { console.error(`error: ${e.message}`); process.exit(1); });
 }

@@ -14,8 +14,33 @@ fn quick_demo_writes_a_report_with_metrics() {
     let status = svgir().args(["--threads", "2", "demo", "--quick", "--out"]).arg(&out).status().expect("runs");
     assert!(status.success(), "svgir demo --quick failed");
     let html = std::fs::read_to_string(out.join("report.html")).expect("report.html written");
-    for needle in ["Stage 1: test metrics", "PSNR (dB)", "Stage 2", "relight", "albedo", "data:image/png;base64,"] {
+    for needle in
+        ["Stage 1 (test views)", "PSNR (dB)", "Stage 2", "relit under", "our albedo", "data:image/png;base64,"]
+    {
         assert!(html.contains(needle), "report lacks {needle:?}");
+    }
+    // Results come before tables, tables before curves, curves before the configuration.
+    let at = |s: &str| html.find(s).unwrap_or_else(|| panic!("report lacks {s:?}"));
+    assert!(at("Relit object") < at("<h2>Metrics") && at("<h2>Metrics") < at("<h2>Curves"));
+    assert!(at("<h2>Curves") < at("<h2>Configuration"));
+    // The report in a real browser at desktop and phone widths: images decode, no errors, no
+    // sideways scrolling, results first.
+    if let Some(browser) = browser_tools() {
+        let shots = out.join("screenshots");
+        let res = Command::new("node")
+            .arg(browser.join("report_check.mjs"))
+            .arg(out.join("report.html"))
+            .arg(&shots)
+            .output()
+            .expect("node runs");
+        let stdout = String::from_utf8_lossy(&res.stdout);
+        assert!(res.status.success(), "report check failed: {stdout}{}", String::from_utf8_lossy(&res.stderr));
+        for line in stdout.lines() {
+            let v: serde_json::Value = serde_json::from_str(line).expect("one JSON line per width");
+            assert_eq!(v["first_section"], "Relit object, materials and light", "{line}");
+            assert!(v["images"].as_u64().unwrap() > 10 && v["plots"].as_u64().unwrap() >= 3, "{line}");
+        }
+        assert!(shots.join("report_desktop.png").exists() && shots.join("report_phone.png").exists());
     }
     let eval: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("stage2/eval.json")).unwrap()).unwrap();
@@ -63,6 +88,20 @@ fn quick_demo_writes_a_report_with_metrics() {
     std::fs::remove_dir_all(&out).ok();
 }
 
+/// `tools/browser` when its npm packages and Chromium are installed (as `.ci/run` does); `None`
+/// with a loud SKIPPED otherwise, and a failure under `SVGIR_REQUIRE_DATA=1`.
+fn browser_tools() -> Option<std::path::PathBuf> {
+    let dir = std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../tools/browser")).to_path_buf();
+    let chromium = std::env::var("CHROMIUM").unwrap_or_else(|_| "/usr/bin/chromium".into());
+    if dir.join("node_modules/playwright-core").exists() && std::path::Path::new(&chromium).exists() {
+        return Some(dir);
+    }
+    let why = format!("SKIPPED: browser check (run `npm ci` in {} and install Chromium)", dir.display());
+    assert!(std::env::var_os("SVGIR_REQUIRE_DATA").is_none(), "{why}");
+    eprintln!("{why}");
+    None
+}
+
 /// Size in bytes of a written PNG (0 if missing).
 fn svgir_io_png(path: &std::path::Path) -> u64 {
     std::fs::metadata(path).map_or(0, |m| m.len())
@@ -94,6 +133,18 @@ fn corrupt_image_in_eval_is_reported_by_name() {
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(err.contains("x.png") && err.to_lowercase().contains("png"), "stderr: {err}");
     std::fs::remove_dir_all(&dir).ok();
+}
+
+#[test]
+fn everyday_help_fits_on_one_screen() {
+    for cmd in ["train", "inverse"] {
+        let short = svgir().args([cmd, "-h"]).output().unwrap();
+        let long = svgir().args([cmd, "--help"]).output().unwrap();
+        let (short, long) = (String::from_utf8_lossy(&short.stdout), String::from_utf8_lossy(&long.stdout));
+        assert!(short.lines().count() <= 50, "`svgir {cmd} -h` is {} lines", short.lines().count());
+        assert!(long.contains("Advanced") && !short.contains("Advanced"), "{cmd}: advanced options misplaced");
+        assert!(short.contains(&format!("svgir {cmd} --help")), "{cmd} -h does not point to --help");
+    }
 }
 
 #[test]

@@ -49,7 +49,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         max_gaussians: Some(if args.quick { 5_000 } else { 15_000 }),
         resume: false,
         checkpoint_every: 1000,
-        eval_every: if args.quick { 0 } else { 500 },
+        eval_every: if args.quick { 100 } else { 200 },
         eval_views: 8,
         log_every: 25,
         no_mask: false,

@@ -63,9 +63,16 @@ fn svg_plot(points: &[(f64, f64)], title: &str, xlabel: &str) -> String {
     for (i, p) in points.iter().enumerate() {
         let _ = write!(path, "{}{:.1},{:.1} ", if i == 0 { "M" } else { "L" }, sx(p.0), sy(p.1));
     }
+    // Evaluation points are few: mark each so a reader sees where the curve was measured.
+    let mut dots = String::new();
+    if points.len() <= 60 {
+        for p in points {
+            let _ = write!(dots, "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"2.5\" fill=\"#2a6fdb\"/>", sx(p.0), sy(p.1));
+        }
+    }
     format!(
-        "<svg width=\"{w}\" height=\"{h}\" class=plot><text x=\"{m}\" y=\"16\">{title}</text>\
-<path d=\"{path}\" fill=none stroke=\"#2a6fdb\" stroke-width=1.5 />\
+        "<svg viewBox=\"0 0 {w} {h}\" width=\"{w}\" class=plot><text x=\"{m}\" y=\"16\">{title}</text>\
+<path d=\"{path}\" fill=none stroke=\"#2a6fdb\" stroke-width=1.5 />{dots}\
 <line x1=\"{m}\" y1=\"{b}\" x2=\"{r}\" y2=\"{b}\" stroke=\"#888\"/><line x1=\"{m}\" y1=\"{t}\" x2=\"{m}\" y2=\"{b}\" stroke=\"#888\"/>\
 <text x=\"{m}\" y=\"{lb}\">{x0:.0}</text><text x=\"{r}\" y=\"{lb}\" text-anchor=end>{x1:.0} {xlabel}</text>\
 <text x=\"2\" y=\"{t}\">{y1:.3}</text><text x=\"2\" y=\"{b}\">{y0:.3}</text></svg>",
@@ -74,16 +81,6 @@ fn svg_plot(points: &[(f64, f64)], title: &str, xlabel: &str) -> String {
         r = w - 0.5 * m,
         lb = h - m + 16.0,
     )
-}
-
-fn metrics_table(v: &Value) -> String {
-    let mut rows = Vec::new();
-    flatten("", v, &mut rows);
-    let mut s = String::from("<table><tr><th>metric</th><th>value</th></tr>");
-    for (k, v) in rows {
-        let _ = write!(s, "<tr><td>{}</td><td>{v}</td></tr>", label(&k));
-    }
-    s + "</table>"
 }
 
 /// A readable label for a flattened metric key (`relight.per_light.night.psnr` -> `relit under
@@ -135,146 +132,118 @@ fn flatten(prefix: &str, v: &Value, out: &mut Vec<(String, String)>) {
     }
 }
 
-fn stage2_section(dir: &Path) -> String {
-    let Some(eval) =
-        std::fs::read_to_string(dir.join("eval.json")).ok().and_then(|t| serde_json::from_str::<Value>(&t).ok())
-    else {
-        return String::new();
-    };
-    let mut table =
-        String::from("<h3>Stage 2 metrics (SPEC 8 evaluation)</h3><table><tr><th>metric</th><th>value</th></tr>");
+/// The rows of a metrics JSON as an HTML table with readable labels.
+fn labelled_table(caption: &str, v: &Value) -> String {
     let mut rows = Vec::new();
-    flatten("", &eval, &mut rows);
-    for (k, v) in rows {
-        let _ = write!(table, "<tr><td>{}</td><td>{v}</td></tr>", label(&k));
+    flatten("", v, &mut rows);
+    if rows.is_empty() {
+        return String::new();
     }
-    table += "</table>";
-    let mut s = String::from("<h2>Relit object, materials and light (stage 2)</h2>");
+    let mut s = format!("<h3>{caption}</h3><div class=scroll><table><tr><th>metric</th><th>value</th></tr>");
+    for (k, v) in rows {
+        let _ = write!(s, "<tr><td>{}</td><td>{v}</td></tr>", label(&k));
+    }
+    s + "</table></div>"
+}
+
+/// File names in `dir` (empty if it cannot be listed), sorted.
+fn file_names(dir: &Path) -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(dir)
+        .map(|d| d.filter_map(|e| e.ok()).map(|e| e.file_name().to_string_lossy().into_owned()).collect())
+        .unwrap_or_default();
+    names.sort();
+    names
+}
+
+/// Stage 2's pictures, in the order a reader wants them: the relit turntables, then photo vs
+/// ours and the recovered materials vs truth per test view, then the learned light vs the true.
+fn stage2_pictures(dir: &Path) -> String {
+    let mut s = String::from("<h2>Relit object, materials and light</h2>");
+    // One turntable row per light (frames are LIGHT_NNN.png).
+    let frames = file_names(&dir.join("turntable"));
+    let light_of = |f: &String| f.rsplit_once('_').map_or(String::new(), |x| x.0.to_string());
+    let mut lights: Vec<String> = frames.iter().map(light_of).collect();
+    lights.dedup();
+    for light in lights {
+        let mine: Vec<&String> = frames.iter().filter(|f| light_of(f) == light).collect();
+        let step = mine.len().div_ceil(8).max(1);
+        let _ = write!(s, "<h3>Relit under {light} (turntable)</h3><div class=row>");
+        for f in mine.iter().step_by(step) {
+            s += &img_tag(&dir.join("turntable").join(f), f.trim_end_matches(".png"));
+        }
+        s += "</div>";
+    }
+    let test = dir.join("test");
+    let all = file_names(&test);
+    let relit: Vec<&String> = all.iter().filter(|n| n.contains("_relit_") && !n.contains("_gt_")).collect();
+    let views: Vec<&str> = all.iter().filter_map(|n| n.strip_suffix("_pbr.png")).collect();
+    if !views.is_empty() {
+        s += "<h3>Test views: photo vs ours, recovered materials vs truth, relit vs truth</h3>";
+    }
+    for stem in views.iter().take(4) {
+        s += "<div class=row>";
+        let mut pairs: Vec<(String, String, String)> = [
+            ("rgb", "pbr", "photo", "ours (learned light)"),
+            ("albedo", "albedo", "true albedo", "our albedo"),
+            ("roughness", "roughness", "true roughness", "our roughness"),
+            ("normal", "normal", "true normal", "our normal"),
+        ]
+        .iter()
+        .map(|(gt, ours, tg, to)| (format!("gt_{gt}|{tg}"), ours.to_string(), to.to_string()))
+        .collect();
+        let mut lights: Vec<String> = relit
+            .iter()
+            .filter_map(|r| r.strip_prefix(&format!("{stem}_relit_")))
+            .map(|r| r.trim_end_matches(".png").to_string())
+            .collect();
+        lights.sort();
+        for l in lights {
+            pairs.push((
+                format!("gt_relit_{l}|true, relit under {l}"),
+                format!("relit_{l}"),
+                format!("ours, relit under {l}"),
+            ));
+        }
+        for (gt, ours, ours_title) in pairs {
+            let (gt, gt_title) = gt.split_once('|').unwrap_or((&gt, ""));
+            let gt_path = test.join(format!("{stem}_{gt}.png"));
+            if gt_path.exists() {
+                s += &img_tag(&gt_path, &format!("{stem}: {gt_title}"));
+            }
+            let ours_path = test.join(format!("{stem}_{ours}.png"));
+            if ours_path.exists() {
+                s += &img_tag(&ours_path, &format!("{stem}: {ours_title}"));
+            }
+        }
+        s += "</div>";
+    }
     let has_truth = dir.join("env_true.png").exists();
     let _ = write!(
         s,
         "<h3>Environment light: {}</h3><div class=row>",
         if has_truth { "learned vs true" } else { "learned" }
     );
-    s += &img_tag(&dir.join("env_learned.png"), "learned").replace("width:192px", "");
+    s += &img_tag(&dir.join("env_learned.png"), "learned");
     if has_truth {
         s += &img_tag(&dir.join("env_true.png"), "true (training light)");
     }
-    s += "</div>";
-    let mut frames: Vec<PathBuf> = std::fs::read_dir(dir.join("turntable"))
-        .map(|d| d.filter_map(|e| e.ok()).map(|e| e.path()).collect())
-        .unwrap_or_default();
-    frames.sort();
-    // One turntable row per light (frames are LIGHT_NNN.png).
-    let light_of = |f: &PathBuf| {
-        f.file_name().unwrap_or_default().to_string_lossy().rsplit_once('_').map_or(String::new(), |x| x.0.to_string())
-    };
-    let mut lights: Vec<String> = frames.iter().map(light_of).collect();
-    lights.dedup();
-    for light in lights {
-        let mine: Vec<&PathBuf> = frames.iter().filter(|f| light_of(f) == light).collect();
-        let step = mine.len().div_ceil(8).max(1);
-        let _ = write!(s, "<h3>Relit turntable ({light})</h3><div class=row>");
-        for f in mine.iter().step_by(step) {
-            s += &img_tag(f, &f.file_name().unwrap_or_default().to_string_lossy());
-        }
-        s += "</div>";
-    }
-    s += "<h3>Test views</h3>";
-    let test = dir.join("test");
-    let mut names: Vec<String> = std::fs::read_dir(&test)
-        .map(|d| d.filter_map(|e| e.ok()).map(|e| e.file_name().to_string_lossy().into_owned()).collect())
-        .unwrap_or_default();
-    names.retain(|n| n.ends_with("_pbr.png"));
-    names.sort();
-    let mut relit: Vec<String> = std::fs::read_dir(&test)
-        .map(|d| d.filter_map(|e| e.ok()).map(|e| e.file_name().to_string_lossy().into_owned()).collect())
-        .unwrap_or_default();
-    relit.retain(|n| n.contains("_relit_") && !n.contains("_gt_"));
-    for n in names.iter().take(4) {
-        let stem = n.trim_end_matches("_pbr.png");
-        s += "<div class=row>";
-        let mut pairs: Vec<(String, String)> = ["rgb", "albedo", "roughness", "normal"]
-            .iter()
-            .map(|k| (format!("gt_{k}"), if *k == "rgb" { "pbr".to_string() } else { k.to_string() }))
-            .collect();
-        let mut lights: Vec<String> = relit
-            .iter()
-            .filter(|r| r.starts_with(&format!("{stem}_relit_")))
-            .map(|r| r.trim_start_matches(&format!("{stem}_relit_")).trim_end_matches(".png").to_string())
-            .collect();
-        lights.sort();
-        for l in lights {
-            pairs.push((format!("gt_relit_{l}"), format!("relit_{l}")));
-        }
-        for (gt, ours) in pairs {
-            let gt_path = test.join(format!("{stem}_{gt}.png"));
-            if gt_path.exists() {
-                s += &img_tag(&gt_path, &format!("{stem} {gt}"));
-            }
-            s += &img_tag(&test.join(format!("{stem}_{ours}.png")), &format!("{stem} ours: {ours}"));
-        }
-        s += "</div>";
-    }
-    s + &table
+    s + "</div>"
 }
 
-pub fn write_report(run: &Path, out: &Path) -> Result<()> {
-    let read_json =
-        |name: &str| -> Option<Value> { serde_json::from_str(&std::fs::read_to_string(run.join(name)).ok()?).ok() };
-    let config =
-        read_json("config.json").with_context(|| format!("{}: no config.json (not a run folder?)", run.display()))?;
-    let eval = read_json("eval.json").unwrap_or(Value::Null);
-    let timings = read_json("timings.json").unwrap_or(Value::Null);
-    let mut loss = Vec::new();
-    let mut psnr = Vec::new();
-    let mut test_psnr = Vec::new();
-    if let Ok(text) = std::fs::read_to_string(run.join("metrics.jsonl")) {
-        for line in text.lines() {
-            let Ok(v) = serde_json::from_str::<Value>(line) else { continue };
-            let it = v["iteration"].as_f64().unwrap_or(0.0);
-            if let (Some(l), Some(p)) = (v["loss"].as_f64(), v["psnr"].as_f64()) {
-                loss.push((it, l));
-                psnr.push((it, p));
-            }
-            if let Some(p) = v["test"]["psnr"].as_f64() {
-                test_psnr.push((v["elapsed_s"].as_f64().unwrap_or(0.0) / 60.0, p));
-            }
-        }
-    }
-    let mut html = String::from(
-        "<!doctype html><html><head><meta charset=utf-8><title>svgir report</title><style>\
-body{font-family:sans-serif;margin:24px;color:#222}table{border-collapse:collapse;margin:8px 0}\
-td,th{border:1px solid #ccc;padding:4px 10px;text-align:left}figure{display:inline-block;margin:4px;text-align:center}\
-img{image-rendering:pixelated;width:192px}figcaption{font-size:12px}.plot{margin:8px;border:1px solid #eee}\
-.missing{width:192px;height:192px;background:#eee}.row{margin-bottom:12px}</style></head><body>",
-    );
-    let _ = write!(html, "<h1>svgir run: {}</h1>", run.display());
-    let _ = write!(html, "<p>data: <code>{}</code></p>", config["data"].as_str().unwrap_or("?"));
-    // Results first: the relit object, its materials and light (stage 2), then stage 1.
-    html += &stage2_section(&run.join("stage2"));
-    html += "<h2>Stage 1: test metrics</h2>";
-    html += &metrics_table(&eval);
-    if !timings.is_null() {
-        html += "<h2>Time per iteration (ms)</h2>";
-        html += &metrics_table(&timings["ms_per_iteration"]);
-    }
-    html += "<h2>Training curves</h2>";
-    html += &svg_plot(&loss, "training loss", "it");
-    html += &svg_plot(&psnr, "training PSNR (dB)", "it");
-    html += &svg_plot(&test_psnr, "test PSNR (dB)", "min");
-    html += "<h2>Test views: ground truth vs ours</h2>";
+/// Stage 1's test views: the photo against our render, normals and depth.
+fn stage1_pictures(run: &Path) -> String {
     let test_dir = run.join("test");
-    let mut names: Vec<String> = std::fs::read_dir(&test_dir)
-        .map(|d| d.filter_map(|e| e.ok()).map(|e| e.file_name().to_string_lossy().into_owned()).collect())
-        .unwrap_or_default();
-    names.retain(|n| n.ends_with("_rgb.png") && !n.contains("_gt_"));
-    names.sort();
-    for n in names.iter().take(8) {
-        let stem = n.trim_end_matches("_rgb.png");
+    let names = file_names(&test_dir);
+    let views: Vec<&str> =
+        names.iter().filter(|n| !n.contains("_gt_")).filter_map(|n| n.strip_suffix("_rgb.png")).collect();
+    if views.is_empty() {
+        return String::new();
+    }
+    let mut html = String::from("<h2>Geometry and radiance field (stage 1): photo vs ours</h2>");
+    for stem in views.iter().take(8) {
         html += "<div class=row>";
         for (suffix, title) in [
-            ("gt_rgb", "ground truth"),
+            ("gt_rgb", "photo"),
             ("rgb", "ours"),
             ("gt_normal", "true normal"),
             ("normal", "our normal"),
@@ -284,11 +253,70 @@ img{image-rendering:pixelated;width:192px}figcaption{font-size:12px}.plot{margin
             if suffix.starts_with("gt") && !p.exists() {
                 continue;
             }
-            html += &img_tag(&p, &format!("{stem} {title}"));
+            html += &img_tag(&p, &format!("{stem}: {title}"));
         }
         html += "</div>";
     }
-    let _ = write!(html, "<h2>Configuration</h2><pre>{}</pre></body></html>", serde_json::to_string_pretty(&config)?);
+    html
+}
+
+/// `(x, y)` series of a run's `metrics.jsonl`: `x_key` against `y_key` (nested keys with `.`),
+/// over the lines that have both.
+fn series(run: &Path, x_key: &str, y_key: &str) -> Vec<(f64, f64)> {
+    let get = |v: &Value, key: &str| key.split('.').try_fold(v, |v, k| v.get(k)).and_then(Value::as_f64);
+    std::fs::read_to_string(run.join("metrics.jsonl"))
+        .map(|text| {
+            text.lines()
+                .filter_map(|l| serde_json::from_str::<Value>(l).ok())
+                .filter_map(|v| Some((get(&v, x_key)?, get(&v, y_key)?)))
+                .collect()
+        })
+        .unwrap_or_default()
+}
+
+pub fn write_report(run: &Path, out: &Path) -> Result<()> {
+    let read_json = |path: &Path| -> Option<Value> { serde_json::from_str(&std::fs::read_to_string(path).ok()?).ok() };
+    let config = read_json(&run.join("config.json"))
+        .with_context(|| format!("{}: no config.json (not a run folder?)", run.display()))?;
+    let stage2 = run.join("stage2");
+    let mut html = String::from(
+        "<!doctype html><html><head><meta charset=utf-8><meta name=viewport content=\"width=device-width, initial-scale=1\">\
+<title>svgir report</title><style>\
+body{font-family:sans-serif;margin:24px;color:#222;max-width:1400px}table{border-collapse:collapse;margin:8px 0}\
+td,th{border:1px solid #ccc;padding:4px 10px;text-align:left}figure{display:inline-block;margin:4px;text-align:center;vertical-align:top}\
+img{image-rendering:pixelated;width:192px;max-width:42vw}figcaption{font-size:12px;max-width:192px}\
+.plot{margin:8px;border:1px solid #eee;max-width:100%;height:auto}.scroll{overflow-x:auto}\
+pre{overflow-x:auto;background:#f6f6f6;padding:8px}\
+.missing{width:192px;max-width:42vw;height:192px;background:#eee}.row{margin-bottom:12px}\
+@media (max-width:600px){body{margin:10px}}</style></head><body>",
+    );
+    let _ = write!(html, "<h1>svgir run: {}</h1>", run.display());
+    let _ = write!(html, "<p>data: <code>{}</code></p>", config["data"].as_str().unwrap_or("?"));
+    // Pictures first (the relit object, its materials and light; then stage 1), then the
+    // metric tables, then the curves, then the configuration.
+    html += &stage2_pictures(&stage2);
+    html += &stage1_pictures(run);
+    html += "<h2>Metrics</h2>";
+    if let Some(eval2) = read_json(&stage2.join("eval.json")) {
+        html += &labelled_table("Stage 2 (SPEC 8 evaluation on the test views)", &eval2);
+    }
+    html += &labelled_table("Stage 1 (test views)", &read_json(&run.join("eval.json")).unwrap_or(Value::Null));
+    if let Some(timings) = read_json(&run.join("timings.json")) {
+        html += &labelled_table("Stage 1: time per iteration (ms)", &timings["ms_per_iteration"]);
+    }
+    html += "<h2>Curves</h2><div class=row>";
+    let minutes = |v: Vec<(f64, f64)>| v.into_iter().map(|(t, p)| (t / 60.0, p)).collect::<Vec<_>>();
+    html += &svg_plot(&minutes(series(run, "elapsed_s", "test.psnr")), "stage 1: test PSNR (dB)", "min");
+    html += &svg_plot(&series(run, "iteration", "psnr"), "stage 1: training PSNR (dB)", "it");
+    html += &svg_plot(&series(run, "iteration", "loss"), "stage 1: training loss", "it");
+    html += &svg_plot(&series(&stage2, "iteration", "psnr_pbr"), "stage 2: training PSNR of the PBR image (dB)", "it");
+    html += &svg_plot(&series(&stage2, "iteration", "loss"), "stage 2: training loss", "it");
+    html += "</div>";
+    let _ = write!(html, "<h2>Configuration</h2><h3>Stage 1</h3><pre>{}</pre>", serde_json::to_string_pretty(&config)?);
+    if let Some(c2) = read_json(&stage2.join("config.json")) {
+        let _ = write!(html, "<h3>Stage 2</h3><pre>{}</pre>", serde_json::to_string_pretty(&c2)?);
+    }
+    html += "</body></html>";
     let tmp = out.with_extension("html.tmp");
     std::fs::write(&tmp, html).with_context(|| format!("writing {}", tmp.display()))?;
     std::fs::rename(&tmp, out).with_context(|| format!("writing {}", out.display()))?;
