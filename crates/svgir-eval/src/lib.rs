@@ -8,8 +8,10 @@
 //! - [`lpips_weights`]: finding and loading the LPIPS weights.
 //! - [`turntable`]: turntable cameras about the object.
 //! - [`table`]: result tables (markdown per scene, per metric for the terminal).
+//! - [`plot`]: line plots as SVG text (report curves, convergence curves).
 
 pub mod lpips_weights;
+pub mod plot;
 pub mod run;
 pub mod spec8;
 pub mod table;

@@ -14,6 +14,8 @@ pub enum Kernel {
     Pbr,
     /// LPIPS VGG and AlexNet per image pair.
     Lpips,
+    /// Convergence: stage-1 test PSNR against training wall time (lego_400 and the shipped scene).
+    Train,
 }
 
 #[derive(Args)]
@@ -33,6 +35,8 @@ pub struct BenchArgs {
     /// raster: background colour r,g,b for --ply.
     #[arg(long, default_value = "1,1,1", value_parser = super::eval::parse_rgb)]
     pub background: [f32; 3],
+    #[command(flatten)]
+    pub train: super::bench_train::TrainBenchArgs,
 }
 
 /// `svgir bench raster --ply --data`: the scene's timing table.
@@ -85,6 +89,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
                 .context("LPIPS Alex weights not found")?;
             svgir_metrics::lpips::bench_table(&std::fs::read(vgg)?, &std::fs::read(alex)?, threads)?
         }
+        Kernel::Train => super::bench_train::run(&args.train, &machine(), threads)?,
     };
     println!("{table}");
     Ok(())

@@ -49,38 +49,10 @@ fn img_tag(path: &Path, title: &str) -> String {
     }
 }
 
-/// An inline SVG line plot of (x, y) points.
+/// One curve without a legend, in the report's plot size.
 fn svg_plot(points: &[(f64, f64)], title: &str, xlabel: &str) -> String {
-    if points.len() < 2 {
-        return String::new();
-    }
-    let (w, h, m) = (420.0, 220.0, 40.0);
-    let (x0, x1) = points.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.0), b.max(p.0)));
-    let (y0, y1) = points.iter().fold((f64::MAX, f64::MIN), |(a, b), p| (a.min(p.1), b.max(p.1)));
-    let sx = |x: f64| m + (x - x0) / (x1 - x0).max(1e-12) * (w - 1.5 * m);
-    let sy = |y: f64| h - m + -(y - y0) / (y1 - y0).max(1e-12) * (h - 1.6 * m);
-    let mut path = String::new();
-    for (i, p) in points.iter().enumerate() {
-        let _ = write!(path, "{}{:.1},{:.1} ", if i == 0 { "M" } else { "L" }, sx(p.0), sy(p.1));
-    }
-    // Evaluation points are few: mark each so a reader sees where the curve was measured.
-    let mut dots = String::new();
-    if points.len() <= 60 {
-        for p in points {
-            let _ = write!(dots, "<circle cx=\"{:.1}\" cy=\"{:.1}\" r=\"2.5\" fill=\"#2a6fdb\"/>", sx(p.0), sy(p.1));
-        }
-    }
-    format!(
-        "<svg viewBox=\"0 0 {w} {h}\" width=\"{w}\" class=plot><text x=\"{m}\" y=\"16\">{title}</text>\
-<path d=\"{path}\" fill=none stroke=\"#2a6fdb\" stroke-width=1.5 />{dots}\
-<line x1=\"{m}\" y1=\"{b}\" x2=\"{r}\" y2=\"{b}\" stroke=\"#888\"/><line x1=\"{m}\" y1=\"{t}\" x2=\"{m}\" y2=\"{b}\" stroke=\"#888\"/>\
-<text x=\"{m}\" y=\"{lb}\">{x0:.0}</text><text x=\"{r}\" y=\"{lb}\" text-anchor=end>{x1:.0} {xlabel}</text>\
-<text x=\"2\" y=\"{t}\">{y1:.3}</text><text x=\"2\" y=\"{b}\">{y0:.3}</text></svg>",
-        b = h - m,
-        t = 0.6 * m,
-        r = w - 0.5 * m,
-        lb = h - m + 16.0,
-    )
+    let series = [svgir_eval::plot::Series { name: String::new(), points: points.to_vec() }];
+    svgir_eval::plot::line_plot(&series, title, xlabel, "", 420.0, 220.0)
 }
 
 /// A readable label for a flattened metric key (`relight.per_light.night.psnr` -> `relit under

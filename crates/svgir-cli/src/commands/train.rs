@@ -247,6 +247,8 @@ fn train_loop(trainer: &mut Stage1, dataset: &Dataset, args: &TrainArgs) -> Resu
     let pb = progress::bar(total, "stage 1");
     pb.set_position(trainer.iteration);
     let start = Instant::now();
+    // Wall time spent in the periodic evaluations, left out of `train_s` (training time alone).
+    let mut eval_s = 0.0f64;
     let mut ema_loss = None::<f32>;
     let mut ema_psnr = None::<f32>;
     while !trainer.is_done() {
@@ -264,14 +266,18 @@ fn train_loop(trainer: &mut Stage1, dataset: &Dataset, args: &TrainArgs) -> Resu
         if s.iteration.is_multiple_of(args.log_every) || s.densify.is_some() {
             let mut v = serde_json::to_value(&s)?;
             v["elapsed_s"] = json!(start.elapsed().as_secs_f64());
+            v["train_s"] = json!(start.elapsed().as_secs_f64() - eval_s);
             writeln!(log, "{v}")?;
         }
         if args.eval_every > 0 && s.iteration.is_multiple_of(args.eval_every) && !trainer.is_done() {
+            let train_s = start.elapsed().as_secs_f64() - eval_s;
+            let t_eval = Instant::now();
             let m = evaluate(trainer, dataset, args.eval_views, None)?;
+            eval_s += t_eval.elapsed().as_secs_f64();
             writeln!(
                 log,
                 "{}",
-                json!({"iteration": s.iteration, "elapsed_s": start.elapsed().as_secs_f64(), "test": m})
+                json!({"iteration": s.iteration, "elapsed_s": start.elapsed().as_secs_f64(), "train_s": train_s, "test": m})
             )?;
             pb.println(format!("iteration {}: test PSNR {:.2} dB", s.iteration, m["psnr"]));
         }
@@ -299,7 +305,9 @@ fn evaluate(
     out_dir: Option<&Path>,
 ) -> Result<serde_json::Value> {
     let bg = trainer.config.background.fixed_color().unwrap_or([1.0; 3]);
-    let views: Vec<_> = dataset.test.iter().take(max_views).collect();
+    // At most `max_views` views, spread over the test set (its first views are often neighbours).
+    let k = max_views.min(dataset.test.len());
+    let views: Vec<_> = (0..k).map(|i| &dataset.test[i * dataset.test.len() / k]).collect();
     let mut psnr = 0.0;
     let mut ssim = 0.0;
     let mut normal_mae = svgir_metrics::NormalMae::new();
