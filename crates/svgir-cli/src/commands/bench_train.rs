@@ -58,9 +58,17 @@ fn train_args(flags: &[String]) -> Result<TrainArgs> {
     Ok(Wrap::try_parse_from(argv).context("building the training arguments")?.args)
 }
 
-/// One scene's curve: (training minutes, test PSNR) from a run's `metrics.jsonl`, ending with
-/// the final evaluation on all test views (`eval.json`); and that final PSNR.
-fn curve(run: &Path) -> Result<(Vec<(f64, f64)>, f64, u64)> {
+/// One scene's convergence: its (training minutes, test PSNR) points, the final PSNR on all
+/// test views and the iterations trained.
+struct Curve {
+    points: Vec<(f64, f64)>,
+    final_psnr: f64,
+    iterations: u64,
+}
+
+/// A run's [`Curve`] from its `metrics.jsonl`, ending with the final evaluation on all test
+/// views (`eval.json`).
+fn curve(run: &Path) -> Result<Curve> {
     let text = std::fs::read_to_string(run.join("metrics.jsonl"))
         .with_context(|| format!("{}: no metrics.jsonl (train it first)", run.display()))?;
     let lines: Vec<Value> = text.lines().filter_map(|l| serde_json::from_str(l).ok()).collect();
@@ -71,7 +79,7 @@ fn curve(run: &Path) -> Result<(Vec<(f64, f64)>, f64, u64)> {
     let eval = svgir_eval::read_json(&run.join("eval.json"), "the run did not finish")?;
     let final_psnr = eval["psnr"].as_f64().with_context(|| format!("{}: no PSNR in eval.json", run.display()))?;
     points.push((last_s / 60.0, final_psnr));
-    Ok((points, final_psnr, iterations))
+    Ok(Curve { points, final_psnr, iterations })
 }
 
 /// Minutes until the curve first reaches `db` (linear between evaluations), if it does.
@@ -133,7 +141,7 @@ pub fn run(args: &TrainBenchArgs, machine: &str, threads: usize) -> Result<Strin
             eprintln!("svgir bench train: {} ({} iterations)", scene.display(), args.iterations);
             train::run(train_args(&flags)?)?;
         }
-        let (points, final_psnr, iterations) = curve(&run)?;
+        let Curve { points, final_psnr, iterations } = curve(&run)?;
         let fmt = |m: Option<f64>| m.map_or("-".to_string(), |m| format!("{m:.1}"));
         let total = points.last().map_or(0.0, |p| p.0);
         table += &format!(
