@@ -1,0 +1,164 @@
+//! The viewer's model: per surfel its geometry, its M = 4 Gaussian vertices' materials and
+//! their precomputed radiance transfer (PRT), flattened exactly as the page uploads them.
+//!
+//! Transfer (SPEC 4's rendering equation with the light factored out): for vertex m of
+//! Gaussian i with shading normal n_m, over the K Fibonacci directions of i's micro-buffer,
+//! `T_{m,j} = 2 pi / K sum_k V_ik max(0, n_m . w_k) Y_j(w_k)`, so that the diffuse irradiance
+//! under a light with SH coefficients `L_j` is `sum_j L_j T_{m,j}`. Visibility is the traced
+//! micro-buffer's (SPEC 5); the one-bounce indirect light is not in the transfer.
+//!
+//! Work split: rayon over Gaussians, each writing its own rows.
+
+use glam::Vec3;
+use rayon::prelude::*;
+use svgir_core::sh::{basis, num_coeffs, SH_C0};
+use svgir_trace::MicroBuffer;
+
+/// Floats of geometry per surfel: centre, opacity; t_u, s_u; t_v, s_v; normal, 0.
+pub const GEOM_FLOATS: usize = 16;
+/// Floats of material per vertex: albedo, roughness; shading normal, visibility.
+pub const MAT_FLOATS: usize = 8;
+/// Gaussian vertices per surfel the viewer supports (SPEC 3's default).
+pub const VERTICES: usize = 4;
+
+/// Why a model cannot be viewed.
+#[derive(Debug, thiserror::Error)]
+pub enum ViewError {
+    #[error("the model has M = {0} Gaussian vertices per surfel; the viewer supports M = 4 (SPEC 3's default)")]
+    Vertices(usize),
+    #[error("SH degree {0} is not supported (1..=3)")]
+    Degree(u32),
+    #[error("the model has no Gaussians")]
+    Empty,
+    #[error("{0}")]
+    Inconsistent(String),
+}
+
+/// Everything the page (and the oracle) renders, as flat f32 arrays.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ViewModel {
+    /// Surfels.
+    pub n: usize,
+    /// SH degree of the transfer (1..=3).
+    pub degree: u32,
+    /// `n x GEOM_FLOATS`.
+    pub geom: Vec<f32>,
+    /// `n x VERTICES x MAT_FLOATS`.
+    pub mats: Vec<f32>,
+    /// `n x VERTICES x coeffs()` transfer coefficients.
+    pub transfer: Vec<f32>,
+}
+
+/// Per-vertex activated materials (SPEC 3), as `svgir_pbr::ActivatedMaterials` lays them out.
+pub struct VertexData<'a> {
+    /// RGB per vertex.
+    pub albedo: &'a [f32],
+    /// One per vertex.
+    pub roughness: &'a [f32],
+    /// Unit shading normal per vertex.
+    pub normals: &'a [f32],
+}
+
+impl ViewModel {
+    /// Transfer coefficients per vertex.
+    pub fn coeffs(&self) -> usize {
+        num_coeffs(self.degree)
+    }
+
+    /// Bytes per surfel of the arrays the page uploads (float32 textures).
+    pub fn bytes_per_surfel(&self) -> usize {
+        4 * (GEOM_FLOATS + VERTICES * (MAT_FLOATS + self.coeffs()))
+    }
+
+    /// Builds the model from surfels, their vertex materials and micro-buffers traced over the
+    /// surfels' normals (`mb.len() == surfels.len()`).
+    pub fn build(
+        surfels: &svgir_core::Surfels,
+        mats: &VertexData,
+        m: usize,
+        mb: &MicroBuffer,
+        degree: u32,
+    ) -> Result<Self, ViewError> {
+        let n = surfels.len();
+        if m != VERTICES {
+            return Err(ViewError::Vertices(m));
+        }
+        if !(1..=3).contains(&degree) {
+            return Err(ViewError::Degree(degree));
+        }
+        if n == 0 {
+            return Err(ViewError::Empty);
+        }
+        if mb.len() != n || mats.albedo.len() != n * m * 3 || mats.roughness.len() != n * m || mats.normals.len() != n * m * 3
+        {
+            return Err(ViewError::Inconsistent(format!(
+                "{n} surfels but {} micro-buffers and {} vertex albedos",
+                mb.len(),
+                mats.albedo.len() / 3
+            )));
+        }
+        let mut geom = vec![0.0f32; n * GEOM_FLOATS];
+        for (i, g) in geom.chunks_exact_mut(GEOM_FLOATS).enumerate() {
+            let r = surfels.rotation_matrix(i);
+            let s = surfels.scale(i);
+            let p = surfels.positions[i];
+            g.copy_from_slice(&[
+                p.x,
+                p.y,
+                p.z,
+                surfels.opacity(i),
+                r.x_axis.x,
+                r.x_axis.y,
+                r.x_axis.z,
+                s.x,
+                r.y_axis.x,
+                r.y_axis.y,
+                r.y_axis.z,
+                s.y,
+                r.z_axis.x,
+                r.z_axis.y,
+                r.z_axis.z,
+                0.0,
+            ]);
+        }
+        let c = num_coeffs(degree);
+        let mut transfer = vec![0.0f32; n * m * c];
+        transfer.par_chunks_mut(m * c).enumerate().for_each(|(i, t)| {
+            let mut acc = vec![0.0f64; m * c];
+            let mut b = [0.0f32; 16];
+            for k in 0..mb.k {
+                let v = mb.visibility(i, k);
+                if v <= 0.0 {
+                    continue;
+                }
+                let d = mb.direction(i, k);
+                basis(degree, d, &mut b);
+                for vtx in 0..m {
+                    let nm = vec3(mats.normals, i * m + vtx);
+                    let cos = nm.dot(d).max(0.0);
+                    for j in 0..c {
+                        acc[vtx * c + j] += (v * cos * b[j]) as f64;
+                    }
+                }
+            }
+            let w = std::f64::consts::TAU / mb.k as f64;
+            for (o, a) in t.iter_mut().zip(&acc) {
+                *o = (a * w) as f32;
+            }
+        });
+        let mut mat = vec![0.0f32; n * m * MAT_FLOATS];
+        for (q, o) in mat.chunks_exact_mut(MAT_FLOATS).enumerate() {
+            let a = &mats.albedo[3 * q..3 * q + 3];
+            let nm = vec3(mats.normals, q);
+            // Unoccluded transfer DC is pi * Y_00 (the cosine lobe): the ratio is the cosine-
+            // weighted visibility, the page's "visibility" view and its specular occlusion.
+            let vis = (transfer[q * c] / (std::f32::consts::PI * SH_C0)).clamp(0.0, 1.0);
+            o.copy_from_slice(&[a[0], a[1], a[2], mats.roughness[q], nm.x, nm.y, nm.z, vis]);
+        }
+        Ok(Self { n, degree, geom, mats: mat, transfer })
+    }
+}
+
+fn vec3(v: &[f32], q: usize) -> Vec3 {
+    Vec3::new(v[3 * q], v[3 * q + 1], v[3 * q + 2])
+}
