@@ -5,8 +5,8 @@
 //
 // Opens PAGE.html#HASH at the given viewport, waits until the page is ready (window.READY) or
 // reports an error (window.VIEWER_ERROR), optionally screenshots the viewport to --out,
-// measures --frames frames (window.measureFrames: sort + draw + finish per frame), and
-// optionally feeds FILE.hdr to the page's drop handler. Prints one JSON line:
+// optionally feeds FILE.hdr to the page's drop handler (before the screenshot), and measures
+// --frames frames (window.measureFrames: sort + draw + finish per frame). Prints one JSON line:
 //   {"ready":bool,"error":string|null,"frame":{...}|null,"drop":{"error":...}|null,"console":[...]}
 import { launch } from './screenshot.mjs';
 import path from 'node:path';
@@ -46,15 +46,17 @@ async function main() {
     await page.waitForFunction('window.READY === true || !!window.VIEWER_ERROR', null, { timeout: args.timeout });
     result.ready = await page.evaluate('window.READY === true');
     result.error = await page.evaluate('window.VIEWER_ERROR');
-    if (args.out) await page.screenshot({ path: args.out, clip: { x: 0, y: 0, width: args.width, height: args.height } });
-    if (args.frames > 0 && result.ready) result.frame = await page.evaluate(`window.measureFrames(${args.frames})`);
     if (args.drop) {
       const bytes = [...fs.readFileSync(args.drop)];
       await page.evaluate(`window.VIEWER_ERROR = null`);
       await page.evaluate(async ({ name, bytes }) => { await window.loadHdrBytes(name, new Uint8Array(bytes)); }, { name: path.basename(args.drop), bytes });
       const shown = await page.evaluate(`document.getElementById('msg').textContent`);
       result.drop = { error: await page.evaluate('window.VIEWER_ERROR'), message: shown };
+      // Let the page draw the new light.
+      await page.evaluate('new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r)))');
     }
+    if (args.out) await page.screenshot({ path: args.out, clip: { x: 0, y: 0, width: args.width, height: args.height } });
+    if (args.frames > 0 && result.ready) result.frame = await page.evaluate(`window.measureFrames(${args.frames})`);
   } finally {
     await browser.close();
   }

@@ -173,3 +173,60 @@ fn page_frames_match_the_oracle() {
     }
     let _ = std::fs::remove_dir_all(&f.dir);
 }
+
+#[test]
+fn a_dropped_hdr_relights_as_the_oracle_and_a_broken_one_says_why() {
+    if !browser_ready() {
+        return;
+    }
+    let f = fixture("drop");
+    // A map at another resolution, written as a Radiance file: the page's RGBE reader and area
+    // resampling must give the light svgir-io and EnvMap::from_equirect give.
+    let src = {
+        let mut img = svgir_core::Image::from_data(96, 48, 3, vec![0.0; 96 * 48 * 3]);
+        for y in 0..48 {
+            for x in 0..96 {
+                let p = img.pixel_mut(x, y);
+                p[0] = 0.2 + x as f32 / 96.0;
+                p[1] = if y < 12 { 3.0 } else { 0.4 };
+                p[2] = if (20..26).contains(&x) && y < 20 { 12.0 } else { 0.3 };
+            }
+        }
+        img
+    };
+    let hdr = f.dir.join("ramp.hdr");
+    svgir_io::write_hdr(&hdr, &src).unwrap();
+    let (w, h) = (160u32, 128u32);
+    let shot = f.dir.join("dropped.png");
+    let hash = format!("yaw=70&pitch=30&dist=3.0&rot=25&ui=0&w={w}&h={h}");
+    let r = check(&f.page, &["--hash", &hash, "--width", &w.to_string(), "--height", &h.to_string(), "--drop", hdr.to_str().unwrap(), "--out", shot.to_str().unwrap()]);
+    assert!(r["drop"]["error"].is_null(), "{r}");
+    let env = svgir_io::read_envmap(&hdr, 1.0, 32).unwrap();
+    let angle = 25f32.to_radians();
+    let sh = project_sh(&env, 3, angle, 1.0);
+    let chain = prefilter(&env);
+    let light = Light { sh: &sh, chain: &chain, width: env.width, height: env.height, angle, strength: 1.0 };
+    let orbit = Orbit { yaw: 70f64.to_radians(), pitch: 30f64.to_radians(), dist: 3.0, ..f.orbit };
+    let frame = svgir_view::render(&f.model, &orbit.view(w, h), &light, ViewMode::Rgb, [0.0; 3]);
+    let img = svgir_io::read_image(&shot).unwrap();
+    let page: Vec<u8> =
+        (0..(w * h) as usize).flat_map(|p| (0..3).map(move |c| (p, c))).map(|(p, c)| (img.data[p * img.channels as usize + c] * 255.0).round() as u8).collect();
+    let psnr = psnr_u8(&page, &frame.rgb8);
+    eprintln!("dropped .hdr: page vs oracle {psnr:.2} dB");
+    assert!(psnr >= 35.0, "{psnr:.2} dB");
+
+    // Broken files: a message that names the file and the problem, and the page keeps working.
+    let bytes = std::fs::read(&hdr).unwrap();
+    for (name, content, says) in [
+        ("truncated.hdr", bytes[..bytes.len() / 2].to_vec(), "ends"),
+        ("picture.hdr", b"\x89PNG\r\n\x1a\nnot a radiance file\n".to_vec(), "not a Radiance"),
+    ] {
+        let bad = f.dir.join(name);
+        std::fs::write(&bad, content).unwrap();
+        let r = check(&f.page, &["--hash", "ui=0", "--drop", bad.to_str().unwrap()]);
+        let err = r["drop"]["error"].as_str().unwrap_or_else(|| panic!("no error for {name}: {r}"));
+        assert!(err.contains(name) && err.contains(says), "{name}: {err}");
+        assert_eq!(r["drop"]["message"].as_str(), Some(err), "the message is shown in the page");
+    }
+    let _ = std::fs::remove_dir_all(&f.dir);
+}

@@ -20,6 +20,7 @@
   }
   let infoTimer = null;
   function showInfo(text) {
+    if (location.hash.includes('ui=0')) return;
     msgEl.textContent = text;
     msgEl.className = 'info';
     clearTimeout(infoTimer);
@@ -191,11 +192,13 @@
             let count = bytes[pos++];
             if (count > 128) {
               count -= 128;
+              if (pos >= bytes.length) throw new Error('the file ends inside row ' + y);
               if (x + count > W) throw new Error('row ' + y + ': bad run length');
               const v = bytes[pos++];
               for (let k = 0; k < count; k++) scan[(x++) * 4 + ch] = v;
             } else {
-              if (count === 0 || x + count > W || pos + count > bytes.length) throw new Error('row ' + y + ': bad run length');
+              if (pos + count > bytes.length) throw new Error('the file ends inside row ' + y);
+              if (count === 0 || x + count > W) throw new Error('row ' + y + ': bad run length');
               for (let k = 0; k < count; k++) scan[(x++) * 4 + ch] = bytes[pos++];
             }
           }
@@ -344,6 +347,8 @@ void main() {
   vec2 corner = vec2((gl_VertexID & 1) == 0 ? lo.x : hi.x, (gl_VertexID & 2) == 0 ? lo.y : hi.y);
   gl_Position = vec4(2.0 * corner.x / uSize.x - 1.0, 1.0 - 2.0 * corner.y / uSize.y, 0.0, 1.0);
   vPc = pc; vTu = tu; vTv = tv; vNc = nc; vS = vec3(su, sv, g0.w); vCentre = centre;
+  // Flat outputs come from each triangle's provoking (last) vertex: strip vertices 2 and 3.
+  if (gl_VertexID < 2) { vC0 = vC1 = vC2 = vC3 = vec3(0.0); return; }
   vec3 view = normalize(uEye - g0.xyz);
   vC0 = shadeVertex(4 * i, view); vC1 = shadeVertex(4 * i + 1, view);
   vC2 = shadeVertex(4 * i + 2, view); vC3 = shadeVertex(4 * i + 3, view);
