@@ -134,18 +134,20 @@ mod tests {
 
     #[test]
     fn constant_map_projects_to_its_dc_and_prefilters_to_itself() {
-        let env = EnvMap::constant(16, 8, [2.0, 1.0, 0.5]);
+        let env = EnvMap::constant(64, 32, [2.0, 1.0, 0.5]);
         let sh = project_sh(&env, 2, 0.7, 1.5);
         // Integral of a constant c over the sphere against Y_00: c * 4 pi * Y_00.
         let want = 4.0 * std::f32::consts::PI * svgir_core::sh::SH_C0 * 1.5;
         for (ch, v) in [2.0f32, 1.0, 0.5].iter().enumerate() {
             assert!((sh[0][ch] - want * v).abs() < 1e-3 * want * v, "{:?}", sh[0]);
         }
+        // Higher bands vanish up to the quadrature error of texel-centre sampling (~0.3% of DC
+        // for Y_20 at 32 rows).
         for j in 1..9 {
-            assert!(sh[j].iter().all(|v| v.abs() < 1e-4), "{j}: {:?}", sh[j]);
+            assert!(sh[j].iter().all(|v| v.abs() < 5e-3 * want * 2.0), "{j}: {:?}", sh[j]);
         }
         let chain = prefilter(&env);
-        assert_eq!(chain.len(), LEVELS * 128);
+        assert_eq!(chain.len(), LEVELS * 64 * 32);
         assert!(chain.iter().all(|c| (c[0] - 2.0).abs() < 1e-4 && (c[2] - 0.5).abs() < 1e-4));
     }
 

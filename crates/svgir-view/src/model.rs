@@ -7,11 +7,14 @@
 //! under a light with SH coefficients `L_j` is `sum_j L_j T_{m,j}`. Visibility is the traced
 //! micro-buffer's (SPEC 5); the one-bounce indirect light is not in the transfer.
 //!
+//! Materials and transfer are rounded to IEEE half floats, as the page file stores them.
+//!
 //! Work split: rayon over Gaussians, each writing its own rows.
 
 use glam::Vec3;
 use rayon::prelude::*;
 use svgir_core::sh::{basis, num_coeffs, SH_C0};
+use svgir_trace::pack::{f16_from_f32, f16_to_f32};
 use svgir_trace::MicroBuffer;
 
 /// Floats of geometry per surfel: centre, opacity; t_u, s_u; t_v, s_v; normal, 0.
@@ -65,9 +68,15 @@ impl ViewModel {
         num_coeffs(self.degree)
     }
 
-    /// Bytes per surfel of the arrays the page uploads (float32 textures).
+    /// Bytes per surfel of the arrays the page uploads (float32 textures; the page file holds
+    /// materials and transfer as f16, [`ViewModel::file_bytes_per_surfel`]).
     pub fn bytes_per_surfel(&self) -> usize {
         4 * (GEOM_FLOATS + VERTICES * (MAT_FLOATS + self.coeffs()))
+    }
+
+    /// Bytes per surfel in the page file (before base64): geometry f32, the rest f16.
+    pub fn file_bytes_per_surfel(&self) -> usize {
+        4 * GEOM_FLOATS + 2 * VERTICES * (MAT_FLOATS + self.coeffs())
     }
 
     /// Builds the model from surfels, their vertex materials and micro-buffers traced over the
@@ -154,6 +163,11 @@ impl ViewModel {
             // weighted visibility, the page's "visibility" view and its specular occlusion.
             let vis = (transfer[q * c] / (std::f32::consts::PI * SH_C0)).clamp(0.0, 1.0);
             o.copy_from_slice(&[a[0], a[1], a[2], mats.roughness[q], nm.x, nm.y, nm.z, vis]);
+        }
+        // The page stores materials and transfer as IEEE half floats (half the page size); the
+        // model holds the same rounded values so the oracle shades what the page shades.
+        for v in mat.iter_mut().chain(transfer.iter_mut()) {
+            *v = f16_to_f32(f16_from_f32(*v));
         }
         Ok(Self { n, degree, geom, mats: mat, transfer })
     }

@@ -1,11 +1,12 @@
 //! The self-contained HTML page: `web/viewer.html` with `web/viewer.js` inlined, a JSON header
-//! and the model and light maps as one base64 block of little-endian f32 (the page decodes it
-//! into float32 textures). Base64 is written by hand here (a dozen lines) rather than adding a
+//! and the model and light maps as one base64 block (geometry and maps little-endian f32,
+//! materials and transfer IEEE f16; the page decodes all into float32 textures). Base64 is written by hand here (a dozen lines) rather than adding a
 //! dependency for it.
 
 use crate::model::{ViewModel, GEOM_FLOATS, MAT_FLOATS, VERTICES};
 use crate::oracle::Orbit;
 use svgir_core::EnvMap;
+use svgir_trace::pack::f16_from_f32;
 
 const HTML: &str = include_str!("../web/viewer.html");
 const SCRIPT: &str = include_str!("../web/viewer.js");
@@ -40,18 +41,22 @@ pub fn base64(bytes: &[u8]) -> String {
 
 /// The page for `model` with `lights` (the first is shown first) and an initial camera.
 pub fn page(model: &ViewModel, lights: &[PageLight], camera: &Orbit, title: &str) -> String {
-    let mut floats: Vec<f32> = Vec::with_capacity(model.geom.len() + model.mats.len() + model.transfer.len());
-    floats.extend_from_slice(&model.geom);
-    floats.extend_from_slice(&model.mats);
-    floats.extend_from_slice(&model.transfer);
+    // Little-endian blob: f32 geometry and light maps first (4-byte aligned), then f16
+    // materials and transfer.
+    let mut bytes: Vec<u8> = Vec::with_capacity(4 * model.geom.len() + 2 * (model.mats.len() + model.transfer.len()));
+    bytes.extend(model.geom.iter().flat_map(|f| f.to_le_bytes()));
     let mut meta_lights = Vec::new();
     for l in lights {
         meta_lights.push(serde_json::json!({
             "name": l.name, "strength": l.strength, "width": l.env.width, "height": l.env.height,
-            "offset": floats.len(),
+            "offset": bytes.len(),
         }));
-        floats.extend(l.env.data.iter().flatten());
+        bytes.extend(l.env.data.iter().flatten().flat_map(|f| f.to_le_bytes()));
     }
+    let mats_at = bytes.len();
+    bytes.extend(model.mats.iter().flat_map(|&f| f16_from_f32(f).to_le_bytes()));
+    let transfer_at = bytes.len();
+    bytes.extend(model.transfer.iter().flat_map(|&f| f16_from_f32(f).to_le_bytes()));
     let meta = serde_json::json!({
         "title": title,
         "n": model.n,
@@ -61,18 +66,14 @@ pub fn page(model: &ViewModel, lights: &[PageLight], camera: &Orbit, title: &str
         "geomFloats": GEOM_FLOATS,
         "matFloats": MAT_FLOATS,
         "bytesPerSurfel": model.bytes_per_surfel(),
-        "offsets": {
-            "geom": 0,
-            "mats": model.geom.len(),
-            "transfer": model.geom.len() + model.mats.len(),
-        },
+        "fileBytesPerSurfel": model.file_bytes_per_surfel(),
+        "offsets": { "geom": 0, "mats": mats_at, "transfer": transfer_at },
         "lights": meta_lights,
         "camera": {
             "target": camera.target, "yaw": camera.yaw, "pitch": camera.pitch,
             "dist": camera.dist, "fovY": camera.fov_y,
         },
     });
-    let bytes: Vec<u8> = floats.iter().flat_map(|f| f.to_le_bytes()).collect();
     // `</` must not appear inside a script element.
     let meta = meta.to_string().replace("</", "<\\/");
     HTML.replace("__SVGIR_TITLE__", &html_escape(title))

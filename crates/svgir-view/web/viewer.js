@@ -28,13 +28,24 @@
   }
 
   // ---- data -----------------------------------------------------------------------------------
-  let meta, floats;
+  let meta, buf;
+  // IEEE half -> float (page.rs writes materials and transfer as f16).
+  const HALF = new Float32Array(65536);
+  for (let h = 0; h < 65536; h++) {
+    const e = (h >> 10) & 31, m = h & 1023, s = (h & 0x8000) ? -1 : 1;
+    HALF[h] = e === 0 ? s * m * Math.pow(2, -24) : e === 31 ? (m ? NaN : s * Infinity) : s * (1 + m / 1024) * Math.pow(2, e - 15);
+  }
+  const halves = (byteOffset, count) => {
+    const u = new Uint16Array(buf, byteOffset, count), out = new Float32Array(count);
+    for (let k = 0; k < count; k++) out[k] = HALF[u[k]];
+    return out;
+  };
   try {
     meta = JSON.parse($('svgir-meta').textContent);
     const bin = atob($('svgir-data').textContent.trim());
     const bytes = new Uint8Array(bin.length);
     for (let i = 0; i < bin.length; i++) bytes[i] = bin.charCodeAt(i);
-    floats = new Float32Array(bytes.buffer);
+    buf = bytes.buffer;
   } catch (e) {
     showError('This viewer page is damaged (its embedded model cannot be read): ' + e.message);
     return;
@@ -45,6 +56,7 @@
   }
   $('title').textContent = meta.title || 'svgir viewer';
   const N = meta.n, C = meta.coeffs, DEG = meta.degree, M = meta.vertices;
+  const geom = new Float32Array(buf, meta.offsets.geom, N * 16);
 
   // ---- state (URL hash overrides: yaw, pitch, dist in degrees/units; light, rot, strength,
   // mode, w, h, ui=0, bg) -------------------------------------------------------------------------
@@ -77,7 +89,7 @@
   // Each light: {name, strength, width, height, data: Float32Array(w*h*3), chain (lazy)}.
   const lights = meta.lights.map((l) => ({
     name: l.name, strength: l.strength, width: l.width, height: l.height,
-    data: floats.subarray(l.offset, l.offset + l.width * l.height * 3), chain: null,
+    data: new Float32Array(buf, l.offset, l.width * l.height * 3), chain: null,
   }));
   const LIGHT_H = lights[0].height, LIGHT_W = lights[0].width;
 
@@ -430,12 +442,12 @@ void main() {
   try {
     splat = program(VS, FS);
     full = program(VS_FULL, FS_FULL);
-    const o = meta.offsets;
-    texGeom = floatTexture(floats.subarray(o.geom, o.geom + N * 16), N * 4, TEXW);
-    texMat = floatTexture(floats.subarray(o.mats, o.mats + N * M * 8), N * M * 2, TEXW);
+    texGeom = floatTexture(geom, N * 4, TEXW);
+    texMat = floatTexture(halves(meta.offsets.mats, N * M * 8), N * M * 2, TEXW);
     // Transfer: C coefficients per vertex, padded to a multiple of 4 (one texel per 4).
+    const t16 = halves(meta.offsets.transfer, N * M * C);
     const tr = new Float32Array(N * M * CP4 * 4);
-    for (let q = 0; q < N * M; q++) for (let j = 0; j < C; j++) tr[q * CP4 * 4 + j] = floats[o.transfer + q * C + j];
+    for (let q = 0; q < N * M; q++) for (let j = 0; j < C; j++) tr[q * CP4 * 4 + j] = t16[q * C + j];
     texTr = floatTexture(tr, N * M * CP4, TEXW);
     vao = gl.createVertexArray();
     gl.bindVertexArray(vao);
@@ -487,7 +499,7 @@ void main() {
     return { rot, trans, eye, fx: fy, fy, cx: 0.5 * w, cy: 0.5 * h, w, h };
   }
   const posF = new Float64Array(N * 3);
-  for (let i = 0; i < N; i++) for (let k = 0; k < 3; k++) posF[3 * i + k] = floats[meta.offsets.geom + 16 * i + k];
+  for (let i = 0; i < N; i++) for (let k = 0; k < 3; k++) posF[3 * i + k] = geom[16 * i + k];
   const keys = new Uint32Array(N), keys2 = new Uint32Array(N), order = new Uint32Array(N), order2 = new Uint32Array(N);
   const f32 = new Float32Array(1), u32 = new Uint32Array(f32.buffer);
   const hist = new Uint32Array(256);
@@ -628,15 +640,39 @@ void main() {
     lab.querySelector('input').onchange = () => { state.mode = i; requestDraw(); };
     modesEl.appendChild(lab);
   });
+  // The light as a small lat-long picture (Reinhard tone map, sRGB), shifted by the rotation.
+  const pv = $('preview'), pctx = pv.getContext('2d');
+  function drawPreview() {
+    const l = lights[state.light], s = strength();
+    const img = pctx.createImageData(pv.width, pv.height);
+    const shift = state.rot / 360;
+    for (let y = 0; y < pv.height; y++) {
+      const r = Math.min(l.height - 1, Math.round(y / (pv.height - 1) * (l.height - 1)));
+      for (let x = 0; x < pv.width; x++) {
+        // Column u of the file layout shows direction theta = pi (1 - 2u); rotating the light by
+        // +a moves what was at theta - a to theta.
+        let u = x / (pv.width - 1) + shift;
+        u -= Math.floor(u);
+        const c = Math.min(l.width - 1, Math.round(u * (l.width - 1)));
+        for (let ch = 0; ch < 3; ch++) {
+          const v = s * l.data[3 * (r * l.width + c) + ch];
+          img.data[4 * (y * pv.width + x) + ch] = 255 * Math.pow(v / (1 + v), 1 / 2.2);
+        }
+        img.data[4 * (y * pv.width + x) + 3] = 255;
+      }
+    }
+    pctx.putImageData(img, 0, 0);
+  }
   function updateLabels() {
     $('rotv').textContent = String(state.rot);
     $('strv').textContent = strength().toPrecision(3);
+    drawPreview();
   }
   updateLabels();
   const pageMB = (document.documentElement.outerHTML.length / 1e6).toFixed(1);
   function stats(extra) {
     $('stats').textContent = N + ' surfels, SH degree ' + DEG + ' (' + C + ' coefficients per vertex), ' +
-      meta.bytesPerSurfel + ' bytes per surfel on the GPU, page ' + pageMB + ' MB, blending in ' + accumFormat + '. ' + (extra || '');
+      meta.bytesPerSurfel + ' bytes per surfel on the GPU (' + meta.fileBytesPerSurfel + ' in the file), page ' + pageMB + ' MB, blending in ' + accumFormat + '. ' + (extra || '');
   }
   stats();
 
