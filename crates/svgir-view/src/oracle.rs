@@ -213,6 +213,12 @@ pub struct Frame {
     pub accum: Vec<[f32; 4]>,
     /// The displayed 8-bit RGB image.
     pub rgb8: Vec<u8>,
+    /// Surfels drawn (in front of the near plane).
+    pub drawn: usize,
+    /// Pixels inside the drawn surfels' screen boxes (the page's fragment shader invocations).
+    pub fragments: u64,
+    /// Fragments that passed the cuts and were blended.
+    pub blended: u64,
 }
 
 /// Renders `model` as the page does for `view`, `light` and `mode` over background `bg`.
@@ -232,14 +238,17 @@ pub fn render(model: &ViewModel, view: &View, light: &Light, mode: ViewMode, bg:
         .collect();
     let (w, h) = (view.width as usize, view.height as usize);
     let mut accum = vec![[0.0f32; 4]; w * h];
-    accum.par_chunks_mut(w).enumerate().for_each(|(row, px)| {
+    let mut counts = vec![[0u64; 2]; h];
+    accum.par_chunks_mut(w).zip(counts.par_iter_mut()).enumerate().for_each(|(row, (px, count))| {
         let y = row as f32 + 0.5;
         for s in &splats {
             if (row as i64) < s.y0 || (row as i64) > s.y1 {
                 continue;
             }
             for col in s.x0.max(0)..=s.x1.min(w as i64 - 1) {
+                count[0] += 1;
                 let Some((alpha, wts)) = hit(s, &k, col as f32 + 0.5, y) else { continue };
+                count[1] += 1;
                 let a = &mut px[col as usize];
                 for ch in 0..3 {
                     let c = wts[0] * s.colours[0][ch]
@@ -253,7 +262,9 @@ pub fn render(model: &ViewModel, view: &View, light: &Light, mode: ViewMode, bg:
         }
     });
     let rgb8 = accum.iter().flat_map(|a| display(*a, mode, bg)).collect();
-    Frame { width: view.width, height: view.height, accum, rgb8 }
+    let fragments = counts.iter().map(|c| c[0]).sum();
+    let blended = counts.iter().map(|c| c[1]).sum();
+    Frame { width: view.width, height: view.height, accum, rgb8, drawn: splats.len(), fragments, blended }
 }
 
 /// The final pass: divide by coverage, encode, blend over the background, round to 8 bits.

@@ -212,7 +212,9 @@ fn write_png(path: &Path, f: &svgir_view::Frame) -> Result<()> {
 }
 
 /// PRT (this viewer, per SH degree) against SPEC 7's relighting, per relighting light, mean
-/// PSNR over the test views (both 8-bit, over black).
+/// PSNR over the test views (both 8-bit, over black); and both against the dataset's relit
+/// photos where it has them (over black with each image's own coverage, not SPEC 8's masked
+/// protocol).
 fn table(loaded: &Loaded, relighter: &Relighter) -> Result<()> {
     let s2 = &loaded.s2;
     let data = loaded.data.as_deref().context("the run's stage2/config.json names no dataset (needed for its test views)")?;
@@ -222,8 +224,9 @@ fn table(loaded: &Loaded, relighter: &Relighter) -> Result<()> {
     }
     let models: Vec<ViewModel> =
         (1..=3).map(|d| svgir_view::model_from_stage2(s2, &relighter.mb, d)).collect::<Result<_, _>>()?;
-    println!("| light | SPEC 7 gather s | degree 1 (4) dB | degree 2 (9) dB | degree 3 (16) dB |");
-    println!("|---|---|---|---|---|");
+    println!("| light | SPEC 7 gather s | PRT vs SPEC 7, degree 1 (4) dB | degree 2 (9) dB | degree 3 (16) dB | SPEC 7 vs truth dB | PRT degree 3 vs truth dB |");
+    println!("|---|---|---|---|---|---|---|");
+    let q8 = |v: &[f32]| -> Vec<f32> { v.iter().map(|c| (c.clamp(0.0, 1.0) * 255.0).round() / 255.0).collect() };
     for l in &ds.relight_lights {
         let Some(path) = &l.envmap_path else { continue };
         let env = svgir_io::read_envmap(path, 1.0, s2.config.env_height)?;
@@ -234,16 +237,27 @@ fn table(loaded: &Loaded, relighter: &Relighter) -> Result<()> {
         let lit = full.prepare(s2, scaled)?;
         let secs = t0.elapsed().as_secs_f64();
         let mut psnr = [0.0f64; 3];
+        let (mut full_gt, mut prt_gt, mut with_gt) = (0.0f64, 0.0f64, 0usize);
         for v in &ds.test {
             let r = full.render(s2, &v.camera, [0.0; 3], &lit, [1.0; 3])?;
-            let reference: Vec<f32> = r.image.iter().map(|c| (c.clamp(0.0, 1.0) * 255.0).round() / 255.0).collect();
+            let reference = q8(&r.image);
+            let gt = v.relit.get(&l.name).map(|g| q8(&if g.channels == 4 { g.composite_over([0.0; 3]) } else { g.clone() }.data));
             for (d, m) in models.iter().enumerate() {
                 let f = oracle_frame(m, &env, &View::from_camera(&v.camera), 0.0, l.strength, ViewMode::Rgb);
                 let ours: Vec<f32> = f.rgb8.iter().map(|&b| b as f32 / 255.0).collect();
                 psnr[d] += svgir_metrics::psnr(&ours, &reference, 3, None)? / ds.test.len() as f64;
+                if let (Some(gt), 2) = (&gt, d) {
+                    prt_gt += svgir_metrics::psnr(&ours, gt, 3, None)?;
+                    full_gt += svgir_metrics::psnr(&reference, gt, 3, None)?;
+                    with_gt += 1;
+                }
             }
         }
-        println!("| {} | {:.1} | {:.2} | {:.2} | {:.2} |", l.name, secs, psnr[0], psnr[1], psnr[2]);
+        let k = with_gt.max(1) as f64;
+        println!(
+            "| {} | {:.1} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |",
+            l.name, secs, psnr[0], psnr[1], psnr[2], full_gt / k, prt_gt / k
+        );
     }
     Ok(())
 }
