@@ -282,10 +282,9 @@
 
   const VS = `#version 300 es
 precision highp float; precision highp int; precision highp sampler2D;
-uniform sampler2D uGeom, uMat, uTr, uEnv;
+uniform sampler2D uGeom, uMat, uTr, uEnv; uniform highp usampler2D uOrder;
 uniform mat3 uR; uniform vec3 uT; uniform vec4 uK; uniform vec2 uSize; uniform vec3 uEye;
 uniform vec3 uSH[16]; uniform int uCP4; uniform int uMode; uniform float uAngle, uStrength; uniform ivec2 uEnvSize;
-in uint aIndex;
 flat out vec3 vPc, vTu, vTv, vNc, vC0, vC1, vC2, vC3; flat out vec3 vS; flat out vec2 vCentre;
 const float PI = 3.14159265358979;
 vec4 fetch(sampler2D t, int i) { return texelFetch(t, ivec2(i % ${TEXW}, i / ${TEXW}), 0); }
@@ -339,7 +338,10 @@ vec3 shadeVertex(int q, vec3 v) {
   return albedo / PI * max(irr, vec3(0.0)) + pre * spec;
 }
 void main() {
-  int i = int(aIndex);
+  // Vertex 4 s + c is corner c of the splat in sorted slot s; the order texture maps slots to
+  // surfel ids (back to front).
+  int slot = gl_VertexID >> 2, cornerId = gl_VertexID & 3;
+  int i = int(texelFetch(uOrder, ivec2(slot % ${TEXW}, slot / ${TEXW}), 0).r);
   vec4 g0 = fetch(uGeom, 4 * i), g1 = fetch(uGeom, 4 * i + 1), g2 = fetch(uGeom, 4 * i + 2), g3 = fetch(uGeom, 4 * i + 3);
   vec3 pc = uR * g0.xyz + uT;
   vec3 tu = uR * g1.xyz, tv = uR * g2.xyz, nc = uR * g3.xyz;
@@ -347,20 +349,35 @@ void main() {
   gl_Position = vec4(2.0, 2.0, 2.0, 1.0);
   if (pc.z <= ${NEAR}) return;
   vec2 centre = vec2(uK.x * pc.x / pc.z + uK.z, uK.y * pc.y / pc.z + uK.w);
-  vec2 lo = centre - 3.0, hi = centre + 3.0;
+  vec2 pk[4];
   for (int k = 0; k < 4; k++) {
     float a = (k & 1) == 0 ? -3.0 : 3.0, b = (k & 2) == 0 ? -3.0 : 3.0;
     vec3 q = pc + (a * su) * tu + (b * sv) * tv;
     if (q.z <= ${NEAR}) return;
-    vec2 p = vec2(uK.x * q.x / q.z + uK.z, uK.y * q.y / q.z + uK.w);
-    lo = min(lo, p); hi = max(hi, p);
+    pk[k] = vec2(uK.x * q.x / q.z + uK.z, uK.y * q.y / q.z + uK.w) - centre;
+  }
+  // The footprint: a rectangle along the projected square's longer side holding its four
+  // corners (so the whole 3-sigma square, where rho3 <= 9) and the 3-pixel disk of the
+  // low-pass filter (rho2 <= 9), plus a pixel. Every pixel left out has rho > 9, so this draws
+  // the same pixels as the oracle's axis-aligned box, with up to several times fewer
+  // fragments for thin or tilted splats.
+  vec2 ea = pk[1] - pk[0], eb = pk[2] - pk[0];
+  vec2 e1 = dot(ea, ea) >= dot(eb, eb) ? ea : eb;
+  e1 = dot(e1, e1) > 1e-12 ? normalize(e1) : vec2(1.0, 0.0);
+  vec2 e2 = vec2(-e1.y, e1.x);
+  vec2 lo = vec2(-3.0), hi = vec2(3.0);
+  for (int k = 0; k < 4; k++) {
+    vec2 st = vec2(dot(pk[k], e1), dot(pk[k], e2));
+    lo = min(lo, st); hi = max(hi, st);
   }
   lo -= 1.0; hi += 1.0;
-  vec2 corner = vec2((gl_VertexID & 1) == 0 ? lo.x : hi.x, (gl_VertexID & 2) == 0 ? lo.y : hi.y);
+  vec2 st = vec2((cornerId & 1) == 0 ? lo.x : hi.x, (cornerId & 2) == 0 ? lo.y : hi.y);
+  vec2 corner = centre + st.x * e1 + st.y * e2;
   gl_Position = vec4(2.0 * corner.x / uSize.x - 1.0, 1.0 - 2.0 * corner.y / uSize.y, 0.0, 1.0);
   vPc = pc; vTu = tu; vTv = tv; vNc = nc; vS = vec3(su, sv, g0.w); vCentre = centre;
-  // Flat outputs come from each triangle's provoking (last) vertex: strip vertices 2 and 3.
-  if (gl_VertexID < 2) { vC0 = vC1 = vC2 = vC3 = vec3(0.0); return; }
+  // Flat outputs come from each triangle's provoking (last) vertex: both triangles of a splat
+  // end with corner 3, so only it shades.
+  if (cornerId != 3) { vC0 = vC1 = vC2 = vC3 = vec3(0.0); return; }
   vec3 view = normalize(uEye - g0.xyz);
   vC0 = shadeVertex(4 * i, view); vC1 = shadeVertex(4 * i + 1, view);
   vC2 = shadeVertex(4 * i + 2, view); vC3 = shadeVertex(4 * i + 3, view);
@@ -437,7 +454,7 @@ void main() {
     return t;
   }
 
-  let splat, full, texGeom, texMat, texTr, texEnv = null, vao, indexBuf;
+  let splat, full, texGeom, texMat, texTr, texEnv = null, vao, indexBuf, orderTex, orderPad;
   const CP4 = Math.ceil(C / 4);
   try {
     splat = program(VS, FS);
@@ -449,15 +466,20 @@ void main() {
     const tr = new Float32Array(N * M * CP4 * 4);
     for (let q = 0; q < N * M; q++) for (let j = 0; j < C; j++) tr[q * CP4 * 4 + j] = t16[q * C + j];
     texTr = floatTexture(tr, N * M * CP4, TEXW);
+    // Two triangles per splat, (0, 1, 3) and (0, 2, 3): corner 3 provokes both.
     vao = gl.createVertexArray();
     gl.bindVertexArray(vao);
+    const idx = new Uint32Array(6 * N);
+    for (let s = 0; s < N; s++) idx.set([4 * s, 4 * s + 1, 4 * s + 3, 4 * s, 4 * s + 2, 4 * s + 3], 6 * s);
     indexBuf = gl.createBuffer();
-    gl.bindBuffer(gl.ARRAY_BUFFER, indexBuf);
-    gl.bufferData(gl.ARRAY_BUFFER, N * 4, gl.DYNAMIC_DRAW);
-    const loc = gl.getAttribLocation(splat.p, 'aIndex');
-    gl.enableVertexAttribArray(loc);
-    gl.vertexAttribIPointer(loc, 1, gl.UNSIGNED_INT, 0, 0);
-    gl.vertexAttribDivisor(loc, 1);
+    gl.bindBuffer(gl.ELEMENT_ARRAY_BUFFER, indexBuf);
+    gl.bufferData(gl.ELEMENT_ARRAY_BUFFER, idx, gl.STATIC_DRAW);
+    orderTex = gl.createTexture();
+    gl.bindTexture(gl.TEXTURE_2D, orderTex);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+    gl.texStorage2D(gl.TEXTURE_2D, 1, gl.R32UI, TEXW, Math.ceil(N / TEXW));
+    orderPad = new Uint32Array(TEXW * Math.ceil(N / TEXW));
   } catch (e) {
     showError('The viewer cannot start WebGL2 rendering: ' + e.message);
     return;
@@ -565,8 +587,9 @@ void main() {
     const view = orbitView(w, h);
     const t0 = performance.now();
     const sorted = sortBackToFront(view);
-    gl.bindBuffer(gl.ARRAY_BUFFER, indexBuf);
-    gl.bufferSubData(gl.ARRAY_BUFFER, 0, sorted);
+    orderPad.set(sorted);
+    gl.bindTexture(gl.TEXTURE_2D, orderTex);
+    gl.texSubImage2D(gl.TEXTURE_2D, 0, 0, 0, TEXW, orderPad.length / TEXW, gl.RED_INTEGER, gl.UNSIGNED_INT, orderPad);
     lastSortMs = performance.now() - t0;
 
     gl.bindFramebuffer(gl.FRAMEBUFFER, fbo);
@@ -590,13 +613,13 @@ void main() {
     gl.uniform1f(u.uAngle, state.rot * Math.PI / 180);
     gl.uniform1f(u.uStrength, strength());
     gl.uniform2i(u.uEnvSize, l.width, l.height);
-    [[texGeom, 'uGeom'], [texMat, 'uMat'], [texTr, 'uTr'], [texEnv, 'uEnv']].forEach(([t, name], k) => {
+    [[texGeom, 'uGeom'], [texMat, 'uMat'], [texTr, 'uTr'], [texEnv, 'uEnv'], [orderTex, 'uOrder']].forEach(([t, name], k) => {
       gl.activeTexture(gl.TEXTURE0 + k);
       gl.bindTexture(gl.TEXTURE_2D, t);
       gl.uniform1i(u[name], k);
     });
     gl.bindVertexArray(vao);
-    gl.drawArraysInstanced(gl.TRIANGLE_STRIP, 0, 4, N);
+    gl.drawElements(gl.TRIANGLES, 6 * N, gl.UNSIGNED_INT, 0);
     gl.disable(gl.BLEND);
 
     gl.bindFramebuffer(gl.FRAMEBUFFER, null);
