@@ -190,9 +190,20 @@ pub fn run(args: ViewArgs) -> Result<()> {
             None => &loaded.lights[0],
         };
         let strength = args.strength.unwrap_or(light.strength);
+        let t0 = std::time::Instant::now();
         let frame = oracle_frame(&model, &light.env, &cam.view(args.width, args.height), args.rotate.to_radians(), strength, mode);
         write_png(png, &frame)?;
-        println!("oracle frame: {}", png.display());
+        println!(
+            "oracle frame: {} ({}x{}, {} surfels drawn, {:.2} M fragments, {:.2} M blended; {:.2} s on {} threads)",
+            png.display(),
+            args.width,
+            args.height,
+            frame.drawn,
+            frame.fragments as f64 / 1e6,
+            frame.blended as f64 / 1e6,
+            t0.elapsed().as_secs_f64(),
+            rayon::current_num_threads()
+        );
     }
     Ok(())
 }
