@@ -14,7 +14,10 @@ fn a_run_without_stage_two_is_refused_with_a_hint() {
     let run = dir.to_str().unwrap();
     let (ok, err) = svgir(&["view", run]);
     assert!(!ok, "must fail");
-    assert!(err.contains("checkpoint.bin") && err.contains("no stage-2 model") && err.contains("svgir inverse"), "{err}");
+    assert!(
+        err.contains("checkpoint.bin") && err.contains("no stage-2 model") && err.contains("svgir inverse"),
+        "{err}"
+    );
     assert!(!dir.join("viewer.html").exists(), "no page is written");
 
     // A damaged checkpoint names the file.

@@ -41,7 +41,12 @@ fn main() {
     let mut env = EnvMap::constant(64, 32, [0.4, 0.45, 0.5]);
     env.data[5 * 64 + 20] = [200.0; 3];
     let orbit = Orbit { target: [0.0, 0.0, -0.1], yaw: 0.6, pitch: 0.4, dist: 3.2, fov_y: 40f64.to_radians() };
-    let html = svgir_view::page(&model, &[PageLight { name: "sky".into(), env: env.clone(), strength: 1.0 }], &orbit, "synthetic");
+    let html = svgir_view::page(
+        &model,
+        &[PageLight { name: "sky".into(), env: env.clone(), strength: 1.0 }],
+        &orbit,
+        "synthetic",
+    );
     std::fs::write(out, &html).expect("write");
     println!("{out}: {n} surfels, {:.1} MB", html.len() as f64 / 1e6);
     // The work of one frame at the page's first view, counted by the oracle (and its CPU time).

@@ -107,7 +107,14 @@ pub fn lookup_level(chain: &[[f32; 3]], width: u32, height: u32, level: usize, d
 
 /// Prefiltered radiance around `r_dir` for roughness `rough`: linear between the two nearest
 /// levels, of a light rotated by `angle` about +Z.
-pub fn lookup_prefiltered(chain: &[[f32; 3]], width: u32, height: u32, r_dir: Vec3, rough: f32, angle: f32) -> [f32; 3] {
+pub fn lookup_prefiltered(
+    chain: &[[f32; 3]],
+    width: u32,
+    height: u32,
+    r_dir: Vec3,
+    rough: f32,
+    angle: f32,
+) -> [f32; 3] {
     let d = rotate_z(r_dir, -angle);
     let lv = ((rough - LEVEL_R0) / LEVEL_STEP).clamp(0.0, (LEVELS - 1) as f32);
     let l0 = lv.floor() as usize;

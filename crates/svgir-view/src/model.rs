@@ -98,7 +98,10 @@ impl ViewModel {
         if n == 0 {
             return Err(ViewError::Empty);
         }
-        if mb.len() != n || mats.albedo.len() != n * m * 3 || mats.roughness.len() != n * m || mats.normals.len() != n * m * 3
+        if mb.len() != n
+            || mats.albedo.len() != n * m * 3
+            || mats.roughness.len() != n * m
+            || mats.normals.len() != n * m * 3
         {
             return Err(ViewError::Inconsistent(format!(
                 "{n} surfels but {} micro-buffers and {} vertex albedos",
@@ -188,8 +191,20 @@ mod tests {
     fn pair() -> (Surfels, MicroBuffer) {
         let mut s = Surfels::with_capacity(3, 0);
         s.push(Vec3::ZERO, Quat::IDENTITY, Vec2::splat(0.1f32.ln()), 3.0, ShCoeffs::default());
-        s.push(Vec3::new(0.3, 0.0, 0.8), Quat::from_rotation_y(2.8), Vec2::splat(0.5f32.ln()), 3.0, ShCoeffs::default());
-        s.push(Vec3::new(-2.0, 0.0, 0.0), Quat::from_rotation_y(-0.4), Vec2::splat(0.1f32.ln()), 3.0, ShCoeffs::default());
+        s.push(
+            Vec3::new(0.3, 0.0, 0.8),
+            Quat::from_rotation_y(2.8),
+            Vec2::splat(0.5f32.ln()),
+            3.0,
+            ShCoeffs::default(),
+        );
+        s.push(
+            Vec3::new(-2.0, 0.0, 0.0),
+            Quat::from_rotation_y(-0.4),
+            Vec2::splat(0.1f32.ln()),
+            3.0,
+            ShCoeffs::default(),
+        );
         let mb = MicroBuffer::trace(&Bvh::build(&s), &s, 256, 1, &TraceParams::default()).unwrap();
         (s, mb)
     }
@@ -198,10 +213,12 @@ mod tests {
     fn transfer_under_a_constant_light_is_the_direct_cosine_sum() {
         let (s, mb) = pair();
         let n = s.len();
-        let normals: Vec<f32> = (0..n).flat_map(|i| {
-            let g = s.normal(i);
-            (0..VERTICES).flat_map(move |m| (g + Vec3::new(0.1 * m as f32, -0.05, 0.0)).normalize().to_array())
-        }).collect();
+        let normals: Vec<f32> = (0..n)
+            .flat_map(|i| {
+                let g = s.normal(i);
+                (0..VERTICES).flat_map(move |m| (g + Vec3::new(0.1 * m as f32, -0.05, 0.0)).normalize().to_array())
+            })
+            .collect();
         let albedo = vec![0.5; n * VERTICES * 3];
         let rough = vec![0.5; n * VERTICES];
         let data = VertexData { albedo: &albedo, roughness: &rough, normals: &normals };
@@ -213,11 +230,10 @@ mod tests {
             for m in 0..VERTICES {
                 let q = i * VERTICES + m;
                 let nm = Vec3::new(normals[3 * q], normals[3 * q + 1], normals[3 * q + 2]);
-                let want: f64 = (0..mb.k)
-                    .map(|k| (mb.visibility(i, k) * nm.dot(mb.direction(i, k)).max(0.0)) as f64)
-                    .sum::<f64>()
-                    * std::f64::consts::TAU
-                    / mb.k as f64;
+                let want: f64 =
+                    (0..mb.k).map(|k| (mb.visibility(i, k) * nm.dot(mb.direction(i, k)).max(0.0)) as f64).sum::<f64>()
+                        * std::f64::consts::TAU
+                        / mb.k as f64;
                 let got = model.transfer[q * 9] as f64 * 4.0 * std::f64::consts::PI * SH_C0 as f64;
                 assert!((got - want).abs() < 2e-3 * want.max(0.1), "vertex {q}: {got} vs {want}");
                 occluded |= model.mats[q * MAT_FLOATS + 7] < 0.9;
@@ -236,6 +252,6 @@ mod tests {
         let v4 = vec![0.5; s.len() * 4 * 3];
         let data = VertexData { albedo: &v4, roughness: &v4[..s.len() * 4], normals: &v4 };
         assert!(matches!(ViewModel::build(&s, &data, 4, &mb, 4), Err(ViewError::Degree(4))));
-        assert!(matches!(ViewModel::build(&s, &data, 4, &mb, 2), Ok(_)));
+        assert!(ViewModel::build(&s, &data, 4, &mb, 2).is_ok());
     }
 }

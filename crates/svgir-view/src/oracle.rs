@@ -115,8 +115,7 @@ fn normalize(a: [f64; 3]) -> [f64; 3] {
 
 /// Surfel indices back to front: depth descending, ties by id ascending.
 pub fn sort_back_to_front(model: &ViewModel, view: &View) -> Vec<u32> {
-    let keys: Vec<f32> =
-        (0..model.n).map(|i| view.depth([0, 1, 2].map(|k| model.geom[i * GEOM_FLOATS + k]))).collect();
+    let keys: Vec<f32> = (0..model.n).map(|i| view.depth([0, 1, 2].map(|k| model.geom[i * GEOM_FLOATS + k]))).collect();
     let mut order: Vec<u32> = (0..model.n as u32).collect();
     order.sort_by(|&a, &b| keys[b as usize].total_cmp(&keys[a as usize]).then(a.cmp(&b)));
     order
@@ -153,7 +152,8 @@ fn setup(model: &ViewModel, i: usize, r: &Mat3, t: Vec3, k: &Intr) -> Option<Spl
     if pc.z <= NEAR {
         return None;
     }
-    let (tu, tv, nc) = (*r * Vec3::new(g[4], g[5], g[6]), *r * Vec3::new(g[8], g[9], g[10]), *r * Vec3::new(g[12], g[13], g[14]));
+    let (tu, tv, nc) =
+        (*r * Vec3::new(g[4], g[5], g[6]), *r * Vec3::new(g[8], g[9], g[10]), *r * Vec3::new(g[12], g[13], g[14]));
     let (su, sv) = (g[7], g[11]);
     let centre = [k.fx * pc.x / pc.z + k.cx, k.fy * pc.y / pc.z + k.cy];
     let (mut lo, mut hi) = ([centre[0] - 3.0, centre[1] - 3.0], [centre[0] + 3.0, centre[1] + 3.0]);

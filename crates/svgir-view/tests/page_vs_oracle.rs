@@ -145,17 +145,29 @@ fn page_frames_match_the_oracle() {
     let f = fixture("match");
     let (w, h) = (200u32, 160u32);
     // (yaw, pitch, dist, rotation, strength, mode)
-    let cases = [(40.0, 25.0, 3.2, 0.0, 1.0, ViewMode::Rgb), (-100.0, 50.0, 2.6, 130.0, 0.6, ViewMode::Rgb), (10.0, 15.0, 3.0, 0.0, 1.0, ViewMode::Normal)];
+    let cases = [
+        (40.0, 25.0, 3.2, 0.0, 1.0, ViewMode::Rgb),
+        (-100.0, 50.0, 2.6, 130.0, 0.6, ViewMode::Rgb),
+        (10.0, 15.0, 3.0, 0.0, 1.0, ViewMode::Normal),
+    ];
     for (k, &(yaw, pitch, dist, rot, strength, mode)) in cases.iter().enumerate() {
         let shot = f.dir.join(format!("shot_{k}.png"));
-        let hash = format!("yaw={yaw}&pitch={pitch}&dist={dist}&rot={rot}&strength={strength}&mode={}&ui=0&w={w}&h={h}", mode.name());
-        let r = check(&f.page, &["--hash", &hash, "--width", &w.to_string(), "--height", &h.to_string(), "--out", shot.to_str().unwrap()]);
+        let hash = format!(
+            "yaw={yaw}&pitch={pitch}&dist={dist}&rot={rot}&strength={strength}&mode={}&ui=0&w={w}&h={h}",
+            mode.name()
+        );
+        let r = check(
+            &f.page,
+            &["--hash", &hash, "--width", &w.to_string(), "--height", &h.to_string(), "--out", shot.to_str().unwrap()],
+        );
         assert_eq!(r["ready"], true, "{r}");
         assert!(r["error"].is_null(), "{r}");
         let img = svgir_io::read_image(&shot).unwrap();
-        let page: Vec<u8> =
-            (0..(w * h) as usize).flat_map(|p| (0..3).map(move |c| (p, c))).map(|(p, c)| (img.data[p * img.channels as usize + c] * 255.0).round() as u8).collect();
-        let orbit = Orbit { yaw: (yaw as f64).to_radians(), pitch: (pitch as f64).to_radians(), dist, ..f.orbit };
+        let page: Vec<u8> = (0..(w * h) as usize)
+            .flat_map(|p| (0..3).map(move |c| (p, c)))
+            .map(|(p, c)| (img.data[p * img.channels as usize + c] * 255.0).round() as u8)
+            .collect();
+        let orbit = Orbit { yaw: f64::to_radians(yaw), pitch: f64::to_radians(pitch), dist, ..f.orbit };
         let angle = (rot as f32).to_radians();
         let sh = project_sh(&f.env, f.model.degree, angle, strength);
         let chain = prefilter(&f.env);
@@ -167,7 +179,11 @@ fn page_frames_match_the_oracle() {
         eprintln!("case {k} ({}): page vs oracle {psnr:.2} dB", mode.name());
         if psnr < 35.0 {
             let bytes: Vec<f32> = frame.rgb8.iter().map(|&b| b as f32 / 255.0).collect();
-            let _ = svgir_io::write_png(f.dir.join(format!("oracle_{k}.png")), &svgir_core::Image::from_data(w, h, 3, bytes), 8);
+            let _ = svgir_io::write_png(
+                f.dir.join(format!("oracle_{k}.png")),
+                &svgir_core::Image::from_data(w, h, 3, bytes),
+                8,
+            );
         }
         assert!(psnr >= 35.0, "case {k}: {psnr:.2} dB < 35 (see {})", f.dir.display());
     }
@@ -199,7 +215,21 @@ fn a_dropped_hdr_relights_as_the_oracle_and_a_broken_one_says_why() {
     let (w, h) = (160u32, 128u32);
     let shot = f.dir.join("dropped.png");
     let hash = format!("yaw=70&pitch=30&dist=3.0&rot=25&ui=0&w={w}&h={h}");
-    let r = check(&f.page, &["--hash", &hash, "--width", &w.to_string(), "--height", &h.to_string(), "--drop", hdr.to_str().unwrap(), "--out", shot.to_str().unwrap()]);
+    let r = check(
+        &f.page,
+        &[
+            "--hash",
+            &hash,
+            "--width",
+            &w.to_string(),
+            "--height",
+            &h.to_string(),
+            "--drop",
+            hdr.to_str().unwrap(),
+            "--out",
+            shot.to_str().unwrap(),
+        ],
+    );
     assert!(r["drop"]["error"].is_null(), "{r}");
     let env = svgir_io::read_envmap(&hdr, 1.0, 32).unwrap();
     let angle = 25f32.to_radians();
@@ -209,8 +239,10 @@ fn a_dropped_hdr_relights_as_the_oracle_and_a_broken_one_says_why() {
     let orbit = Orbit { yaw: 70f64.to_radians(), pitch: 30f64.to_radians(), dist: 3.0, ..f.orbit };
     let frame = svgir_view::render(&f.model, &orbit.view(w, h), &light, ViewMode::Rgb, [0.0; 3]);
     let img = svgir_io::read_image(&shot).unwrap();
-    let page: Vec<u8> =
-        (0..(w * h) as usize).flat_map(|p| (0..3).map(move |c| (p, c))).map(|(p, c)| (img.data[p * img.channels as usize + c] * 255.0).round() as u8).collect();
+    let page: Vec<u8> = (0..(w * h) as usize)
+        .flat_map(|p| (0..3).map(move |c| (p, c)))
+        .map(|(p, c)| (img.data[p * img.channels as usize + c] * 255.0).round() as u8)
+        .collect();
     let psnr = psnr_u8(&page, &frame.rgb8);
     eprintln!("dropped .hdr: page vs oracle {psnr:.2} dB");
     assert!(psnr >= 35.0, "{psnr:.2} dB");

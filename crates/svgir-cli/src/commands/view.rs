@@ -81,9 +81,8 @@ fn load(args: &ViewArgs) -> Result<Loaded> {
         );
     }
     let s2 = checkpoint::load_stage2(&ckpt).with_context(|| format!("{}: cannot load", ckpt.display()))?;
-    let data = super::read_json(&stage2_dir.join("config.json"), "")
-        .ok()
-        .and_then(|c| c["data"].as_str().map(PathBuf::from));
+    let data =
+        super::read_json(&stage2_dir.join("config.json"), "").ok().and_then(|c| c["data"].as_str().map(PathBuf::from));
     let h = s2.config.env_height;
     let mut lights = vec![PageLight { name: "learned".into(), env: s2.env.radiance(), strength: 1.0 }];
     if let Some(ds) = data.as_deref().and_then(|d| scene_lights(d).ok()) {
@@ -134,13 +133,7 @@ fn initial_orbit(s2: &svgir_train::stage2::Stage2, data: Option<&Path>) -> Orbit
     };
     let d = eye - target;
     let dist = d.length().max(1e-3);
-    Orbit {
-        target: target.to_array(),
-        yaw: d.y.atan2(d.x),
-        pitch: (d.z / dist).clamp(-1.0, 1.0).asin(),
-        dist,
-        fov_y,
-    }
+    Orbit { target: target.to_array(), yaw: d.y.atan2(d.x), pitch: (d.z / dist).clamp(-1.0, 1.0).asin(), dist, fov_y }
 }
 
 pub fn run(args: ViewArgs) -> Result<()> {
@@ -156,7 +149,12 @@ pub fn run(args: ViewArgs) -> Result<()> {
     let lights = if args.table { svgir_train::relight::RELIGHT_LIGHTS } else { 0 };
     let sampling = RelightSampling { directions: args.directions, lights, bounces: 0 };
     let relighter = Relighter::new(s2, sampling)?;
-    eprintln!("view: traced K = {} directions for {} Gaussians in {:.1} s", args.directions, s2.surfels.len(), t0.elapsed().as_secs_f64());
+    eprintln!(
+        "view: traced K = {} directions for {} Gaussians in {:.1} s",
+        args.directions,
+        s2.surfels.len(),
+        t0.elapsed().as_secs_f64()
+    );
     if args.table {
         return table(&loaded, &relighter);
     }
@@ -178,7 +176,11 @@ pub fn run(args: ViewArgs) -> Result<()> {
     if let Some(png) = &args.oracle {
         let mut cam = orbit;
         if let Some(c) = &args.camera {
-            let v: Vec<f64> = c.split(',').map(|s| s.trim().parse()).collect::<Result<_, _>>().with_context(|| format!("--camera {c}: expected yaw,pitch,dist"))?;
+            let v: Vec<f64> = c
+                .split(',')
+                .map(|s| s.trim().parse())
+                .collect::<Result<_, _>>()
+                .with_context(|| format!("--camera {c}: expected yaw,pitch,dist"))?;
             let [yaw, pitch, dist] = v[..] else { bail!("--camera {c}: expected three numbers yaw,pitch,dist") };
             (cam.yaw, cam.pitch, cam.dist) = (yaw.to_radians(), pitch.to_radians(), dist);
         }
@@ -191,7 +193,14 @@ pub fn run(args: ViewArgs) -> Result<()> {
         };
         let strength = args.strength.unwrap_or(light.strength);
         let t0 = std::time::Instant::now();
-        let frame = oracle_frame(&model, &light.env, &cam.view(args.width, args.height), args.rotate.to_radians(), strength, mode);
+        let frame = oracle_frame(
+            &model,
+            &light.env,
+            &cam.view(args.width, args.height),
+            args.rotate.to_radians(),
+            strength,
+            mode,
+        );
         write_png(png, &frame)?;
         println!(
             "oracle frame: {} ({}x{}, {} surfels drawn, {:.2} M fragments, {:.2} M blended; {:.2} s on {} threads)",
@@ -209,7 +218,14 @@ pub fn run(args: ViewArgs) -> Result<()> {
 }
 
 /// The page's frame on the CPU.
-fn oracle_frame(model: &ViewModel, env: &EnvMap, view: &View, angle: f32, strength: f32, mode: ViewMode) -> svgir_view::Frame {
+fn oracle_frame(
+    model: &ViewModel,
+    env: &EnvMap,
+    view: &View,
+    angle: f32,
+    strength: f32,
+    mode: ViewMode,
+) -> svgir_view::Frame {
     let sh = project_sh(env, model.degree, angle, strength);
     let chain = prefilter(env);
     let light = Light { sh: &sh, chain: &chain, width: env.width, height: env.height, angle, strength };
@@ -228,7 +244,8 @@ fn write_png(path: &Path, f: &svgir_view::Frame) -> Result<()> {
 /// protocol).
 fn table(loaded: &Loaded, relighter: &Relighter) -> Result<()> {
     let s2 = &loaded.s2;
-    let data = loaded.data.as_deref().context("the run's stage2/config.json names no dataset (needed for its test views)")?;
+    let data =
+        loaded.data.as_deref().context("the run's stage2/config.json names no dataset (needed for its test views)")?;
     let ds = svgir_io::load_dataset(data, &svgir_io::LoadOptions::default())?;
     if ds.test.is_empty() {
         bail!("{}: no test views", data.display());
@@ -252,7 +269,10 @@ fn table(loaded: &Loaded, relighter: &Relighter) -> Result<()> {
         for v in &ds.test {
             let r = full.render(s2, &v.camera, [0.0; 3], &lit, [1.0; 3])?;
             let reference = q8(&r.image);
-            let gt = v.relit.get(&l.name).map(|g| q8(&if g.channels == 4 { g.composite_over([0.0; 3]) } else { g.clone() }.data));
+            let gt = v
+                .relit
+                .get(&l.name)
+                .map(|g| q8(&if g.channels == 4 { g.composite_over([0.0; 3]) } else { g.clone() }.data));
             for (d, m) in models.iter().enumerate() {
                 let f = oracle_frame(m, &env, &View::from_camera(&v.camera), 0.0, l.strength, ViewMode::Rgb);
                 let ours: Vec<f32> = f.rgb8.iter().map(|&b| b as f32 / 255.0).collect();
@@ -267,7 +287,13 @@ fn table(loaded: &Loaded, relighter: &Relighter) -> Result<()> {
         let k = with_gt.max(1) as f64;
         println!(
             "| {} | {:.1} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |",
-            l.name, secs, psnr[0], psnr[1], psnr[2], full_gt / k, prt_gt / k
+            l.name,
+            secs,
+            psnr[0],
+            psnr[1],
+            psnr[2],
+            full_gt / k,
+            prt_gt / k
         );
     }
     Ok(())
