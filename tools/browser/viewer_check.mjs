@@ -6,7 +6,8 @@
 // Opens PAGE.html#HASH at the given viewport, waits until the page is ready (window.READY) or
 // reports an error (window.VIEWER_ERROR), optionally screenshots the viewport to --out,
 // optionally feeds FILE.hdr to the page's drop handler (before the screenshot), and measures
-// --frames frames (window.measureFrames: sort + draw + finish per frame). Prints one JSON line:
+// --frames frames (window.measureFrames: sort + draw + read-back per frame; window.measureRaf:
+// the same frames through requestAnimationFrame). Prints one JSON line:
 //   {"ready":bool,"error":string|null,"frame":{...}|null,"drop":{"error":...}|null,"console":[...]}
 import { launch } from './screenshot.mjs';
 import path from 'node:path';
@@ -56,7 +57,10 @@ async function main() {
       await page.evaluate('new Promise((r) => requestAnimationFrame(() => requestAnimationFrame(r)))');
     }
     if (args.out) await page.screenshot({ path: args.out, clip: { x: 0, y: 0, width: args.width, height: args.height } });
-    if (args.frames > 0 && result.ready) result.frame = await page.evaluate(`window.measureFrames(${args.frames})`);
+    if (args.frames > 0 && result.ready) {
+      result.frame = await page.evaluate(`window.measureFrames(${args.frames})`);
+      Object.assign(result.frame, await page.evaluate(`window.measureRaf(${args.frames})`));
+    }
   } finally {
     await browser.close();
   }

@@ -726,6 +726,11 @@ void main() {
     requestDraw();
   }, { passive: false });
   window.addEventListener('resize', requestDraw);
+  window.addEventListener('keydown', (e) => {
+    if ((e.key === 'h' || e.key === 'H') && e.target.tagName !== 'INPUT' && e.target.tagName !== 'SELECT') {
+      $('panel').classList.toggle('hidden');
+    }
+  });
 
   async function loadHdrFile(file) {
     try {
@@ -772,6 +777,30 @@ void main() {
     draw();
     stats('Frame ' + ms.toFixed(1) + ' ms (sort ' + (sortMs / n).toFixed(1) + ' ms).');
     return { frameMs: ms, sortMs: sortMs / n, surfels: N, width: canvas.width, height: canvas.height, accum: accumFormat };
+  };
+
+  // The same through requestAnimationFrame (as a user sees it; capped by the display's rate).
+  window.measureRaf = (frames) => new Promise((resolve) => {
+    const n = frames || 30, yaw0 = state.yaw;
+    let k = 0, t0 = 0;
+    const step = (t) => {
+      if (k === 0) t0 = t;
+      if (k === n) {
+        state.yaw = yaw0;
+        draw();
+        resolve({ rafMs: (t - t0) / n });
+        return;
+      }
+      k++;
+      state.yaw = yaw0 + 0.01 * k;
+      draw();
+      requestAnimationFrame(step);
+    };
+    requestAnimationFrame(step);
+  });
+  $('reset').onclick = () => {
+    Object.assign(state, { target: cam0.target.slice(), yaw: cam0.yaw, pitch: cam0.pitch, dist: cam0.dist });
+    requestDraw();
   };
 
   try {
