@@ -5,7 +5,14 @@
 //! Gaussian i with shading normal n_m, over the K Fibonacci directions of i's micro-buffer,
 //! `T_{m,j} = 2 pi / K sum_k V_ik max(0, n_m . w_k) Y_j(w_k)`, so that the diffuse irradiance
 //! under a light with SH coefficients `L_j` is `sum_j L_j T_{m,j}`. Visibility is the traced
-//! micro-buffer's (SPEC 5); the one-bounce indirect light is not in the transfer.
+//! micro-buffer's (SPEC 5).
+//!
+//! Optionally (`bounce`) the transfer also carries a diffuse one-bounce term, per colour channel:
+//! a direction k that hits Gaussian h at (u~, v~) receives h's diffuse radiance
+//! `a_h(u~, v~) / pi * sum_j L_j T_{h,j}(u~, v~)` (h's own direct transfer and albedo, bilinear
+//! in its vertices), so `T_{m,j,c} += 2 pi / K sum_k [hit] max(0, n_m . w_k) a_{h,c} / pi T_{h,j}`.
+//! It is SPEC 7's Eqn 13 with the hit's BRDF reduced to its diffuse lobe and the light to its
+//! SH projection.
 //!
 //! Materials and transfer are rounded to IEEE half floats, as the page file stores them.
 //!
@@ -44,11 +51,13 @@ pub struct ViewModel {
     pub n: usize,
     /// SH degree of the transfer (1..=3).
     pub degree: u32,
+    /// Transfer channels: 1 (visibility only, grey) or 3 (with the coloured one-bounce term).
+    pub channels: usize,
     /// `n x GEOM_FLOATS`.
     pub geom: Vec<f32>,
     /// `n x VERTICES x MAT_FLOATS`.
     pub mats: Vec<f32>,
-    /// `n x VERTICES x coeffs()` transfer coefficients.
+    /// `n x VERTICES x channels x coeffs()` transfer coefficients (channel-major per vertex).
     pub transfer: Vec<f32>,
 }
 
@@ -63,30 +72,36 @@ pub struct VertexData<'a> {
 }
 
 impl ViewModel {
-    /// Transfer coefficients per vertex.
+    /// SH coefficients per channel.
     pub fn coeffs(&self) -> usize {
         num_coeffs(self.degree)
+    }
+
+    /// Transfer values per vertex (`channels x coeffs()`).
+    pub fn per_vertex(&self) -> usize {
+        self.channels * self.coeffs()
     }
 
     /// Bytes per surfel of the arrays the page uploads (float32 textures; the page file holds
     /// materials and transfer as f16, [`ViewModel::file_bytes_per_surfel`]).
     pub fn bytes_per_surfel(&self) -> usize {
-        4 * (GEOM_FLOATS + VERTICES * (MAT_FLOATS + self.coeffs()))
+        4 * (GEOM_FLOATS + VERTICES * (MAT_FLOATS + self.per_vertex()))
     }
 
     /// Bytes per surfel in the page file (before base64): geometry f32, the rest f16.
     pub fn file_bytes_per_surfel(&self) -> usize {
-        4 * GEOM_FLOATS + 2 * VERTICES * (MAT_FLOATS + self.coeffs())
+        4 * GEOM_FLOATS + 2 * VERTICES * (MAT_FLOATS + self.per_vertex())
     }
 
     /// Builds the model from surfels, their vertex materials and micro-buffers traced over the
-    /// surfels' normals (`mb.len() == surfels.len()`).
+    /// surfels' normals (`mb.len() == surfels.len()`); `bounce` adds the one-bounce term.
     pub fn build(
         surfels: &svgir_core::Surfels,
         mats: &VertexData,
         m: usize,
         mb: &MicroBuffer,
         degree: u32,
+        bounce: bool,
     ) -> Result<Self, ViewError> {
         let n = surfels.len();
         if m != VERTICES {
@@ -158,13 +173,15 @@ impl ViewModel {
                 *o = (a * w) as f32;
             }
         });
+        let mut transfer = if bounce { with_bounce(&transfer, mats, m, c, mb) } else { transfer };
+        let channels = if bounce { 3 } else { 1 };
         let mut mat = vec![0.0f32; n * m * MAT_FLOATS];
         for (q, o) in mat.chunks_exact_mut(MAT_FLOATS).enumerate() {
             let a = &mats.albedo[3 * q..3 * q + 3];
             let nm = vec3(mats.normals, q);
             // Unoccluded transfer DC is pi * Y_00 (the cosine lobe): the ratio is the cosine-
             // weighted visibility, the page's "visibility" view and its specular occlusion.
-            let vis = (transfer[q * c] / (std::f32::consts::PI * SH_C0)).clamp(0.0, 1.0);
+            let vis = (transfer[q * c * channels] / (std::f32::consts::PI * SH_C0)).clamp(0.0, 1.0);
             o.copy_from_slice(&[a[0], a[1], a[2], mats.roughness[q], nm.x, nm.y, nm.z, vis]);
         }
         // The page stores materials and transfer as IEEE half floats (half the page size); the
@@ -172,8 +189,58 @@ impl ViewModel {
         for v in mat.iter_mut().chain(transfer.iter_mut()) {
             *v = f16_to_f32(f16_from_f32(*v));
         }
-        Ok(Self { n, degree, geom, mats: mat, transfer })
+        Ok(Self { n, degree, channels, geom, mats: mat, transfer })
     }
+}
+
+/// Direct transfer (`n x m x c`) plus the diffuse one-bounce term, per channel (`n x m x 3 x c`).
+fn with_bounce(direct: &[f32], mats: &VertexData, m: usize, c: usize, mb: &MicroBuffer) -> Vec<f32> {
+    let n = mb.len();
+    let mut out = vec![0.0f32; n * m * 3 * c];
+    out.par_chunks_mut(m * 3 * c).enumerate().for_each(|(i, t)| {
+        let mut acc = vec![0.0f64; m * 3 * c];
+        let mut th = vec![0.0f32; c];
+        for k in 0..mb.k {
+            let Some(h) = mb.hit(i, k) else { continue };
+            let h = h as usize;
+            let [u, v] = mb.uv(i, k);
+            let w = [(1.0 - u) * (1.0 - v), u * (1.0 - v), (1.0 - u) * v, u * v];
+            let mut a = [0.0f32; 3];
+            th.iter_mut().for_each(|x| *x = 0.0);
+            for (vm, wm) in w.iter().enumerate().take(m) {
+                let q = h * m + vm;
+                for ch in 0..3 {
+                    a[ch] += wm * mats.albedo[3 * q + ch];
+                }
+                for j in 0..c {
+                    th[j] += wm * direct[q * c + j];
+                }
+            }
+            let d = mb.direction(i, k);
+            for vtx in 0..m {
+                let cos = vec3(mats.normals, i * m + vtx).dot(d).max(0.0);
+                if cos <= 0.0 {
+                    continue;
+                }
+                for ch in 0..3 {
+                    let s = cos * a[ch] / std::f32::consts::PI;
+                    for j in 0..c {
+                        acc[(vtx * 3 + ch) * c + j] += (s * th[j]) as f64;
+                    }
+                }
+            }
+        }
+        let wk = std::f64::consts::TAU / mb.k as f64;
+        for vtx in 0..m {
+            for ch in 0..3 {
+                for j in 0..c {
+                    let o = (vtx * 3 + ch) * c + j;
+                    t[o] = direct[(i * m + vtx) * c + j] + (acc[o] * wk) as f32;
+                }
+            }
+        }
+    });
+    out
 }
 
 fn vec3(v: &[f32], q: usize) -> Vec3 {
@@ -222,7 +289,7 @@ mod tests {
         let albedo = vec![0.5; n * VERTICES * 3];
         let rough = vec![0.5; n * VERTICES];
         let data = VertexData { albedo: &albedo, roughness: &rough, normals: &normals };
-        let model = ViewModel::build(&s, &data, VERTICES, &mb, 2).unwrap();
+        let model = ViewModel::build(&s, &data, VERTICES, &mb, 2, false).unwrap();
         // A constant light L has SH (L * 4 pi Y_00, 0, ...): irradiance L * T_0 * 4 pi Y_00 must
         // equal the obvious sum 2 pi / K sum_k V_k max(0, n_m . w_k) L.
         let mut occluded = false;
@@ -244,14 +311,40 @@ mod tests {
     }
 
     #[test]
+    fn the_bounce_term_is_coloured_by_the_hit_albedo() {
+        let (s, mb) = pair();
+        let n = s.len();
+        let normals: Vec<f32> = (0..n * VERTICES).flat_map(|q| s.normal(q / VERTICES).to_array()).collect();
+        let albedo: Vec<f32> = (0..n * VERTICES).flat_map(|_| [0.8, 0.4, 0.0]).collect();
+        let rough = vec![0.5; n * VERTICES];
+        let data = VertexData { albedo: &albedo, roughness: &rough, normals: &normals };
+        let direct = ViewModel::build(&s, &data, VERTICES, &mb, 2, false).unwrap();
+        let bounce = ViewModel::build(&s, &data, VERTICES, &mb, 2, true).unwrap();
+        assert_eq!((bounce.channels, bounce.per_vertex()), (3, 27));
+        let mut lit = 0;
+        for q in 0..n * VERTICES {
+            let d = &direct.transfer[q * 9..q * 9 + 9];
+            let b = &bounce.transfer[q * 27..q * 27 + 27];
+            // Blue: albedo 0, no bounce. Red: twice green's bounce (f16 rounding aside).
+            for j in 0..9 {
+                assert!((b[18 + j] - d[j]).abs() <= 1e-3 * d[j].abs().max(1e-3), "q {q} j {j}");
+                let (red, green) = (b[j] - d[j], b[9 + j] - d[j]);
+                assert!((red - 2.0 * green).abs() <= 2e-3 * red.abs().max(1e-2), "q {q} j {j}: {red} {green}");
+            }
+            lit += usize::from(b[0] - d[0] > 1e-3);
+        }
+        assert!(lit > 0, "the facing disks light each other");
+    }
+
+    #[test]
     fn bad_shapes_are_errors() {
         let (s, mb) = pair();
         let v = vec![0.5; s.len() * 6 * 3];
         let data = VertexData { albedo: &v, roughness: &v[..s.len() * 6], normals: &v };
-        assert!(matches!(ViewModel::build(&s, &data, 6, &mb, 2), Err(ViewError::Vertices(6))));
+        assert!(matches!(ViewModel::build(&s, &data, 6, &mb, 2, false), Err(ViewError::Vertices(6))));
         let v4 = vec![0.5; s.len() * 4 * 3];
         let data = VertexData { albedo: &v4, roughness: &v4[..s.len() * 4], normals: &v4 };
-        assert!(matches!(ViewModel::build(&s, &data, 4, &mb, 4), Err(ViewError::Degree(4))));
-        assert!(ViewModel::build(&s, &data, 4, &mb, 2).is_ok());
+        assert!(matches!(ViewModel::build(&s, &data, 4, &mb, 4, false), Err(ViewError::Degree(4))));
+        assert!(ViewModel::build(&s, &data, 4, &mb, 2, false).is_ok());
     }
 }

@@ -62,6 +62,7 @@ pub fn page(model: &ViewModel, lights: &[PageLight], camera: &Orbit, title: &str
         "n": model.n,
         "degree": model.degree,
         "coeffs": model.coeffs(),
+        "channels": model.channels,
         "vertices": VERTICES,
         "geomFloats": GEOM_FLOATS,
         "matFloats": MAT_FLOATS,

@@ -3,7 +3,7 @@
 //! `c_m = a_m / pi * max(0, sum_j L_j T_{m,j}) + s * P(R_m, r_m) * (F0 A + B)(r_m, n.v) * vis_m`
 //!
 //! with `L_j` the light's SH coefficients ([`crate::light::project_sh`]), `T` the vertex's
-//! transfer ([`crate::model`]), `P` the prefiltered map at the mirror direction
+//! transfer ([`crate::model`]; per channel when it holds the one-bounce term), `P` the prefiltered map at the mirror direction
 //! `R_m = 2 (n_m . v) n_m - v`, `v = normalize(cam - p_i)` per Gaussian as SPEC 3, `(A, B)` the
 //! split-sum fit ([`crate::light::env_brdf`]), F0 = 0.04 (SPEC 3), `s` the light strength and
 //! `vis_m` the vertex's cosine-weighted visibility (a scalar specular occlusion).
@@ -83,11 +83,13 @@ pub fn shade_surfel(model: &ViewModel, i: usize, cam: Vec3, light: &Light, mode:
             ViewMode::Normal => [0.5 + 0.5 * n.x, 0.5 + 0.5 * n.y, 0.5 + 0.5 * n.z],
             ViewMode::Visibility => [vis; 3],
             ViewMode::Rgb => {
-                let t = &model.transfer[q * c..(q + 1) * c];
+                let pv = model.per_vertex();
+                let t = &model.transfer[q * pv..(q + 1) * pv];
                 let mut irr = [0.0f32; 3];
-                for j in 0..c {
-                    for ch in 0..3 {
-                        irr[ch] += light.sh[j][ch] * t[j];
+                for ch in 0..3 {
+                    let tc = if model.channels == 3 { &t[ch * c..(ch + 1) * c] } else { &t[..c] };
+                    for j in 0..c {
+                        irr[ch] += light.sh[j][ch] * tc[j];
                     }
                 }
                 let nv_raw = n.dot(v);

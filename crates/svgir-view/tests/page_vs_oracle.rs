@@ -1,5 +1,5 @@
 //! The page's WebGL2 frame (headless Chromium, SwiftShader) against the Rust oracle for the
-//! same camera and light: PSNR >= 35 dB. Also the page's messages for bad input. A small scene
+//! same camera and light: PSNR >= 35 dB, with the one-bounce transfer (3 channels) and without. Also the page's messages for bad input. A small scene
 //! is built in memory (a sphere of surfels over a ground disk, traced with the BVH), so the test
 //! needs no run folder. Skips (loudly) without Chromium or tools/browser/node_modules unless
 //! SVGIR_REQUIRE_DATA=1.
@@ -102,12 +102,12 @@ struct Fixture {
     orbit: Orbit,
 }
 
-fn fixture(name: &str) -> Fixture {
+fn fixture(name: &str, bounce: bool) -> Fixture {
     let (s, albedo, rough, normals) = scene(7);
     let bvh = Bvh::build(&s);
     let mb = MicroBuffer::trace(&bvh, &s, 64, 3, &TraceParams::default()).unwrap();
     let data = VertexData { albedo: &albedo, roughness: &rough, normals: &normals };
-    let model = ViewModel::build(&s, &data, 4, &mb, 3).unwrap();
+    let model = ViewModel::build(&s, &data, 4, &mb, 3, bounce).unwrap();
     let env = sky();
     let orbit = Orbit { target: [0.0, 0.0, -0.1], yaw: 0.6, pitch: 0.4, dist: 3.2, fov_y: 40f64.to_radians() };
     let lights = [PageLight { name: "sky".into(), env: env.clone(), strength: 1.0 }];
@@ -142,7 +142,7 @@ fn page_frames_match_the_oracle() {
     if !browser_ready() {
         return;
     }
-    let f = fixture("match");
+    let f = fixture("match", true);
     let (w, h) = (200u32, 160u32);
     // (yaw, pitch, dist, rotation, strength, mode)
     let cases = [
@@ -195,7 +195,7 @@ fn a_dropped_hdr_relights_as_the_oracle_and_a_broken_one_says_why() {
     if !browser_ready() {
         return;
     }
-    let f = fixture("drop");
+    let f = fixture("drop", false);
     // A map at another resolution, written as a Radiance file: the page's RGBE reader and area
     // resampling must give the light svgir-io and EnvMap::from_equirect give.
     let src = {

@@ -55,7 +55,7 @@
     return;
   }
   $('title').textContent = meta.title || 'svgir viewer';
-  const N = meta.n, C = meta.coeffs, DEG = meta.degree, M = meta.vertices;
+  const N = meta.n, C = meta.coeffs, DEG = meta.degree, M = meta.vertices, CH = meta.channels || 1;
   const geom = new Float32Array(buf, meta.offsets.geom, N * 16);
 
   // ---- state (URL hash overrides: yaw, pitch, dist in degrees/units; light, rot, strength,
@@ -284,7 +284,7 @@
 precision highp float; precision highp int; precision highp sampler2D;
 uniform sampler2D uGeom, uMat, uTr, uEnv; uniform highp usampler2D uOrder;
 uniform mat3 uR; uniform vec3 uT; uniform vec4 uK; uniform vec2 uSize; uniform vec3 uEye;
-uniform vec3 uSH[16]; uniform int uCP4; uniform int uMode; uniform float uAngle, uStrength; uniform ivec2 uEnvSize;
+uniform vec3 uSH[16]; uniform int uCP4; uniform int uChannels; uniform int uMode; uniform float uAngle, uStrength; uniform ivec2 uEnvSize;
 flat out vec3 vPc, vTu, vTv, vNc, vC0, vC1, vC2, vC3; flat out vec3 vS; flat out vec2 vCentre;
 const float PI = 3.14159265358979;
 vec4 fetch(sampler2D t, int i) { return texelFetch(t, ivec2(i % ${TEXW}, i / ${TEXW}), 0); }
@@ -324,10 +324,22 @@ vec3 shadeVertex(int q, vec3 v) {
   if (uMode == 3) return 0.5 + 0.5 * n;
   if (uMode == 4) return vec3(vis);
   vec3 irr = vec3(0.0);
-  for (int k = 0; k < 4; k++) {
-    if (k >= uCP4) break;
-    vec4 t = fetch(uTr, q * uCP4 + k);
-    irr += uSH[4 * k] * t.x + uSH[4 * k + 1] * t.y + uSH[4 * k + 2] * t.z + uSH[4 * k + 3] * t.w;
+  if (uChannels == 1) {
+    for (int k = 0; k < 4; k++) {
+      if (k >= uCP4) break;
+      vec4 t = fetch(uTr, q * uCP4 + k);
+      irr += uSH[4 * k] * t.x + uSH[4 * k + 1] * t.y + uSH[4 * k + 2] * t.z + uSH[4 * k + 3] * t.w;
+    }
+  } else {
+    // One transfer vector per colour channel (the one-bounce term is coloured).
+    for (int k = 0; k < 4; k++) {
+      if (k >= uCP4) break;
+      vec4 tr = fetch(uTr, (3 * q) * uCP4 + k), tg = fetch(uTr, (3 * q + 1) * uCP4 + k), tb = fetch(uTr, (3 * q + 2) * uCP4 + k);
+      vec3 a = uSH[4 * k], b = uSH[4 * k + 1], c = uSH[4 * k + 2], d = uSH[4 * k + 3];
+      irr += vec3(a.r * tr.x + b.r * tr.y + c.r * tr.z + d.r * tr.w,
+                  a.g * tg.x + b.g * tg.y + c.g * tg.z + d.g * tg.w,
+                  a.b * tb.x + b.b * tb.y + c.b * tb.z + d.b * tb.w);
+    }
   }
   float nvRaw = dot(n, v);
   float nv = clamp(nvRaw, 1e-6, 1.0);
@@ -462,10 +474,11 @@ void main() {
     texGeom = floatTexture(geom, N * 4, TEXW);
     texMat = floatTexture(halves(meta.offsets.mats, N * M * 8), N * M * 2, TEXW);
     // Transfer: C coefficients per vertex, padded to a multiple of 4 (one texel per 4).
-    const t16 = halves(meta.offsets.transfer, N * M * C);
-    const tr = new Float32Array(N * M * CP4 * 4);
-    for (let q = 0; q < N * M; q++) for (let j = 0; j < C; j++) tr[q * CP4 * 4 + j] = t16[q * C + j];
-    texTr = floatTexture(tr, N * M * CP4, TEXW);
+    // With the one-bounce term, CH = 3 such vectors per vertex, channel-major.
+    const t16 = halves(meta.offsets.transfer, N * M * CH * C);
+    const tr = new Float32Array(N * M * CH * CP4 * 4);
+    for (let q = 0; q < N * M * CH; q++) for (let j = 0; j < C; j++) tr[q * CP4 * 4 + j] = t16[q * C + j];
+    texTr = floatTexture(tr, N * M * CH * CP4, TEXW);
     // Two triangles per splat, (0, 1, 3) and (0, 2, 3): corner 3 provokes both.
     vao = gl.createVertexArray();
     gl.bindVertexArray(vao);
@@ -609,6 +622,7 @@ void main() {
     gl.uniform3fv(u.uEye, view.eye);
     gl.uniform3fv(u.uSH, lightSH());
     gl.uniform1i(u.uCP4, CP4);
+    gl.uniform1i(u.uChannels, CH);
     gl.uniform1i(u.uMode, state.mode);
     gl.uniform1f(u.uAngle, state.rot * Math.PI / 180);
     gl.uniform1f(u.uStrength, strength());
@@ -694,7 +708,7 @@ void main() {
   updateLabels();
   const pageMB = (document.documentElement.outerHTML.length / 1e6).toFixed(1);
   function stats(extra) {
-    $('stats').textContent = N + ' surfels, SH degree ' + DEG + ' (' + C + ' coefficients per vertex), ' +
+    $('stats').textContent = N + ' surfels, SH degree ' + DEG + ' (' + C + ' coefficients per vertex' + (CH === 3 ? ' and channel, with one bounce' : '') + '), ' +
       meta.bytesPerSurfel + ' bytes per surfel on the GPU (' + meta.fileBytesPerSurfel + ' in the file), page ' + pageMB + ' MB, blending in ' + accumFormat + '. ' + (extra || '');
   }
   stats();

@@ -23,6 +23,9 @@ pub struct ViewArgs {
     /// SH degree of the transfer vectors (1..=3: 4, 9 or 16 coefficients per vertex).
     #[arg(long, default_value_t = 3)]
     pub degree: u32,
+    /// Add the diffuse one-bounce light to the transfer (per colour channel: 3x its size).
+    #[arg(long)]
+    pub bounce: bool,
     /// Directions traced per Gaussian for the transfer (SPEC 7's K).
     #[arg(long, default_value_t = svgir_train::relight::RELIGHT_DIRECTIONS)]
     pub directions: usize,
@@ -158,7 +161,7 @@ pub fn run(args: ViewArgs) -> Result<()> {
     if args.table {
         return table(&loaded, &relighter);
     }
-    let model = svgir_view::model_from_stage2(s2, &relighter.mb, args.degree)?;
+    let model = svgir_view::model_from_stage2(s2, &relighter.mb, args.degree, args.bounce)?;
     let orbit = initial_orbit(s2, loaded.data.as_deref());
     let title = format!("svgir viewer: {}", args.run.display());
     let html = svgir_view::page(&model, &loaded.lights, &orbit, &title);
@@ -250,10 +253,14 @@ fn table(loaded: &Loaded, relighter: &Relighter) -> Result<()> {
     if ds.test.is_empty() {
         bail!("{}: no test views", data.display());
     }
-    let models: Vec<ViewModel> =
-        (1..=3).map(|d| svgir_view::model_from_stage2(s2, &relighter.mb, d)).collect::<Result<_, _>>()?;
-    println!("| light | SPEC 7 gather s | PRT vs SPEC 7, degree 1 (4) dB | degree 2 (9) dB | degree 3 (16) dB | SPEC 7 vs truth dB | PRT degree 3 vs truth dB |");
-    println!("|---|---|---|---|---|---|---|");
+    let models: Vec<ViewModel> = [(1, false), (2, false), (3, false), (3, true)]
+        .into_iter()
+        .map(|(d, b)| svgir_view::model_from_stage2(s2, &relighter.mb, d, b))
+        .collect::<Result<_, _>>()?;
+    println!(
+        "| light | SPEC 7 gather s | PRT vs SPEC 7, degree 1 (4) dB | degree 2 (9) dB | degree 3 (16) dB | degree 3 + bounce dB | SPEC 7 vs photos dB | PRT degree 3 vs photos dB | degree 3 + bounce vs photos dB |"
+    );
+    println!("|---|---|---|---|---|---|---|---|---|");
     let q8 = |v: &[f32]| -> Vec<f32> { v.iter().map(|c| (c.clamp(0.0, 1.0) * 255.0).round() / 255.0).collect() };
     for l in &ds.relight_lights {
         let Some(path) = &l.envmap_path else { continue };
@@ -264,8 +271,8 @@ fn table(loaded: &Loaded, relighter: &Relighter) -> Result<()> {
         scaled.data.iter_mut().for_each(|c| *c = c.map(|v| v * l.strength));
         let lit = full.prepare(s2, scaled)?;
         let secs = t0.elapsed().as_secs_f64();
-        let mut psnr = [0.0f64; 3];
-        let (mut full_gt, mut prt_gt, mut with_gt) = (0.0f64, 0.0f64, 0usize);
+        let mut psnr = [0.0f64; 4];
+        let (mut full_gt, mut prt_gt, mut bounce_gt, mut with_gt) = (0.0f64, 0.0f64, 0.0f64, 0usize);
         for v in &ds.test {
             let r = full.render(s2, &v.camera, [0.0; 3], &lit, [1.0; 3])?;
             let reference = q8(&r.image);
@@ -277,23 +284,29 @@ fn table(loaded: &Loaded, relighter: &Relighter) -> Result<()> {
                 let f = oracle_frame(m, &env, &View::from_camera(&v.camera), 0.0, l.strength, ViewMode::Rgb);
                 let ours: Vec<f32> = f.rgb8.iter().map(|&b| b as f32 / 255.0).collect();
                 psnr[d] += svgir_metrics::psnr(&ours, &reference, 3, None)? / ds.test.len() as f64;
-                if let (Some(gt), 2) = (&gt, d) {
-                    prt_gt += svgir_metrics::psnr(&ours, gt, 3, None)?;
-                    full_gt += svgir_metrics::psnr(&reference, gt, 3, None)?;
-                    with_gt += 1;
+                match (&gt, d) {
+                    (Some(gt), 2) => {
+                        prt_gt += svgir_metrics::psnr(&ours, gt, 3, None)?;
+                        full_gt += svgir_metrics::psnr(&reference, gt, 3, None)?;
+                        with_gt += 1;
+                    }
+                    (Some(gt), 3) => bounce_gt += svgir_metrics::psnr(&ours, gt, 3, None)?,
+                    _ => {}
                 }
             }
         }
         let k = with_gt.max(1) as f64;
         println!(
-            "| {} | {:.1} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |",
+            "| {} | {:.1} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} | {:.2} |",
             l.name,
             secs,
             psnr[0],
             psnr[1],
             psnr[2],
+            psnr[3],
             full_gt / k,
-            prt_gt / k
+            prt_gt / k,
+            bounce_gt / k
         );
     }
     Ok(())
