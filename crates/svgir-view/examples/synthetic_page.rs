@@ -37,7 +37,9 @@ fn main() {
     let normals: Vec<f32> = (0..n * m).flat_map(|q| s.normal(q / m).to_array()).collect();
     let mb = MicroBuffer::trace(&Bvh::build(&s), &s, 16, 1, &TraceParams::default()).expect("trace");
     let data = VertexData { albedo: &albedo, roughness: &rough, normals: &normals };
-    let model = ViewModel::build(&s, &data, m, &mb, 3, false).expect("model");
+    let model =
+        ViewModel::build(&s, &data, m, &mb, None, svgir_view::Options { degree: 3, bounce: false, layered: false })
+            .expect("model");
     let mut env = EnvMap::constant(64, 32, [0.4, 0.45, 0.5]);
     env.data[5 * 64 + 20] = [200.0; 3];
     let orbit = Orbit { target: [0.0, 0.0, -0.1], yaw: 0.6, pitch: 0.4, dist: 3.2, fov_y: 40f64.to_radians() };

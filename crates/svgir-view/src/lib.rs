@@ -18,21 +18,23 @@ pub mod oracle;
 pub mod page;
 pub mod shade;
 
-pub use model::{VertexData, ViewError, ViewModel};
+pub use model::{Options, VertexData, ViewError, ViewModel};
 pub use oracle::{render, Frame, Orbit, View};
 pub use page::{page, PageLight};
 pub use shade::{Light, ViewMode};
 
 /// Builds the viewer's model from a stage-2 model and micro-buffers traced over its surfels'
-/// normals (e.g. [`svgir_train::relight::Relighter`]'s, K = 384); `bounce` adds the diffuse
-/// one-bounce term to the transfer.
+/// normals (e.g. [`svgir_train::relight::Relighter`]'s, K = 384), and over the negated normals
+/// for a model trained two-sided; `bounce` adds the diffuse one-bounce term to the transfer.
 pub fn model_from_stage2(
     s2: &svgir_train::stage2::Stage2,
-    mb: &svgir_trace::MicroBuffer,
+    front: &svgir_trace::MicroBuffer,
+    back: Option<&svgir_trace::MicroBuffer>,
     degree: u32,
     bounce: bool,
 ) -> Result<ViewModel, ViewError> {
     let act = s2.materials.activated(&s2.normals).map_err(|e| ViewError::Inconsistent(e.to_string()))?;
     let data = VertexData { albedo: &act.albedo, roughness: &act.roughness, normals: &act.normals };
-    ViewModel::build(&s2.surfels, &data, act.m, mb, degree, bounce)
+    let layered = s2.config.diffuse == svgir_shading::Diffuse::Layered;
+    ViewModel::build(&s2.surfels, &data, act.m, front, back, model::Options { degree, bounce, layered })
 }

@@ -26,8 +26,9 @@ use svgir_trace::MicroBuffer;
 
 /// Floats of geometry per surfel: centre, opacity; t_u, s_u; t_v, s_v; normal, 0.
 pub const GEOM_FLOATS: usize = 16;
-/// Floats of material per vertex: albedo, roughness; shading normal, visibility.
-pub const MAT_FLOATS: usize = 8;
+/// Floats of material per vertex: albedo, roughness; shading normal, front visibility; back
+/// visibility, 0, 0, 0.
+pub const MAT_FLOATS: usize = 12;
 /// Gaussian vertices per surfel the viewer supports (SPEC 3's default).
 pub const VERTICES: usize = 4;
 
@@ -53,15 +54,33 @@ pub struct ViewModel {
     pub degree: u32,
     /// Transfer channels: 1 (visibility only, grey) or 3 (with the coloured one-bounce term).
     pub channels: usize,
+    /// Transfer for both sides (the back side's follows the front's: `n x VERTICES` vertices
+    /// each); a surfel seen from behind is shaded with its back side and negated normals.
+    pub two_sided: bool,
+    /// Diffuse weighted by `1 - (F0 A + B)` (svgir's layered diffuse, `--diffuse layered`).
+    pub layered: bool,
     /// `n x GEOM_FLOATS`.
     pub geom: Vec<f32>,
     /// `n x VERTICES x MAT_FLOATS`.
     pub mats: Vec<f32>,
-    /// `n x VERTICES x channels x coeffs()` transfer coefficients (channel-major per vertex).
+    /// `sides x n x VERTICES x channels x coeffs()` transfer coefficients (channel-major per
+    /// vertex).
     pub transfer: Vec<f32>,
 }
 
+/// How the transfer is built.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Options {
+    /// SH degree (1..=3).
+    pub degree: u32,
+    /// Add the diffuse one-bounce term (3 channels).
+    pub bounce: bool,
+    /// The model's diffuse is layered under the specular (`Diffuse::Layered`).
+    pub layered: bool,
+}
+
 /// Per-vertex activated materials (SPEC 3), as `svgir_pbr::ActivatedMaterials` lays them out.
+#[derive(Clone, Copy)]
 pub struct VertexData<'a> {
     /// RGB per vertex.
     pub albedo: &'a [f32],
@@ -77,7 +96,12 @@ impl ViewModel {
         num_coeffs(self.degree)
     }
 
-    /// Transfer values per vertex (`channels x coeffs()`).
+    /// 1, or 2 for a two-sided model.
+    pub fn sides(&self) -> usize {
+        1 + usize::from(self.two_sided)
+    }
+
+    /// Transfer values per vertex and side (`channels x coeffs()`).
     pub fn per_vertex(&self) -> usize {
         self.channels * self.coeffs()
     }
@@ -85,25 +109,27 @@ impl ViewModel {
     /// Bytes per surfel of the arrays the page uploads (float32 textures; the page file holds
     /// materials and transfer as f16, [`ViewModel::file_bytes_per_surfel`]).
     pub fn bytes_per_surfel(&self) -> usize {
-        4 * (GEOM_FLOATS + VERTICES * (MAT_FLOATS + self.per_vertex()))
+        4 * (GEOM_FLOATS + VERTICES * (MAT_FLOATS + self.sides() * self.per_vertex()))
     }
 
     /// Bytes per surfel in the page file (before base64): geometry f32, the rest f16.
     pub fn file_bytes_per_surfel(&self) -> usize {
-        4 * GEOM_FLOATS + 2 * VERTICES * (MAT_FLOATS + self.per_vertex())
+        4 * GEOM_FLOATS + 2 * VERTICES * (MAT_FLOATS + self.sides() * self.per_vertex())
     }
 
     /// Builds the model from surfels, their vertex materials and micro-buffers traced over the
-    /// surfels' normals (`mb.len() == surfels.len()`); `bounce` adds the one-bounce term.
+    /// surfels' normals (`front.len() == surfels.len()`), and for a model shaded two-sided
+    /// (svgir's measured profile) micro-buffers over the negated normals (`back`).
     pub fn build(
         surfels: &svgir_core::Surfels,
         mats: &VertexData,
         m: usize,
-        mb: &MicroBuffer,
-        degree: u32,
-        bounce: bool,
+        front: &MicroBuffer,
+        back: Option<&MicroBuffer>,
+        opts: Options,
     ) -> Result<Self, ViewError> {
         let n = surfels.len();
+        let Options { degree, bounce, layered } = opts;
         if m != VERTICES {
             return Err(ViewError::Vertices(m));
         }
@@ -113,14 +139,15 @@ impl ViewModel {
         if n == 0 {
             return Err(ViewError::Empty);
         }
-        if mb.len() != n
+        if front.len() != n
+            || back.is_some_and(|b| b.len() != n)
             || mats.albedo.len() != n * m * 3
             || mats.roughness.len() != n * m
             || mats.normals.len() != n * m * 3
         {
             return Err(ViewError::Inconsistent(format!(
                 "{n} surfels but {} micro-buffers and {} vertex albedos",
-                mb.len(),
+                front.len(),
                 mats.albedo.len() / 3
             )));
         }
@@ -149,52 +176,95 @@ impl ViewModel {
             ]);
         }
         let c = num_coeffs(degree);
-        let mut transfer = vec![0.0f32; n * m * c];
-        transfer.par_chunks_mut(m * c).enumerate().for_each(|(i, t)| {
-            let mut acc = vec![0.0f64; m * c];
-            let mut b = [0.0f32; 16];
-            for k in 0..mb.k {
-                let v = mb.visibility(i, k);
-                if v <= 0.0 {
-                    continue;
-                }
-                let d = mb.direction(i, k);
-                basis(degree, d, &mut b);
-                for vtx in 0..m {
-                    let nm = vec3(mats.normals, i * m + vtx);
-                    let cos = nm.dot(d).max(0.0);
-                    for j in 0..c {
-                        acc[vtx * c + j] += (v * cos * b[j]) as f64;
-                    }
-                }
-            }
-            let w = std::f64::consts::TAU / mb.k as f64;
-            for (o, a) in t.iter_mut().zip(&acc) {
-                *o = (a * w) as f32;
-            }
-        });
-        let mut transfer = if bounce { with_bounce(&transfer, mats, m, c, mb) } else { transfer };
+        let flipped: Vec<f32> = mats.normals.iter().map(|x| -x).collect();
+        let back_mats = VertexData { normals: &flipped, ..*mats };
+        let sides: Vec<(&MicroBuffer, &VertexData)> =
+            std::iter::once((front, mats)).chain(back.map(|b| (b, &back_mats))).collect();
+        let direct: Vec<Vec<f32>> = sides.iter().map(|(mb, md)| direct_transfer(mb, md, m, degree)).collect();
         let channels = if bounce { 3 } else { 1 };
+        let mut transfer = Vec::with_capacity(sides.len() * n * m * channels * c);
+        for ((mb, md), d) in sides.iter().zip(&direct) {
+            // The bounce reads the hit Gaussians' front-side transfer (the side a ray meets is
+            // not tracked here).
+            if bounce {
+                transfer.extend(with_bounce(d, &direct[0], md, mats, m, c, mb));
+            } else {
+                transfer.extend_from_slice(d);
+            }
+        }
         let mut mat = vec![0.0f32; n * m * MAT_FLOATS];
+        // Unoccluded transfer DC is pi * Y_00 (the cosine lobe): the ratio is the cosine-weighted
+        // visibility, the page's "visibility" view and its specular occlusion.
+        let vis = |side: usize, q: usize| (direct[side][q * c] / (std::f32::consts::PI * SH_C0)).clamp(0.0, 1.0);
         for (q, o) in mat.chunks_exact_mut(MAT_FLOATS).enumerate() {
             let a = &mats.albedo[3 * q..3 * q + 3];
             let nm = vec3(mats.normals, q);
-            // Unoccluded transfer DC is pi * Y_00 (the cosine lobe): the ratio is the cosine-
-            // weighted visibility, the page's "visibility" view and its specular occlusion.
-            let vis = (transfer[q * c * channels] / (std::f32::consts::PI * SH_C0)).clamp(0.0, 1.0);
-            o.copy_from_slice(&[a[0], a[1], a[2], mats.roughness[q], nm.x, nm.y, nm.z, vis]);
+            let back_vis = if direct.len() > 1 { vis(1, q) } else { 0.0 };
+            o.copy_from_slice(&[
+                a[0],
+                a[1],
+                a[2],
+                mats.roughness[q],
+                nm.x,
+                nm.y,
+                nm.z,
+                vis(0, q),
+                back_vis,
+                0.0,
+                0.0,
+                0.0,
+            ]);
         }
         // The page stores materials and transfer as IEEE half floats (half the page size); the
         // model holds the same rounded values so the oracle shades what the page shades.
         for v in mat.iter_mut().chain(transfer.iter_mut()) {
             *v = f16_to_f32(f16_from_f32(*v));
         }
-        Ok(Self { n, degree, channels, geom, mats: mat, transfer })
+        Ok(Self { n, degree, channels, two_sided: back.is_some(), layered, geom, mats: mat, transfer })
     }
 }
 
-/// Direct transfer (`n x m x c`) plus the diffuse one-bounce term, per channel (`n x m x 3 x c`).
-fn with_bounce(direct: &[f32], mats: &VertexData, m: usize, c: usize, mb: &MicroBuffer) -> Vec<f32> {
+/// `T_{m,j}` of every vertex (`n x m x c`) over `mb`'s directions.
+fn direct_transfer(mb: &MicroBuffer, mats: &VertexData, m: usize, degree: u32) -> Vec<f32> {
+    let c = num_coeffs(degree);
+    let mut transfer = vec![0.0f32; mb.len() * m * c];
+    transfer.par_chunks_mut(m * c).enumerate().for_each(|(i, t)| {
+        let mut acc = vec![0.0f64; m * c];
+        let mut b = [0.0f32; 16];
+        for k in 0..mb.k {
+            let v = mb.visibility(i, k);
+            if v <= 0.0 {
+                continue;
+            }
+            let d = mb.direction(i, k);
+            basis(degree, d, &mut b);
+            for vtx in 0..m {
+                let nm = vec3(mats.normals, i * m + vtx);
+                let cos = nm.dot(d).max(0.0);
+                for j in 0..c {
+                    acc[vtx * c + j] += (v * cos * b[j]) as f64;
+                }
+            }
+        }
+        let w = std::f64::consts::TAU / mb.k as f64;
+        for (o, a) in t.iter_mut().zip(&acc) {
+            *o = (a * w) as f32;
+        }
+    });
+    transfer
+}
+
+/// Direct transfer (`n x m x c`) plus the diffuse one-bounce term, per channel (`n x m x 3 x c`);
+/// `hits` and `hit_mats` give the hit Gaussians' transfer and albedo.
+fn with_bounce(
+    direct: &[f32],
+    hits: &[f32],
+    mats: &VertexData,
+    hit_mats: &VertexData,
+    m: usize,
+    c: usize,
+    mb: &MicroBuffer,
+) -> Vec<f32> {
     let n = mb.len();
     let mut out = vec![0.0f32; n * m * 3 * c];
     out.par_chunks_mut(m * 3 * c).enumerate().for_each(|(i, t)| {
@@ -210,10 +280,10 @@ fn with_bounce(direct: &[f32], mats: &VertexData, m: usize, c: usize, mb: &Micro
             for (vm, wm) in w.iter().enumerate().take(m) {
                 let q = h * m + vm;
                 for ch in 0..3 {
-                    a[ch] += wm * mats.albedo[3 * q + ch];
+                    a[ch] += wm * hit_mats.albedo[3 * q + ch];
                 }
                 for j in 0..c {
-                    th[j] += wm * direct[q * c + j];
+                    th[j] += wm * hits[q * c + j];
                 }
             }
             let d = mb.direction(i, k);
@@ -254,6 +324,10 @@ mod tests {
     use svgir_core::{ShCoeffs, Surfels};
     use svgir_trace::{Bvh, TraceParams};
 
+    fn opts(degree: u32, bounce: bool) -> Options {
+        Options { degree, bounce, layered: false }
+    }
+
     /// Two facing disks: each half-occludes the other's hemisphere.
     fn pair() -> (Surfels, MicroBuffer) {
         let mut s = Surfels::with_capacity(3, 0);
@@ -289,7 +363,7 @@ mod tests {
         let albedo = vec![0.5; n * VERTICES * 3];
         let rough = vec![0.5; n * VERTICES];
         let data = VertexData { albedo: &albedo, roughness: &rough, normals: &normals };
-        let model = ViewModel::build(&s, &data, VERTICES, &mb, 2, false).unwrap();
+        let model = ViewModel::build(&s, &data, VERTICES, &mb, None, opts(2, false)).unwrap();
         // A constant light L has SH (L * 4 pi Y_00, 0, ...): irradiance L * T_0 * 4 pi Y_00 must
         // equal the obvious sum 2 pi / K sum_k V_k max(0, n_m . w_k) L.
         let mut occluded = false;
@@ -307,7 +381,7 @@ mod tests {
             }
         }
         assert!(occluded, "the facing disks shadow each other");
-        assert_eq!(model.bytes_per_surfel(), 4 * (16 + 4 * (8 + 9)));
+        assert_eq!(model.bytes_per_surfel(), 4 * (16 + 4 * (12 + 9)));
     }
 
     #[test]
@@ -318,8 +392,8 @@ mod tests {
         let albedo: Vec<f32> = (0..n * VERTICES).flat_map(|_| [0.8, 0.4, 0.0]).collect();
         let rough = vec![0.5; n * VERTICES];
         let data = VertexData { albedo: &albedo, roughness: &rough, normals: &normals };
-        let direct = ViewModel::build(&s, &data, VERTICES, &mb, 2, false).unwrap();
-        let bounce = ViewModel::build(&s, &data, VERTICES, &mb, 2, true).unwrap();
+        let direct = ViewModel::build(&s, &data, VERTICES, &mb, None, opts(2, false)).unwrap();
+        let bounce = ViewModel::build(&s, &data, VERTICES, &mb, None, opts(2, true)).unwrap();
         assert_eq!((bounce.channels, bounce.per_vertex()), (3, 27));
         let mut lit = 0;
         for q in 0..n * VERTICES {
@@ -341,10 +415,10 @@ mod tests {
         let (s, mb) = pair();
         let v = vec![0.5; s.len() * 6 * 3];
         let data = VertexData { albedo: &v, roughness: &v[..s.len() * 6], normals: &v };
-        assert!(matches!(ViewModel::build(&s, &data, 6, &mb, 2, false), Err(ViewError::Vertices(6))));
+        assert!(matches!(ViewModel::build(&s, &data, 6, &mb, None, opts(2, false)), Err(ViewError::Vertices(6))));
         let v4 = vec![0.5; s.len() * 4 * 3];
         let data = VertexData { albedo: &v4, roughness: &v4[..s.len() * 4], normals: &v4 };
-        assert!(matches!(ViewModel::build(&s, &data, 4, &mb, 4, false), Err(ViewError::Degree(4))));
-        assert!(ViewModel::build(&s, &data, 4, &mb, 2, false).is_ok());
+        assert!(matches!(ViewModel::build(&s, &data, 4, &mb, None, opts(4, false)), Err(ViewError::Degree(4))));
+        assert!(ViewModel::build(&s, &data, 4, &mb, None, opts(2, false)).is_ok());
     }
 }

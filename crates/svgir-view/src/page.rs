@@ -63,6 +63,8 @@ pub fn page(model: &ViewModel, lights: &[PageLight], camera: &Orbit, title: &str
         "degree": model.degree,
         "coeffs": model.coeffs(),
         "channels": model.channels,
+        "twoSided": model.two_sided,
+        "layered": model.layered,
         "vertices": VERTICES,
         "geomFloats": GEOM_FLOATS,
         "matFloats": MAT_FLOATS,

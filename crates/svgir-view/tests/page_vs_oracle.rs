@@ -10,7 +10,7 @@ use std::process::Command;
 use svgir_core::{EnvMap, Rng, ShCoeffs, Surfels};
 use svgir_trace::{Bvh, MicroBuffer, TraceParams};
 use svgir_view::light::{prefilter, project_sh};
-use svgir_view::{Light, Orbit, PageLight, VertexData, ViewMode, ViewModel};
+use svgir_view::{Light, Options, Orbit, PageLight, VertexData, ViewMode, ViewModel};
 
 fn repo() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../..")
@@ -106,8 +106,14 @@ fn fixture(name: &str, bounce: bool) -> Fixture {
     let (s, albedo, rough, normals) = scene(7);
     let bvh = Bvh::build(&s);
     let mb = MicroBuffer::trace(&bvh, &s, 64, 3, &TraceParams::default()).unwrap();
+    // The one-bounce fixture is also two-sided with the layered diffuse (every page path).
+    let back = bounce.then(|| {
+        let axes = (0..s.len()).map(|i| -s.normal(i)).collect();
+        MicroBuffer::trace_about(&bvh, &s, axes, 64, 3, &TraceParams::default()).unwrap()
+    });
     let data = VertexData { albedo: &albedo, roughness: &rough, normals: &normals };
-    let model = ViewModel::build(&s, &data, 4, &mb, 3, bounce).unwrap();
+    let model =
+        ViewModel::build(&s, &data, 4, &mb, back.as_ref(), Options { degree: 3, bounce, layered: bounce }).unwrap();
     let env = sky();
     let orbit = Orbit { target: [0.0, 0.0, -0.1], yaw: 0.6, pitch: 0.4, dist: 3.2, fov_y: 40f64.to_radians() };
     let lights = [PageLight { name: "sky".into(), env: env.clone(), strength: 1.0 }];
@@ -149,6 +155,8 @@ fn page_frames_match_the_oracle() {
         (40.0, 25.0, 3.2, 0.0, 1.0, ViewMode::Rgb),
         (-100.0, 50.0, 2.6, 130.0, 0.6, ViewMode::Rgb),
         (10.0, 15.0, 3.0, 0.0, 1.0, ViewMode::Normal),
+        // From below the ground: its surfels are seen from their back sides.
+        (200.0, -25.0, 3.0, 60.0, 1.0, ViewMode::Rgb),
     ];
     for (k, &(yaw, pitch, dist, rot, strength, mode)) in cases.iter().enumerate() {
         let shot = f.dir.join(format!("shot_{k}.png"));

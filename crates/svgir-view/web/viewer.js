@@ -56,6 +56,7 @@
   }
   $('title').textContent = meta.title || 'svgir viewer';
   const N = meta.n, C = meta.coeffs, DEG = meta.degree, M = meta.vertices, CH = meta.channels || 1;
+  const SIDES = meta.twoSided ? 2 : 1;
   const geom = new Float32Array(buf, meta.offsets.geom, N * 16);
 
   // ---- state (URL hash overrides: yaw, pitch, dist in degrees/units; light, rot, strength,
@@ -284,7 +285,7 @@
 precision highp float; precision highp int; precision highp sampler2D;
 uniform sampler2D uGeom, uMat, uTr, uEnv; uniform highp usampler2D uOrder;
 uniform mat3 uR; uniform vec3 uT; uniform vec4 uK; uniform vec2 uSize; uniform vec3 uEye;
-uniform vec3 uSH[16]; uniform int uCP4; uniform int uChannels; uniform int uMode; uniform float uAngle, uStrength; uniform ivec2 uEnvSize;
+uniform vec3 uSH[16]; uniform int uCP4; uniform int uChannels; uniform int uN; uniform int uTwoSided; uniform int uLayered; uniform int uMode; uniform float uAngle, uStrength; uniform ivec2 uEnvSize;
 flat out vec3 vPc, vTu, vTv, vNc, vC0, vC1, vC2, vC3; flat out vec3 vS; flat out vec2 vCentre;
 const float PI = 3.14159265358979;
 vec4 fetch(sampler2D t, int i) { return texelFetch(t, ivec2(i % ${TEXW}, i / ${TEXW}), 0); }
@@ -316,9 +317,11 @@ vec2 envBrdf(float rough, float nv) {
   float a004 = min(r.x * r.x, exp2(-9.28 * nv)) * r.x + r.y;
   return vec2(-1.04 * a004 + r.z, 1.04 * a004 + r.w);
 }
-vec3 shadeVertex(int q, vec3 v) {
-  vec4 m0 = fetch(uMat, 2 * q), m1 = fetch(uMat, 2 * q + 1);
-  vec3 albedo = m0.rgb; float rough = m0.a; vec3 n = m1.xyz; float vis = m1.w;
+vec3 shadeVertex(int q, vec3 v, bool back) {
+  vec4 m0 = fetch(uMat, 3 * q), m1 = fetch(uMat, 3 * q + 1), m2 = fetch(uMat, 3 * q + 2);
+  vec3 albedo = m0.rgb; float rough = m0.a;
+  vec3 n = back ? -m1.xyz : m1.xyz; float vis = back ? m2.x : m1.w;
+  int tq = back ? uN * 4 + q : q;
   if (uMode == 1) return albedo;
   if (uMode == 2) return vec3(rough);
   if (uMode == 3) return 0.5 + 0.5 * n;
@@ -327,14 +330,14 @@ vec3 shadeVertex(int q, vec3 v) {
   if (uChannels == 1) {
     for (int k = 0; k < 4; k++) {
       if (k >= uCP4) break;
-      vec4 t = fetch(uTr, q * uCP4 + k);
+      vec4 t = fetch(uTr, tq * uCP4 + k);
       irr += uSH[4 * k] * t.x + uSH[4 * k + 1] * t.y + uSH[4 * k + 2] * t.z + uSH[4 * k + 3] * t.w;
     }
   } else {
     // One transfer vector per colour channel (the one-bounce term is coloured).
     for (int k = 0; k < 4; k++) {
       if (k >= uCP4) break;
-      vec4 tr = fetch(uTr, (3 * q) * uCP4 + k), tg = fetch(uTr, (3 * q + 1) * uCP4 + k), tb = fetch(uTr, (3 * q + 2) * uCP4 + k);
+      vec4 tr = fetch(uTr, (3 * tq) * uCP4 + k), tg = fetch(uTr, (3 * tq + 1) * uCP4 + k), tb = fetch(uTr, (3 * tq + 2) * uCP4 + k);
       vec3 a = uSH[4 * k], b = uSH[4 * k + 1], c = uSH[4 * k + 2], d = uSH[4 * k + 3];
       irr += vec3(a.r * tr.x + b.r * tr.y + c.r * tr.z + d.r * tr.w,
                   a.g * tg.x + b.g * tg.y + c.g * tg.z + d.g * tg.w,
@@ -346,8 +349,10 @@ vec3 shadeVertex(int q, vec3 v) {
   vec3 r = 2.0 * nvRaw * n - v;
   vec3 pre = prefiltered(r, rough);
   vec2 ab = envBrdf(rough, nv);
-  float spec = (0.04 * ab.x + ab.y) * vis * uStrength;
-  return albedo / PI * max(irr, vec3(0.0)) + pre * spec;
+  float e = 0.04 * ab.x + ab.y;
+  float kd = uLayered == 1 ? 1.0 - e : 1.0;
+  float spec = e * vis * uStrength;
+  return kd * albedo / PI * max(irr, vec3(0.0)) + pre * spec;
 }
 void main() {
   // Vertex 4 s + c is corner c of the splat in sorted slot s; the order texture maps slots to
@@ -390,9 +395,10 @@ void main() {
   // Flat outputs come from each triangle's provoking (last) vertex: both triangles of a splat
   // end with corner 3, so only it shades.
   if (cornerId != 3) { vC0 = vC1 = vC2 = vC3 = vec3(0.0); return; }
+  bool back = uTwoSided == 1 && dot(g3.xyz, uEye - g0.xyz) < 0.0;
   vec3 view = normalize(uEye - g0.xyz);
-  vC0 = shadeVertex(4 * i, view); vC1 = shadeVertex(4 * i + 1, view);
-  vC2 = shadeVertex(4 * i + 2, view); vC3 = shadeVertex(4 * i + 3, view);
+  vC0 = shadeVertex(4 * i, view, back); vC1 = shadeVertex(4 * i + 1, view, back);
+  vC2 = shadeVertex(4 * i + 2, view, back); vC3 = shadeVertex(4 * i + 3, view, back);
 }`;
   const FS = `#version 300 es
 precision highp float;
@@ -472,13 +478,14 @@ void main() {
     splat = program(VS, FS);
     full = program(VS_FULL, FS_FULL);
     texGeom = floatTexture(geom, N * 4, TEXW);
-    texMat = floatTexture(halves(meta.offsets.mats, N * M * 8), N * M * 2, TEXW);
+    texMat = floatTexture(halves(meta.offsets.mats, N * M * 12), N * M * 3, TEXW);
     // Transfer: C coefficients per vertex, padded to a multiple of 4 (one texel per 4).
     // With the one-bounce term, CH = 3 such vectors per vertex, channel-major.
-    const t16 = halves(meta.offsets.transfer, N * M * CH * C);
-    const tr = new Float32Array(N * M * CH * CP4 * 4);
-    for (let q = 0; q < N * M * CH; q++) for (let j = 0; j < C; j++) tr[q * CP4 * 4 + j] = t16[q * C + j];
-    texTr = floatTexture(tr, N * M * CH * CP4, TEXW);
+    // A two-sided model's back-side vectors follow the front's.
+    const t16 = halves(meta.offsets.transfer, SIDES * N * M * CH * C);
+    const tr = new Float32Array(SIDES * N * M * CH * CP4 * 4);
+    for (let q = 0; q < SIDES * N * M * CH; q++) for (let j = 0; j < C; j++) tr[q * CP4 * 4 + j] = t16[q * C + j];
+    texTr = floatTexture(tr, SIDES * N * M * CH * CP4, TEXW);
     // Two triangles per splat, (0, 1, 3) and (0, 2, 3): corner 3 provokes both.
     vao = gl.createVertexArray();
     gl.bindVertexArray(vao);
@@ -623,6 +630,9 @@ void main() {
     gl.uniform3fv(u.uSH, lightSH());
     gl.uniform1i(u.uCP4, CP4);
     gl.uniform1i(u.uChannels, CH);
+    gl.uniform1i(u.uN, N);
+    gl.uniform1i(u.uTwoSided, SIDES === 2 ? 1 : 0);
+    gl.uniform1i(u.uLayered, meta.layered ? 1 : 0);
     gl.uniform1i(u.uMode, state.mode);
     gl.uniform1f(u.uAngle, state.rot * Math.PI / 180);
     gl.uniform1f(u.uStrength, strength());

@@ -152,6 +152,17 @@ pub fn run(args: ViewArgs) -> Result<()> {
     let lights = if args.table { svgir_train::relight::RELIGHT_LIGHTS } else { 0 };
     let sampling = RelightSampling { directions: args.directions, lights, bounces: 0 };
     let relighter = Relighter::new(s2, sampling)?;
+    // A model trained two-sided shades each side with its own hemisphere (as Relighter does).
+    let back = match &s2.back {
+        Some(b) if b.mb.k == args.directions => Some(b.mb.clone()),
+        Some(_) => {
+            let bvh = svgir_trace::Bvh::build(&s2.surfels);
+            let axes = relighter.mb.normals.iter().map(|n| -*n).collect();
+            let p = s2.config.trace_params();
+            Some(svgir_trace::MicroBuffer::trace_about(&bvh, &s2.surfels, axes, args.directions, s2.config.seed, &p)?)
+        }
+        None => None,
+    };
     eprintln!(
         "view: traced K = {} directions for {} Gaussians in {:.1} s",
         args.directions,
@@ -159,21 +170,23 @@ pub fn run(args: ViewArgs) -> Result<()> {
         t0.elapsed().as_secs_f64()
     );
     if args.table {
-        return table(&loaded, &relighter);
+        return table(&loaded, &relighter, back.as_ref());
     }
-    let model = svgir_view::model_from_stage2(s2, &relighter.mb, args.degree, args.bounce)?;
+    let model = svgir_view::model_from_stage2(s2, &relighter.mb, back.as_ref(), args.degree, args.bounce)?;
     let orbit = initial_orbit(s2, loaded.data.as_deref());
     let title = format!("svgir viewer: {}", args.run.display());
     let html = svgir_view::page(&model, &loaded.lights, &orbit, &title);
     let out = args.out.clone().unwrap_or_else(|| args.run.join("viewer.html"));
     svgir_io::error::write_atomic(&out, html.as_bytes())?;
     println!(
-        "wrote {} ({:.1} MB): {} surfels x {} bytes (SH degree {}), {} lights",
+        "wrote {} ({:.1} MB): {} surfels x {} bytes (SH degree {}{}{}), {} lights",
         out.display(),
         html.len() as f64 / 1e6,
         model.n,
         model.bytes_per_surfel(),
         args.degree,
+        if model.two_sided { ", two-sided" } else { "" },
+        if model.channels == 3 { ", one bounce" } else { "" },
         loaded.lights.len()
     );
     if let Some(png) = &args.oracle {
@@ -245,7 +258,7 @@ fn write_png(path: &Path, f: &svgir_view::Frame) -> Result<()> {
 /// PSNR over the test views (both 8-bit, over black); and both against the dataset's relit
 /// photos where it has them (over black with each image's own coverage, not SPEC 8's masked
 /// protocol).
-fn table(loaded: &Loaded, relighter: &Relighter) -> Result<()> {
+fn table(loaded: &Loaded, relighter: &Relighter, back: Option<&svgir_trace::MicroBuffer>) -> Result<()> {
     let s2 = &loaded.s2;
     let data =
         loaded.data.as_deref().context("the run's stage2/config.json names no dataset (needed for its test views)")?;
@@ -255,7 +268,7 @@ fn table(loaded: &Loaded, relighter: &Relighter) -> Result<()> {
     }
     let models: Vec<ViewModel> = [(1, false), (2, false), (3, false), (3, true)]
         .into_iter()
-        .map(|(d, b)| svgir_view::model_from_stage2(s2, &relighter.mb, d, b))
+        .map(|(d, b)| svgir_view::model_from_stage2(s2, &relighter.mb, back, d, b))
         .collect::<Result<_, _>>()?;
     println!(
         "| light | SPEC 7 gather s | PRT vs SPEC 7, degree 1 (4) dB | degree 2 (9) dB | degree 3 (16) dB | degree 3 + bounce dB | SPEC 7 vs photos dB | PRT degree 3 vs photos dB | degree 3 + bounce vs photos dB |"
