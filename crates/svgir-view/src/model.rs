@@ -9,8 +9,8 @@
 //!
 //! Optionally (`bounce`) the transfer also carries a diffuse one-bounce term, per colour channel:
 //! a direction k that hits Gaussian h at (u~, v~) receives h's diffuse radiance
-//! `a_h(u~, v~) / pi * sum_j L_j T_{h,j}(u~, v~)` (h's own direct transfer and albedo, bilinear
-//! in its vertices), so `T_{m,j,c} += 2 pi / K sum_k [hit] max(0, n_m . w_k) a_{h,c} / pi T_{h,j}`.
+//! `a_h(u~, v~) / pi * sum_j L_j E_{h,j}(u~, v~)` (h's albedo and its transfer over the directions
+//! that escape, as Eqn 13 gathers, bilinear so `T_{m,j,c} += 2 pi / K sum_k [hit] max(0, n_m . w_k) a_{h,c} / pi E_{h,j}`.
 //! It is SPEC 7's Eqn 13 with the hit's BRDF reduced to its diffuse lobe and the light to its
 //! SH projection.
 //!
@@ -180,14 +180,16 @@ impl ViewModel {
         let back_mats = VertexData { normals: &flipped, ..*mats };
         let sides: Vec<(&MicroBuffer, &VertexData)> =
             std::iter::once((front, mats)).chain(back.map(|b| (b, &back_mats))).collect();
-        let direct: Vec<Vec<f32>> = sides.iter().map(|(mb, md)| direct_transfer(mb, md, m, degree)).collect();
+        let direct: Vec<Vec<f32>> = sides.iter().map(|(mb, md)| direct_transfer(mb, md, m, degree, false)).collect();
+        // What a hit Gaussian reflects: Eqn 13 gathers only its escaping directions.
+        let escape = if bounce { direct_transfer(front, mats, m, degree, true) } else { Vec::new() };
         let channels = if bounce { 3 } else { 1 };
         let mut transfer = Vec::with_capacity(sides.len() * n * m * channels * c);
         for ((mb, md), d) in sides.iter().zip(&direct) {
             // The bounce reads the hit Gaussians' front-side transfer (the side a ray meets is
             // not tracked here).
             if bounce {
-                transfer.extend(with_bounce(d, &direct[0], md, mats, m, c, mb));
+                transfer.extend(with_bounce(d, &escape, md, mats, m, c, mb));
             } else {
                 transfer.extend_from_slice(d);
             }
@@ -224,15 +226,16 @@ impl ViewModel {
     }
 }
 
-/// `T_{m,j}` of every vertex (`n x m x c`) over `mb`'s directions.
-fn direct_transfer(mb: &MicroBuffer, mats: &VertexData, m: usize, degree: u32) -> Vec<f32> {
+/// `T_{m,j}` of every vertex (`n x m x c`) over `mb`'s directions, weighted by the traced
+/// visibility, or with `escape_only` by "the ray hit nothing" (Eqn 13's `[I_h^s = -1]`).
+pub fn direct_transfer(mb: &MicroBuffer, mats: &VertexData, m: usize, degree: u32, escape_only: bool) -> Vec<f32> {
     let c = num_coeffs(degree);
     let mut transfer = vec![0.0f32; mb.len() * m * c];
     transfer.par_chunks_mut(m * c).enumerate().for_each(|(i, t)| {
         let mut acc = vec![0.0f64; m * c];
         let mut b = [0.0f32; 16];
         for k in 0..mb.k {
-            let v = mb.visibility(i, k);
+            let v = if escape_only { f32::from(mb.hit(i, k).is_none()) } else { mb.visibility(i, k) };
             if v <= 0.0 {
                 continue;
             }
