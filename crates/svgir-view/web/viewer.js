@@ -462,6 +462,8 @@ void main() {
   function floatTexture(data, texels, width) {
     width = width || Math.min(TEXW, texels);
     const height = Math.ceil(texels / width);
+    const max = gl.getParameter(gl.MAX_TEXTURE_SIZE);
+    if (height > max) throw new Error('the model needs a ' + width + 'x' + height + ' texture and this GPU allows ' + max + ' (write the page with fewer surfels, a lower --degree or without --bounce)');
     const padded = new Float32Array(width * height * 4);
     padded.set(data.subarray(0, Math.min(data.length, padded.length)));
     const t = gl.createTexture();
