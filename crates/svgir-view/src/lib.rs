@@ -8,7 +8,7 @@
 //!   the split-sum BRDF fit.
 //! - [`shade`]: the per-vertex colour, diffuse from PRT plus prefiltered specular.
 //! - [`oracle`]: sort, ray-splat intersection, blending and display as the page does them.
-//! - [`mod@page`]: the self-contained HTML file (`web/viewer.html`, `web/viewer.js`).
+//! - [`mod@page`]: the self-contained HTML file (`web/viewer.html`, `light.js`, `hdr.js`, `viewer.js`).
 //!
 //! The maths here do no I/O: `svgir view` reads the run and writes the page.
 

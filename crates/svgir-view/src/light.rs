@@ -1,4 +1,4 @@
-//! The light as the viewer sees it (the page's `viewer.js` implements the same functions):
+//! The light as the viewer sees it (the page's `web/light.js` implements the same functions):
 //! SH coefficients of a rotated environment map, a chain of GGX-prefiltered copies of the map
 //! for the specular term, the hand-written bilinear-plus-level lookup into it, and the analytic
 //! split-sum factor of the specular BRDF.

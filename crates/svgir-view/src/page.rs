@@ -1,4 +1,5 @@
-//! The self-contained HTML page: `web/viewer.html` with `web/viewer.js` inlined, a JSON header
+//! The self-contained HTML page: `web/viewer.html` with `web/light.js`, `web/hdr.js` and
+//! `web/viewer.js` inlined, a JSON header
 //! and the model and light maps as one base64 block (geometry and maps little-endian f32,
 //! materials and transfer IEEE f16; the page decodes all into float32 textures). Base64 is written by hand here (a dozen lines) rather than adding a
 //! dependency for it.
@@ -9,7 +10,9 @@ use svgir_core::EnvMap;
 use svgir_trace::pack::f16_from_f32;
 
 const HTML: &str = include_str!("../web/viewer.html");
-const SCRIPT: &str = include_str!("../web/viewer.js");
+/// The page's script: the light's maths, the `.hdr` reader, then the viewer that uses both.
+const SCRIPTS: [&str; 3] =
+    [include_str!("../web/light.js"), include_str!("../web/hdr.js"), include_str!("../web/viewer.js")];
 
 /// A light shipped inside the page: a map at the model's light resolution and its strength.
 pub struct PageLight {
@@ -82,7 +85,7 @@ pub fn page(model: &ViewModel, lights: &[PageLight], camera: &Orbit, title: &str
     HTML.replace("__SVGIR_TITLE__", &html_escape(title))
         .replace("__SVGIR_META__", &meta)
         .replace("__SVGIR_DATA__", &base64(&bytes))
-        .replace("__SVGIR_SCRIPT__", SCRIPT)
+        .replace("__SVGIR_SCRIPT__", &SCRIPTS.join("\n"))
 }
 
 fn html_escape(s: &str) -> String {

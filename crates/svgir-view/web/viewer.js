@@ -3,11 +3,10 @@
 // line; a change here needs the same change there (the screenshot test compares the two).
 'use strict';
 (function () {
-  const LEVELS = 6, LEVEL_R0 = 0.09, LEVEL_STEP = 0.18, NEAR = 0.2, TEXW = 2048;
+  const { LEVELS, LEVEL_R0, LEVEL_STEP, projectSH: projectLight, prefilter } = SvgirLight;
+  const { parseHdr, fromEquirect } = SvgirHdr;
+  const NEAR = 0.2, TEXW = 2048;
   const MODES = ['rgb', 'albedo', 'roughness', 'normal', 'visibility'];
-  const SH_C0 = 0.2820948, SH_C1 = 0.48860252;
-  const SH_C2 = [1.0925485, -1.0925485, 0.31539157, -1.0925485, 0.54627424];
-  const SH_C3 = [-0.5900436, 2.8906114, -0.4570458, 0.37317634, -0.4570458, 1.4453057, -0.5900436];
   const $ = (id) => document.getElementById(id);
   const msgEl = $('msg');
   window.READY = false;
@@ -93,182 +92,6 @@
     data: new Float32Array(buf, l.offset, l.width * l.height * 3), chain: null,
   }));
   const LIGHT_H = lights[0].height, LIGHT_W = lights[0].width;
-
-  function texelDir(w, h, row, col) {
-    const gx = -1 + 2 * col / Math.max(w - 1, 1), gy = -1 + 2 * row / Math.max(h - 1, 1);
-    const theta = -gx * Math.PI, phi = 0.5 * Math.PI * (gy + 1);
-    return [Math.sin(phi) * Math.cos(theta), Math.sin(phi) * Math.sin(theta), Math.cos(phi)];
-  }
-  function texelSolidAngle(w, h, row, col) {
-    w = Math.max(w, 2); const hh = Math.max(h, 2);
-    const dphi = Math.PI / (hh - 1);
-    const rows = (row === 0 || row + 1 >= h) ? 1 - Math.sin(dphi) / dphi : Math.sin(row * dphi) * 2 * (1 - Math.cos(dphi)) / dphi;
-    const dtheta = 2 * Math.PI / (w - 1);
-    const cols = (col === 0 || col + 1 >= w) ? 0.5 * dtheta : dtheta;
-    return rows * cols;
-  }
-  function shBasis(d, out) {
-    const x = d[0], y = d[1], z = d[2];
-    out[0] = SH_C0;
-    if (DEG < 1) return;
-    out[1] = -SH_C1 * y; out[2] = SH_C1 * z; out[3] = -SH_C1 * x;
-    if (DEG < 2) return;
-    const xx = x * x, yy = y * y, zz = z * z, xy = x * y, yz = y * z, xz = x * z;
-    out[4] = SH_C2[0] * xy; out[5] = SH_C2[1] * yz; out[6] = SH_C2[2] * (2 * zz - xx - yy);
-    out[7] = SH_C2[3] * xz; out[8] = SH_C2[4] * (xx - yy);
-    if (DEG < 3) return;
-    out[9] = SH_C3[0] * y * (3 * xx - yy); out[10] = SH_C3[1] * xy * z;
-    out[11] = SH_C3[2] * y * (4 * zz - xx - yy); out[12] = SH_C3[3] * z * (2 * zz - 3 * xx - 3 * yy);
-    out[13] = SH_C3[4] * x * (4 * zz - xx - yy); out[14] = SH_C3[5] * z * (xx - yy);
-    out[15] = SH_C3[6] * x * (xx - 3 * yy);
-  }
-  // light.rs project_sh: the map rotated by `angle` about +Z, scaled by `strength`.
-  function projectSH(l, angle, strength) {
-    const acc = new Float64Array(16 * 3), b = new Float64Array(16);
-    const s = Math.sin(angle), c = Math.cos(angle);
-    for (let r = 0; r < l.height; r++) {
-      for (let col = 0; col < l.width; col++) {
-        const d = texelDir(l.width, l.height, r, col);
-        shBasis([c * d[0] - s * d[1], s * d[0] + c * d[1], d[2]], b);
-        const w = texelSolidAngle(l.width, l.height, r, col);
-        const t = 3 * (r * l.width + col);
-        for (let j = 0; j < C; j++) for (let ch = 0; ch < 3; ch++) acc[3 * j + ch] += w * b[j] * l.data[t + ch];
-      }
-    }
-    const out = new Float32Array(16 * 3);
-    for (let k = 0; k < 3 * C; k++) out[k] = acc[k] * strength;
-    return out;
-  }
-  function ggxD(nh, r) {
-    const a2 = (r * r) * (r * r), t = nh * nh * (a2 - 1) + 1;
-    return a2 / (Math.PI * t * t);
-  }
-  // light.rs prefilter: level 0 the map, levels 1..5 GGX-convolved with n = v = R.
-  function prefilter(l) {
-    const w = l.width, h = l.height, T = w * h;
-    const dirs = [], omega = new Float64Array(T);
-    for (let r = 0; r < h; r++) for (let c = 0; c < w; c++) { dirs.push(texelDir(w, h, r, c)); omega[r * w + c] = texelSolidAngle(w, h, r, c); }
-    const out = new Float32Array(LEVELS * T * 4);
-    for (let t = 0; t < T; t++) for (let ch = 0; ch < 3; ch++) out[4 * t + ch] = l.data[3 * t + ch];
-    for (let level = 1; level < LEVELS; level++) {
-      const rough = LEVEL_R0 + level * LEVEL_STEP;
-      for (let o = 0; o < T; o++) {
-        const R = dirs[o];
-        let a0 = 0, a1 = 0, a2 = 0, ws = 0;
-        for (let t = 0; t < T; t++) {
-          const d = dirs[t];
-          const nl = R[0] * d[0] + R[1] * d[1] + R[2] * d[2];
-          if (nl <= 0) continue;
-          const hx = R[0] + d[0], hy = R[1] + d[1], hz = R[2] + d[2];
-          const hl = Math.hypot(hx, hy, hz);
-          const nh = (R[0] * hx + R[1] * hy + R[2] * hz) / hl;
-          const wt = ggxD(nh, rough) * nl * omega[t];
-          a0 += wt * l.data[3 * t]; a1 += wt * l.data[3 * t + 1]; a2 += wt * l.data[3 * t + 2]; ws += wt;
-        }
-        const q = 4 * (level * T + o);
-        if (ws > 0) { out[q] = a0 / ws; out[q + 1] = a1 / ws; out[q + 2] = a2 / ws; }
-      }
-    }
-    return out;
-  }
-
-  // ---- Radiance .hdr (RGBE) reader and area resampling (svgir-core EnvMap::from_equirect) ---
-  function parseHdr(buf, name) {
-    const bytes = new Uint8Array(buf);
-    let pos = 0;
-    function line() {
-      let s = '';
-      while (pos < bytes.length && bytes[pos] !== 10) s += String.fromCharCode(bytes[pos++]);
-      if (pos >= bytes.length) throw new Error('the header never ends');
-      pos++;
-      return s;
-    }
-    const magic = line();
-    if (!magic.startsWith('#?')) throw new Error('not a Radiance .hdr file (no "#?" signature)');
-    let fmt = null;
-    for (let s = line(); s !== ''; s = line()) if (s.startsWith('FORMAT=')) fmt = s.slice(7).trim();
-    if (fmt && fmt !== '32-bit_rle_rgbe') throw new Error('unsupported pixel format ' + fmt + ' (only 32-bit_rle_rgbe)');
-    const m = /^-Y (\d+) \+X (\d+)$/.exec(line().trim());
-    if (!m) throw new Error('unsupported orientation line (only "-Y H +X W")');
-    const H = Number(m[1]), W = Number(m[2]);
-    if (!(W > 0 && H > 0 && W * H <= 1 << 26)) throw new Error('bad size ' + W + 'x' + H);
-    const rgbe = new Uint8Array(W * H * 4);
-    const scan = new Uint8Array(W * 4);
-    for (let y = 0; y < H; y++) {
-      if (pos + 4 > bytes.length) throw new Error('the file ends at row ' + y + ' of ' + H);
-      if (W >= 8 && W < 32768 && bytes[pos] === 2 && bytes[pos + 1] === 2 && (bytes[pos + 2] & 0x80) === 0) {
-        if (((bytes[pos + 2] << 8) | bytes[pos + 3]) !== W) throw new Error('row ' + y + ': run-length width mismatch');
-        pos += 4;
-        for (let ch = 0; ch < 4; ch++) {
-          for (let x = 0; x < W;) {
-            if (pos >= bytes.length) throw new Error('the file ends inside row ' + y);
-            let count = bytes[pos++];
-            if (count > 128) {
-              count -= 128;
-              if (pos >= bytes.length) throw new Error('the file ends inside row ' + y);
-              if (x + count > W) throw new Error('row ' + y + ': bad run length');
-              const v = bytes[pos++];
-              for (let k = 0; k < count; k++) scan[(x++) * 4 + ch] = v;
-            } else {
-              if (pos + count > bytes.length) throw new Error('the file ends inside row ' + y);
-              if (count === 0 || x + count > W) throw new Error('row ' + y + ': bad run length');
-              for (let k = 0; k < count; k++) scan[(x++) * 4 + ch] = bytes[pos++];
-            }
-          }
-        }
-        rgbe.set(scan, y * W * 4);
-      } else {
-        // Flat (uncompressed) scanline.
-        if (pos + W * 4 > bytes.length) throw new Error('the file ends at row ' + y + ' of ' + H);
-        rgbe.set(bytes.subarray(pos, pos + W * 4), y * W * 4);
-        pos += W * 4;
-      }
-    }
-    const rgb = new Float32Array(W * H * 3);
-    for (let p = 0; p < W * H; p++) {
-      const e = rgbe[4 * p + 3];
-      const f = e === 0 ? 0 : Math.pow(2, e - 136);
-      rgb[3 * p] = rgbe[4 * p] * f; rgb[3 * p + 1] = rgbe[4 * p + 1] * f; rgb[3 * p + 2] = rgbe[4 * p + 2] * f;
-    }
-    for (let k = 0; k < rgb.length; k++) if (!isFinite(rgb[k])) throw new Error('non-finite pixel values');
-    return { width: W, height: H, rgb };
-  }
-  function overlapCells(a, b, n, wrap) {
-    const out = [];
-    let x = a;
-    while (x < b - 1e-6) {
-      const cell = Math.floor(x), end = Math.min(cell + 1, b);
-      const idx = wrap ? (((cell % n) + n) % n) : Math.min(Math.max(cell, 0), n - 1);
-      out.push([idx, x, end]);
-      x = end;
-    }
-    return out;
-  }
-  function fromEquirect(img, height) {
-    const width = 2 * height, sw = img.width, sh = img.height;
-    const dphi = Math.PI / (height - 1), dtheta = 2 * Math.PI / (width - 1);
-    const data = new Float32Array(width * height * 3);
-    for (let r = 0; r < height; r++) {
-      const phiC = r * dphi;
-      const phiA = Math.max(phiC - 0.5 * dphi, 0), phiB = Math.min(phiC + 0.5 * dphi, Math.PI);
-      const rows = overlapCells(phiA / Math.PI * sh, phiB / Math.PI * sh, sh, false);
-      for (let c = 0; c < width; c++) {
-        const uc = c / (width - 1), du = 0.5 * dtheta / (2 * Math.PI);
-        const cols = overlapCells((uc - du) * sw, (uc + du) * sw, sw, true);
-        let a0 = 0, a1 = 0, a2 = 0, ws = 0;
-        for (const [j, a, b] of rows) {
-          const wr = Math.cos(a / sh * Math.PI) - Math.cos(b / sh * Math.PI);
-          for (const [i, ca, cb] of cols) {
-            const w = wr * (cb - ca), p = 3 * (j * sw + i);
-            a0 += w * img.rgb[p]; a1 += w * img.rgb[p + 1]; a2 += w * img.rgb[p + 2]; ws += w;
-          }
-        }
-        const t = 3 * (r * width + c);
-        if (ws > 0) { data[t] = a0 / ws; data[t + 1] = a1 / ws; data[t + 2] = a2 / ws; }
-      }
-    }
-    return data;
-  }
 
   // ---- WebGL2 ---------------------------------------------------------------------------------
   const canvas = $('c');
@@ -593,7 +416,7 @@ void main() {
   function lightSH() {
     const l = lights[state.light], angle = state.rot * Math.PI / 180, s = strength();
     const key = state.light + ':' + angle + ':' + s;
-    if (shCache.key !== key) shCache = { key, sh: projectSH(l, angle, s) };
+    if (shCache.key !== key) shCache = { key, sh: projectLight(l, DEG, angle, s) };
     return shCache.sh;
   }
 
