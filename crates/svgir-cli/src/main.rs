@@ -43,6 +43,8 @@ enum Command {
     Demo(commands::demo::DemoArgs),
     /// Print performance tables of the kernels (rasterizer, tracer, LPIPS).
     Bench(commands::bench::BenchArgs),
+    /// Write an interactive relighting viewer (one HTML file, WebGL2) for a stage-2 run.
+    View(commands::view::ViewArgs),
 }
 
 fn main() {
@@ -64,6 +66,7 @@ fn main() {
         Command::Bench(a) => commands::bench::run(a),
         Command::Report(a) => commands::report::run(a),
         Command::Demo(a) => commands::demo::run(a),
+        Command::View(a) => commands::view::run(a),
     };
     if let Err(e) = result {
         eprintln!("error: {e:#}");

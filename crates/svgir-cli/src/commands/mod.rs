@@ -15,6 +15,7 @@ pub mod relight;
 pub mod report;
 pub mod spec8;
 pub mod train;
+pub mod view;
 
 use clap::Args;
 use svgir_io::LoadOptions;
