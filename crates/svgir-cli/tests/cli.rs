@@ -19,6 +19,8 @@ fn quick_demo_writes_a_report_with_metrics() {
     {
         assert!(html.contains(needle), "report lacks {needle:?}");
     }
+    // The demo writes the interactive viewer and the report links it.
+    assert!(out.join("viewer.html").exists() && html.contains("href=\"viewer.html\""), "no viewer link");
     // Results come before tables, tables before curves, curves before the configuration.
     let at = |s: &str| html.find(s).unwrap_or_else(|| panic!("report lacks {s:?}"));
     assert!(at("Relit object") < at("<h2>Metrics") && at("<h2>Metrics") < at("<h2>Curves"));

@@ -5,7 +5,7 @@
 
 use super::train::{self, TrainArgs};
 use anyhow::{Context, Result};
-use clap::{Args, Parser};
+use clap::Args;
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use svgir_eval::plot::{line_plot, Series};
@@ -45,17 +45,6 @@ fn default_scenes() -> Vec<PathBuf> {
         eprintln!("warning: {} not found; benchmarking the shipped scene only", lego.display());
         vec![shipped]
     }
-}
-
-/// `TrainArgs` with `svgir train`'s own defaults and the given flags.
-fn train_args(flags: &[String]) -> Result<TrainArgs> {
-    #[derive(Parser)]
-    struct Wrap {
-        #[command(flatten)]
-        args: TrainArgs,
-    }
-    let argv = std::iter::once("train".to_string()).chain(flags.iter().cloned());
-    Ok(Wrap::try_parse_from(argv).context("building the training arguments")?.args)
 }
 
 /// One scene's convergence: its (training minutes, test PSNR) points, the final PSNR on all
@@ -139,7 +128,7 @@ pub fn run(args: &TrainBenchArgs, machine: &str, threads: usize) -> Result<Strin
             ]
             .into();
             eprintln!("svgir bench train: {} ({} iterations)", scene.display(), args.iterations);
-            train::run(train_args(&flags)?)?;
+            train::run(super::args_of::<TrainArgs>("train", &flags)?)?;
         }
         let Curve { points, final_psnr, iterations } = curve(&run)?;
         let fmt = |m: Option<f64>| m.map_or("-".to_string(), |m| format!("{m:.1}"));
@@ -183,7 +172,8 @@ mod tests {
 
     #[test]
     fn train_args_take_the_command_defaults() {
-        let a = super::train_args(&["scene".into(), "--out".into(), "x".into()]).unwrap();
+        let a: super::TrainArgs =
+            super::super::args_of("train", &["scene".into(), "--out".into(), "x".into()]).unwrap();
         assert_eq!((a.iterations, a.seed, a.eval_every), (30_000, 0, 0));
     }
 }

@@ -120,6 +120,10 @@ pub fn run(args: DemoArgs) -> Result<()> {
             relight_strength: None,
         },
     })?;
+    // The interactive viewer, from the training micro-buffers' directions (no new trace).
+    let directions = if args.quick { 16 } else { 64 };
+    let flags = [args.out.display().to_string(), "--directions".into(), directions.to_string()];
+    super::view::run(super::args_of("view", &flags)?)?;
     let report = args.out.join("report.html");
     super::report::write_report(&args.out, &report)?;
     println!("report: {}", report.display());

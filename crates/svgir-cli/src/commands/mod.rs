@@ -94,3 +94,16 @@ mod tests {
         }
     }
 }
+
+/// A command's arguments with its own defaults and the given `flags` (as typed after the command
+/// name), for commands that run other commands (`demo`, `bench train`).
+pub fn args_of<T: clap::Args>(command: &str, flags: &[String]) -> anyhow::Result<T> {
+    use anyhow::Context;
+    #[derive(clap::Parser)]
+    struct Wrap<A: clap::Args> {
+        #[command(flatten)]
+        args: A,
+    }
+    let argv = std::iter::once(command.to_string()).chain(flags.iter().cloned());
+    Ok(<Wrap<T> as clap::Parser>::try_parse_from(argv).with_context(|| format!("building `{command}` arguments"))?.args)
+}

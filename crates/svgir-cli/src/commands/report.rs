@@ -264,6 +264,10 @@ pre{overflow-x:auto;background:#f6f6f6;padding:8px}\
     );
     let _ = write!(html, "<h1>svgir run: {}</h1>", run.display());
     let _ = write!(html, "<p>data: <code>{}</code></p>", config["data"].as_str().unwrap_or("?"));
+    if run.join("viewer.html").exists() {
+        html += "<p><a href=\"viewer.html\"><b>Open the interactive relighting viewer</b></a> (turn the light, \
+change the map, look at albedo, roughness, normals and visibility)</p>";
+    }
     // Pictures first (the relit object, its materials and light; then stage 1), then the
     // metric tables, then the curves, then the configuration.
     html += &stage2_pictures(&stage2);
