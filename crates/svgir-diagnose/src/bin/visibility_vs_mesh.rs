@@ -32,7 +32,7 @@ struct Tally {
     vis_mb: f64,
     vis_mesh: f64,
     abs_diff: f64,
-    /// Confusion [mesh open?][traced V >= 0.5?] per elevation bin.
+    /// Confusion `[mesh open?][traced V >= 0.5?]` per elevation bin.
     conf: [[[f64; 2]; 2]; 3],
     /// Leaks (mesh blocked, V >= 0.5) whose traced ray hit nothing vs hit something.
     leak_miss: f64,
