@@ -17,7 +17,7 @@ pub struct DensifyConfig {
     pub until_iter: u64,
     /// Densify every this many iterations.
     pub interval: u64,
-    /// Mean screen-space position-gradient norm above which a Gaussian is cloned or split.
+    /// Mean screen-space position-gradient norm at or above which a Gaussian is cloned or split.
     pub grad_threshold: f32,
     /// Gaussians larger than this fraction of the scene extent are split, smaller ones cloned.
     pub percent_dense: f32,

@@ -64,7 +64,7 @@ pub struct Stage1 {
     pub config: Stage1Config,
     /// The Gaussians being trained.
     pub surfels: Surfels,
-    /// Adam groups: position, SH, opacity, scale, rotation.
+    /// Adam groups: position, rotation, log scale, opacity, SH.
     pub groups: Groups,
     /// Per-Gaussian statistics for the next densification.
     pub stats: DensifyStats,

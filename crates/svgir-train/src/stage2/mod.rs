@@ -323,7 +323,7 @@ impl Stage2 {
         objective::facing(&self.normals, &self.surfels.positions, camera.center())
     }
 
-    /// One stage-2 iteration on the next training view.
+    /// One stage-2 iteration on a random training view (sun search first when one is due).
     pub fn step(&mut self, dataset: &Dataset) -> Result<Stage2Step, PbrError> {
         let cfg = self.config.clone();
         let wts = &cfg.weights;
