@@ -41,7 +41,7 @@ pub use traverse::{march, HitSource, MarchResult, Ray, TraceParams, NO_ID};
 /// Everything the tracer can reject: invalid surfels, bad parameters, mismatched array sizes.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum TraceError {
-    /// The surfels cannot be traced; the message says why.
+    /// The surfels fail `Surfels::check` (array lengths, SH degree, non-finite values); the message says which.
     #[error("invalid surfels: {0}")]
     InvalidSurfels(String),
     /// A parameter out of its domain (e.g. K = 0, M not in {1, 2, 4, 6}).
