@@ -11,11 +11,17 @@ use serde::{Deserialize, Serialize};
 /// Pinhole intrinsics in pixels; the image is `width` x `height` pixels.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Intrinsics {
+    /// Horizontal focal length in pixels.
     pub fx: f32,
+    /// Vertical focal length in pixels.
     pub fy: f32,
+    /// Principal point x in pixels (pixel i spans [i, i+1)).
     pub cx: f32,
+    /// Principal point y in pixels, measured downwards from the top edge.
     pub cy: f32,
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
 }
 
@@ -27,10 +33,12 @@ impl Intrinsics {
         Self { fx, fy: fx, cx: 0.5 * width as f32, cy: 0.5 * height as f32, width, height }
     }
 
+    /// Horizontal field of view in radians.
     pub fn fov_x(&self) -> f32 {
         2.0 * (0.5 * self.width as f32 / self.fx).atan()
     }
 
+    /// Vertical field of view in radians.
     pub fn fov_y(&self) -> f32 {
         2.0 * (0.5 * self.height as f32 / self.fy).atan()
     }
@@ -47,17 +55,30 @@ impl Intrinsics {
 /// Why a camera is unusable.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum CameraError {
+    /// The rotation, translation or intrinsics hold a NaN or an infinity.
     #[error("camera matrix contains NaN or infinite values")]
     NotFinite,
+    /// The rotation is not orthonormal with det +1: (max deviation of R R^T from I, det R).
     #[error("camera rotation is not a rotation (R R^T deviates from I by {0:.3e}, det {1:.4})")]
     NotRigid(f32, f32),
+    /// A focal length or the image size is not positive.
     #[error("intrinsics are degenerate (fx={fx}, fy={fy}, size {width}x{height})")]
-    BadIntrinsics { fx: f32, fy: f32, width: u32, height: u32 },
+    BadIntrinsics {
+        /// Horizontal focal length in pixels.
+        fx: f32,
+        /// Vertical focal length in pixels.
+        fy: f32,
+        /// Image width in pixels.
+        width: u32,
+        /// Image height in pixels.
+        height: u32,
+    },
 }
 
 /// A pinhole camera: `x_cam = rotation * x_world + translation` (OpenCV axes).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct Camera {
+    /// Pinhole intrinsics in pixels.
     pub intrinsics: Intrinsics,
     /// World-to-camera rotation.
     pub rotation: Mat3,
@@ -124,6 +145,7 @@ impl Camera {
         self.rotation.row(2)
     }
 
+    /// Camera-space coordinates (OpenCV axes) of world point `p`.
     pub fn world_to_camera(&self, p: Vec3) -> Vec3 {
         self.rotation * p + self.translation
     }
@@ -157,10 +179,12 @@ impl Camera {
         Self { intrinsics: self.intrinsics.resized(width, height), ..*self }
     }
 
+    /// Image width in pixels.
     pub fn width(&self) -> u32 {
         self.intrinsics.width
     }
 
+    /// Image height in pixels.
     pub fn height(&self) -> u32 {
         self.intrinsics.height
     }

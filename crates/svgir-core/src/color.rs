@@ -2,6 +2,7 @@
 
 use crate::float::Float;
 
+/// Decode one sRGB-encoded value in [0, 1] to linear.
 #[inline]
 pub fn srgb_to_linear(c: f32) -> f32 {
     if c <= 0.04045 {

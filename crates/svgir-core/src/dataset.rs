@@ -19,32 +19,42 @@ use glam::Vec3;
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
+/// One camera with its photo and, for synthetic scenes, its ground-truth maps.
 #[derive(Clone, Debug)]
 pub struct View {
     /// Stable name from the dataset (file stem or folder name), used for output files.
     pub name: String,
+    /// The view's camera (OpenCV axes, world-to-camera).
     pub camera: Camera,
+    /// RGBA, sRGB-encoded colour in [0, 1], straight alpha (see the module docs).
     pub image: Image,
+    /// Ground-truth linear albedo, 3 channels in [0, 1], if the dataset has it.
     pub albedo: Option<Image>,
     /// World normals (3 channels, unit length on the object, 0 elsewhere).
     pub normal: Option<Image>,
+    /// Ground-truth roughness, 1 channel in [0, 1], if the dataset has it.
     pub roughness: Option<Image>,
+    /// The same view rendered under other lights (RGBA like `image`), by light name.
     pub relit: BTreeMap<String, Image>,
 }
 
 /// An environment light used to render a dataset: radiance = strength x map value.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LightInfo {
+    /// Light name (e.g. the env map's file stem), as used in `View::relit`.
     pub name: String,
     /// Equirectangular HDR file, if the dataset ships it.
     pub envmap_path: Option<PathBuf>,
+    /// Radiance multiplier applied to the map's values.
     pub strength: f32,
 }
 
 /// Sparse points (e.g. COLMAP's) for initialisation, with colours in [0, 1] sRGB.
 #[derive(Clone, Debug, Default)]
 pub struct PointCloud {
+    /// Point positions in world space.
     pub positions: Vec<Vec3>,
+    /// sRGB colour per point in [0, 1].
     pub colors: Vec<[f32; 3]>,
 }
 
@@ -62,14 +72,19 @@ pub enum MaskSource {
     PerFrame,
 }
 
+/// A loaded multi-view dataset: train and test views, optional points, lights and mask source.
 #[derive(Clone, Debug)]
 pub struct Dataset {
+    /// Dataset name, shown in summaries and reports.
     pub name: String,
     /// Where it was loaded from: the dataset folder, or the json file when a `transforms.json`
     /// capture was given by its file.
     pub root: PathBuf,
+    /// Training views.
     pub train: Vec<View>,
+    /// Held-out test views (SPEC 8 evaluates on these).
     pub test: Vec<View>,
+    /// Sparse initialisation points, if the dataset ships any.
     pub points: Option<PointCloud>,
     /// The light the training images were rendered under (if known).
     pub train_light: Option<LightInfo>,
@@ -90,6 +105,7 @@ impl Dataset {
         self.masks != MaskSource::None
     }
 
+    /// Training views, then test views.
     pub fn all_views(&self) -> impl Iterator<Item = &View> {
         self.train.iter().chain(self.test.iter())
     }

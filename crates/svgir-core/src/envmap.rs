@@ -15,7 +15,9 @@ use std::f32::consts::PI;
 /// A lat-long environment map of linear RGB radiance, `height` x `width` (normally W = 2H).
 #[derive(Clone, Debug, PartialEq)]
 pub struct EnvMap {
+    /// Map width in texels (normally 2 x height).
     pub width: u32,
+    /// Map height in texels; row 0 is the zenith (+z).
     pub height: u32,
     /// RGB per texel, row-major.
     pub data: Vec<[f32; 3]>,
@@ -24,7 +26,9 @@ pub struct EnvMap {
 /// Bilinear taps of a lookup: 4 texel indices and weights.
 #[derive(Clone, Copy, Debug)]
 pub struct Taps {
+    /// Texel indices `row * width + col` of the four corners.
     pub index: [u32; 4],
+    /// Bilinear weight of each corner; they sum to 1.
     pub weight: [f32; 4],
 }
 
@@ -58,6 +62,7 @@ impl Taps {
 }
 
 impl EnvMap {
+    /// A `width` x `height` map with the same radiance `rgb` in every texel.
     pub fn constant(width: u32, height: u32, rgb: [f32; 3]) -> Self {
         Self { width, height, data: vec![rgb; (width * height) as usize] }
     }

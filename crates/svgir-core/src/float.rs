@@ -4,6 +4,7 @@
 use std::fmt::Debug;
 use std::ops::{Add, AddAssign, Div, Mul, MulAssign, Neg, Sub, SubAssign};
 
+/// The float operations shared kernels need, implemented for f32 and f64.
 pub trait Float:
     Copy
     + Debug
@@ -20,16 +21,27 @@ pub trait Float:
     + SubAssign
     + MulAssign
 {
+    /// Additive identity.
     const ZERO: Self;
+    /// Multiplicative identity.
     const ONE: Self;
+    /// Convert from f64 (rounding for f32).
     fn from_f64(x: f64) -> Self;
+    /// Convert from f32 (exact).
     fn from_f32(x: f32) -> Self;
+    /// Convert to f64 (exact).
     fn to_f64(self) -> f64;
+    /// Convert to f32 (rounding for f64).
     fn to_f32(self) -> f32;
+    /// Square root.
     fn sqrt(self) -> Self;
+    /// Natural exponential e^x.
     fn exp(self) -> Self;
+    /// Base-2 exponential 2^x.
     fn exp2(self) -> Self;
+    /// Absolute value.
     fn abs(self) -> Self;
+    /// `self` raised to the power `e`.
     fn powf(self, e: Self) -> Self;
 
     /// Larger of the two (plain comparison; callers never pass NaN).
@@ -42,6 +54,7 @@ pub trait Float:
         }
     }
 
+    /// Smaller of the two (plain comparison; callers never pass NaN).
     #[inline]
     fn minf(self, o: Self) -> Self {
         if self < o {
@@ -51,6 +64,7 @@ pub trait Float:
         }
     }
 
+    /// `self` limited to [lo, hi].
     #[inline]
     fn clampf(self, lo: Self, hi: Self) -> Self {
         self.maxf(lo).minf(hi)
@@ -111,6 +125,7 @@ pub fn dot<F: Float>(a: [F; 3], b: [F; 3]) -> F {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
+/// Convert an f32 3-vector to `F`.
 #[inline]
 pub fn to_f<F: Float>(a: [f32; 3]) -> [F; 3] {
     a.map(F::from_f32)

@@ -3,32 +3,41 @@
 /// `data[(y * width + x) * channels + c]`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Image {
+    /// Width in pixels.
     pub width: u32,
+    /// Height in pixels.
     pub height: u32,
+    /// Interleaved values per pixel (1, 3 or 4 in practice).
     pub channels: u32,
+    /// Pixel values, row-major, channels interleaved.
     pub data: Vec<f32>,
 }
 
 impl Image {
+    /// A zero-filled `width` x `height` image with `channels` channels.
     pub fn new(width: u32, height: u32, channels: u32) -> Self {
         Self { width, height, channels, data: vec![0.0; (width * height * channels) as usize] }
     }
 
+    /// Wrap row-major interleaved `data`; panics if its length is not width x height x channels.
     pub fn from_data(width: u32, height: u32, channels: u32, data: Vec<f32>) -> Self {
         assert_eq!(data.len(), (width * height * channels) as usize, "image data length");
         Self { width, height, channels, data }
     }
 
+    /// An image with every pixel equal to `value` (its length is the channel count).
     pub fn filled(width: u32, height: u32, value: &[f32]) -> Self {
         let channels = value.len() as u32;
         let data = value.iter().copied().cycle().take((width * height * channels) as usize).collect();
         Self { width, height, channels, data }
     }
 
+    /// Number of pixels, width x height.
     pub fn pixel_count(&self) -> usize {
         (self.width * self.height) as usize
     }
 
+    /// The channels of pixel (x, y), x from the left, y from the top.
     #[inline]
     pub fn pixel(&self, x: u32, y: u32) -> &[f32] {
         let c = self.channels as usize;
@@ -36,6 +45,7 @@ impl Image {
         &self.data[i..i + c]
     }
 
+    /// Mutable channels of pixel (x, y), x from the left, y from the top.
     #[inline]
     pub fn pixel_mut(&mut self, x: u32, y: u32) -> &mut [f32] {
         let c = self.channels as usize;
@@ -60,6 +70,7 @@ impl Image {
         Image::from_data(self.width, self.height, 3, data)
     }
 
+    /// A new image with `f` applied to every value.
     pub fn map(&self, f: impl Fn(f32) -> f32) -> Image {
         Image { data: self.data.iter().map(|&v| f(v)).collect(), ..*self }
     }

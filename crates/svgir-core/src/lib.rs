@@ -9,6 +9,8 @@
 //!
 //! This crate does no I/O and prints nothing.
 
+#![warn(missing_docs)]
+
 pub mod camera;
 pub mod color;
 pub mod dataset;

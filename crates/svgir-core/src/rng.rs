@@ -2,12 +2,14 @@
 //! order, per-Gaussian Fibonacci offsets, background colours. Runs record their seed, and
 //! [`Rng::fork`] derives independent streams so that parallel or reordered work stays reproducible.
 
+/// Seeded SplitMix64 random generator; every random choice in svgir draws from one.
 #[derive(Clone, Debug)]
 pub struct Rng {
     state: u64,
 }
 
 impl Rng {
+    /// A generator seeded with `seed` (the same seed gives the same stream).
     pub fn new(seed: u64) -> Self {
         Self { state: seed ^ 0x9E37_79B9_7F4A_7C15 }
     }
@@ -17,6 +19,7 @@ impl Rng {
         self.state
     }
 
+    /// Restore a generator saved with [`Rng::state`].
     pub fn from_state(state: u64) -> Self {
         Self { state }
     }
@@ -28,6 +31,7 @@ impl Rng {
         r
     }
 
+    /// Next 64 random bits (SplitMix64 step).
     pub fn next_u64(&mut self) -> u64 {
         self.state = self.state.wrapping_add(0x9E37_79B9_7F4A_7C15);
         let mut z = self.state;
@@ -41,10 +45,12 @@ impl Rng {
         (self.next_u64() >> 40) as f32 * (1.0 / (1u64 << 24) as f32)
     }
 
+    /// Uniform in [0, 1) with 53 random bits.
     pub fn uniform_f64(&mut self) -> f64 {
         (self.next_u64() >> 11) as f64 * (1.0 / (1u64 << 53) as f64)
     }
 
+    /// Uniform in [lo, hi).
     pub fn range(&mut self, lo: f32, hi: f32) -> f32 {
         lo + (hi - lo) * self.uniform()
     }

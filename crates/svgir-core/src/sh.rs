@@ -6,9 +6,13 @@
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
+/// Degree-0 SH basis constant `1 / (2 sqrt(pi))`.
 pub const SH_C0: f32 = 0.282_094_8;
+/// Degree-1 SH basis constant (3DGS).
 pub const SH_C1: f32 = 0.488_602_52;
+/// Degree-2 SH basis constants (3DGS order).
 pub const SH_C2: [f32; 5] = [1.092_548_5, -1.092_548_5, 0.315_391_57, -1.092_548_5, 0.546_274_24];
+/// Degree-3 SH basis constants (3DGS order).
 pub const SH_C3: [f32; 7] =
     [-0.590_043_6, 2.890_611_4, -0.457_045_8, 0.373_176_34, -0.457_045_8, 1.445_305_7, -0.590_043_6];
 
@@ -50,6 +54,7 @@ impl ShCoeffs {
     }
 }
 
+/// The DC coefficient whose radiance `0.5 + SH_C0 dc` equals colour `c`.
 pub fn rgb_to_dc(c: f32) -> f32 {
     (c - 0.5) / SH_C0
 }

@@ -8,6 +8,7 @@
 use crate::sh::ShCoeffs;
 use glam::{Mat3, Quat, Vec2, Vec3};
 
+/// N Gaussian surfels (SPEC 1) as raw optimiser parameters, one array per attribute.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Surfels {
     /// Centres `p` in world space.
@@ -25,11 +26,13 @@ pub struct Surfels {
     pub sh_degree: u32,
 }
 
+/// Logistic function `1 / (1 + e^-x)`.
 #[inline]
 pub fn sigmoid(x: f32) -> f32 {
     1.0 / (1.0 + (-x).exp())
 }
 
+/// Inverse of [`sigmoid`], with `p` clamped to [1e-6, 1 - 1e-6].
 #[inline]
 pub fn logit(p: f32) -> f32 {
     let p = p.clamp(1e-6, 1.0 - 1e-6);
@@ -37,14 +40,17 @@ pub fn logit(p: f32) -> f32 {
 }
 
 impl Surfels {
+    /// Number of Gaussians.
     pub fn len(&self) -> usize {
         self.positions.len()
     }
 
+    /// True when there are no Gaussians.
     pub fn is_empty(&self) -> bool {
         self.positions.is_empty()
     }
 
+    /// No Gaussians, room for `n`, SH degree `sh_degree`.
     pub fn with_capacity(n: usize, sh_degree: u32) -> Self {
         Self {
             positions: Vec::with_capacity(n),
@@ -56,6 +62,7 @@ impl Surfels {
         }
     }
 
+    /// Append one Gaussian given its raw parameters.
     pub fn push(&mut self, position: Vec3, rotation: Quat, log_scale: Vec2, opacity_logit: f32, sh: ShCoeffs) {
         self.positions.push(position);
         self.rotations.push(rotation);
@@ -108,10 +115,12 @@ impl Surfels {
         Ok(())
     }
 
+    /// Tangent standard deviations (s_u, s_v) of Gaussian i, world units (exp of the raw value).
     pub fn scale(&self, i: usize) -> Vec2 {
         Vec2::new(self.log_scales[i].x.exp(), self.log_scales[i].y.exp())
     }
 
+    /// Opacity of Gaussian i in (0, 1) (sigmoid of the raw logit).
     pub fn opacity(&self, i: usize) -> f32 {
         sigmoid(self.opacity_logits[i])
     }
@@ -121,6 +130,7 @@ impl Surfels {
         Mat3::from_quat(self.rotations[i].normalize())
     }
 
+    /// Unit normal n of Gaussian i (third column of its rotation).
     pub fn normal(&self, i: usize) -> Vec3 {
         self.rotation_matrix(i).z_axis
     }

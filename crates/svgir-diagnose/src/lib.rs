@@ -11,4 +11,6 @@
 //!
 //! Run one with `cargo run --release -p svgir-diagnose --bin NAME -- ARGS`.
 
+#![warn(missing_docs)]
+
 pub mod mesh;

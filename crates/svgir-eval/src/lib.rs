@@ -10,6 +10,8 @@
 //! - [`table`]: result tables (markdown per scene, per metric for the terminal).
 //! - [`plot`]: line plots as SVG text (report curves, convergence curves).
 
+#![warn(missing_docs)]
+
 pub mod lpips_weights;
 pub mod plot;
 pub mod run;

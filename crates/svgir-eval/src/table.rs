@@ -3,7 +3,7 @@
 /// The scene table's header (markdown), one [`table_row`] per stage-2 run below it.
 pub const TABLE_HEADER: &str = "| scene | NVS PSNR | albedo PSNR | roughness MSE | normal MAE | relight PSNR / SSIM / LPIPS | per light |\n|---|---|---|---|---|---|---|";
 
-/// One markdown row of [`TABLE_HEADER`] from an [`crate::evaluate`] result.
+/// One markdown row of [`TABLE_HEADER`] from an [`evaluate`](crate::spec8::evaluate) result.
 pub fn table_row(scene: &str, e: &serde_json::Value) -> String {
     let num = |v: &serde_json::Value, prec: usize| v.as_f64().map_or("-".to_string(), |x| format!("{x:.prec$}"));
     let r = &e["relight"]["mean"];
@@ -23,7 +23,7 @@ pub fn table_row(scene: &str, e: &serde_json::Value) -> String {
     )
 }
 
-/// The per-metric table of one [`crate::evaluate`] result, for the terminal.
+/// The per-metric table of one [`evaluate`](crate::spec8::evaluate) result, for the terminal.
 pub fn metric_table(e: &serde_json::Value) -> String {
     let num = |v: &serde_json::Value, prec: usize| v.as_f64().map_or("-".to_string(), |x| format!("{x:.prec$}"));
     let line = |name: &str, m: &serde_json::Value| {

@@ -12,17 +12,29 @@ use svgir_core::Image;
 /// COLMAP's camera model ids (`colmap/src/colmap/sensor/models.h`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum CameraModel {
+    /// `SIMPLE_PINHOLE` (id 0): f, cx, cy.
     SimplePinhole,
+    /// `PINHOLE` (id 1): fx, fy, cx, cy.
     Pinhole,
+    /// `SIMPLE_RADIAL` (id 2): f, cx, cy, k.
     SimpleRadial,
+    /// `RADIAL` (id 3): f, cx, cy, k1, k2.
     Radial,
+    /// `OPENCV` (id 4): fx, fy, cx, cy, k1, k2, p1, p2.
     OpenCv,
+    /// `OPENCV_FISHEYE` (id 5): fx, fy, cx, cy, k1, k2, k3, k4.
     OpenCvFisheye,
+    /// `FULL_OPENCV` (id 6): fx, fy, cx, cy, k1, k2, p1, p2, k3, k4, k5, k6.
     FullOpenCv,
+    /// `FOV` (id 7): fx, fy, cx, cy, omega (not supported for undistortion).
     Fov,
+    /// `SIMPLE_RADIAL_FISHEYE` (id 8): f, cx, cy, k (not supported for undistortion).
     SimpleRadialFisheye,
+    /// `RADIAL_FISHEYE` (id 9): f, cx, cy, k1, k2 (not supported for undistortion).
     RadialFisheye,
+    /// `THIN_PRISM_FISHEYE` (id 10): 12 parameters (not supported for undistortion).
     ThinPrismFisheye,
+    /// `RAD_TAN_THIN_PRISM_FISHEYE` (id 11): 16 parameters (not supported for undistortion).
     RadTanThinPrismFisheye,
 }
 
@@ -42,18 +54,22 @@ const MODELS: [(CameraModel, &str, usize); 12] = [
 ];
 
 impl CameraModel {
+    /// The model with COLMAP id `id`, `None` for an unknown id.
     pub fn from_id(id: i32) -> Option<Self> {
         usize::try_from(id).ok().and_then(|i| MODELS.get(i)).map(|m| m.0)
     }
 
+    /// COLMAP's numeric id of the model.
     pub fn id(self) -> i32 {
         MODELS.iter().position(|m| m.0 == self).unwrap_or(0) as i32
     }
 
+    /// COLMAP's upper-case name of the model (e.g. `"OPENCV"`).
     pub fn name(self) -> &'static str {
         MODELS[self.id() as usize].1
     }
 
+    /// Number of parameters COLMAP stores for the model.
     pub fn num_params(self) -> usize {
         MODELS[self.id() as usize].2
     }

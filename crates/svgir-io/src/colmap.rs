@@ -30,23 +30,33 @@ use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
 use svgir_core::{Camera, Dataset, Intrinsics, MaskSource, PointCloud, View};
 
+/// One camera of `cameras.bin` / `cameras.txt`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ColmapCamera {
+    /// COLMAP camera id (images refer to it).
     pub id: u32,
+    /// Lens model, which fixes the layout of `params`.
     pub model: CameraModel,
+    /// Photo width in pixels.
     pub width: u32,
+    /// Photo height in pixels.
     pub height: u32,
+    /// Model parameters in COLMAP order (focal lengths and principal point in pixels, then distortion).
     pub params: Vec<f64>,
 }
 
+/// One registered photo of `images.bin` / `images.txt`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ColmapImage {
+    /// COLMAP image id (point tracks refer to it).
     pub id: u32,
     /// World-to-camera rotation quaternion (w, x, y, z).
     pub qvec: [f64; 4],
     /// World-to-camera translation.
     pub tvec: [f64; 3],
+    /// Id of the [`ColmapCamera`] that took it.
     pub camera_id: u32,
+    /// Photo file name relative to the images folder.
     pub name: String,
     /// Keypoints (x, y) in pixels of the *distorted* photo.
     pub xys: Vec<[f64; 2]>,
@@ -54,11 +64,16 @@ pub struct ColmapImage {
     pub point3d_ids: Vec<Option<u64>>,
 }
 
+/// One sparse point of `points3D.bin` / `points3D.txt`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ColmapPoint {
+    /// COLMAP point id (keypoints refer to it).
     pub id: u64,
+    /// Position in COLMAP's world frame.
     pub xyz: [f64; 3],
+    /// sRGB colour, 0-255.
     pub rgb: [u8; 3],
+    /// Mean reprojection error in pixels.
     pub error: f64,
     /// (image id, keypoint index) observations.
     pub track: Vec<(u32, u32)>,
@@ -67,8 +82,11 @@ pub struct ColmapPoint {
 /// A whole sparse model.
 #[derive(Clone, Debug, Default)]
 pub struct ColmapModel {
+    /// Cameras by id.
     pub cameras: BTreeMap<u32, ColmapCamera>,
+    /// Registered photos, in file order.
     pub images: Vec<ColmapImage>,
+    /// Sparse points, in file order.
     pub points: Vec<ColmapPoint>,
 }
 

@@ -11,15 +11,19 @@ use std::path::{Path, PathBuf};
 #[derive(Debug, thiserror::Error)]
 #[error("{}: {kind}", path.display())]
 pub struct IoError {
+    /// The file or dataset folder concerned.
     pub path: PathBuf,
+    /// What is wrong with it.
     pub kind: ErrorKind,
 }
 
 /// What went wrong, without the path.
 #[derive(Debug, thiserror::Error)]
 pub enum ErrorKind {
+    /// The file does not exist.
     #[error("file not found")]
     NotFound,
+    /// Any other operating-system error while reading or writing.
     #[error("{0}")]
     Os(std::io::Error),
     /// The file ends before its content does.
@@ -27,7 +31,13 @@ pub enum ErrorKind {
     Truncated(String),
     /// A decoder rejected the content of a `format` file ("PNG", "PLY", "COLMAP cameras.bin").
     #[error("corrupt {format}: {detail}")]
-    Corrupt { format: &'static str, detail: String },
+    Corrupt {
+        /// Name of the format or file kind, e.g. "PNG", "COLMAP cameras.bin".
+        format: &'static str,
+        /// What the decoder rejected.
+        detail: String,
+    },
+    /// The file extension is none of png, jpg, hdr, exr (the extension is given).
     #[error("unknown image format '{0}' (expected png, jpg, hdr, exr)")]
     UnknownImageFormat(String),
     /// A file or entry the layout requires is absent ("view image", "transforms_train.json").
@@ -35,13 +45,37 @@ pub enum ErrorKind {
     Missing(String),
     /// Camera `index` (in file order) is unusable.
     #[error("camera {index}: {problem}")]
-    Camera { index: usize, problem: String },
+    Camera {
+        /// Camera index in file order, from 0.
+        index: usize,
+        /// What is wrong with it (e.g. "NaN in transform_matrix").
+        problem: String,
+    },
+    /// An image's size differs from the size its view's camera expects.
     #[error("image is {got_w}x{got_h} but view {view} is {want_w}x{want_h}")]
-    SizeMismatch { view: usize, got_w: u32, got_h: u32, want_w: u32, want_h: u32 },
+    SizeMismatch {
+        /// View index in file order.
+        view: usize,
+        /// Width of the image file in pixels.
+        got_w: u32,
+        /// Height of the image file in pixels.
+        got_h: u32,
+        /// Width the camera expects in pixels.
+        want_w: u32,
+        /// Height the camera expects in pixels.
+        want_h: u32,
+    },
+    /// A COLMAP camera model id that COLMAP does not define.
     #[error("unknown camera model {0}")]
     UnknownCameraModel(i32),
+    /// A known COLMAP camera model that undistortion does not handle.
     #[error("unsupported camera model {name} (id {id}); supported: SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, OPENCV_FISHEYE, FULL_OPENCV")]
-    UnsupportedCameraModel { name: &'static str, id: i32 },
+    UnsupportedCameraModel {
+        /// COLMAP's name of the model.
+        name: &'static str,
+        /// COLMAP's id of the model.
+        id: i32,
+    },
     /// Anything else that makes the content unusable, said in words.
     #[error("{0}")]
     Invalid(String),
@@ -56,10 +90,12 @@ fn detail_suffix(s: &str) -> String {
 }
 
 impl ErrorKind {
+    /// A [`ErrorKind::Corrupt`] for a `format` file with a `detail` message.
     pub fn corrupt(format: &'static str, detail: impl fmt::Display) -> Self {
         ErrorKind::Corrupt { format, detail: detail.to_string() }
     }
 
+    /// An [`ErrorKind::Invalid`] with a `detail` message.
     pub fn invalid(detail: impl fmt::Display) -> Self {
         ErrorKind::Invalid(detail.to_string())
     }
@@ -82,6 +118,7 @@ impl From<std::io::Error> for ErrorKind {
 
 /// `result.at(path)`: turn a path-less result into an [`IoError`] result.
 pub trait WithPath<T> {
+    /// Attach `path` to the error, if any.
     fn at(self, path: impl AsRef<Path>) -> Result<T>;
 }
 
@@ -91,6 +128,7 @@ impl<T, E: Into<ErrorKind>> WithPath<T> for std::result::Result<T, E> {
     }
 }
 
+/// Result of every file-level function of svgir-io.
 pub type Result<T> = std::result::Result<T, IoError>;
 
 /// Reads a whole file, naming it in the error.

@@ -19,9 +19,13 @@ pub const MAX_IMAGE_SIDE: u32 = 1 << 15;
 /// The image file formats svgir reads and writes.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ImageKind {
+    /// PNG (`.png`), 8 or 16 bits per channel.
     Png,
+    /// JPEG (`.jpg`, `.jpeg`), 8 bits per channel.
     Jpeg,
+    /// Radiance HDR (`.hdr`), linear floats.
     Hdr,
+    /// OpenEXR (`.exr`), linear floats.
     Exr,
 }
 

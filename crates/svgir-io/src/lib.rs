@@ -10,6 +10,8 @@
 //! Every error is an [`IoError`] naming the file and the problem; no input makes these
 //! functions panic (fuzzed in `tests/fuzz.rs`).
 
+#![warn(missing_docs)]
+
 pub mod camera_model;
 pub mod colmap;
 pub mod envmap_io;

@@ -22,15 +22,18 @@ use svgir_core::{Camera, Dataset, Intrinsics, MaskSource, View};
 pub struct Frame {
     /// Image file (resolved against the dataset root, `.png` added when the extension is absent).
     pub image_path: PathBuf,
+    /// Camera-to-world matrix in Blender axes (x right, y up, looking along -z).
     pub c2w: Mat4,
 }
 
 /// A parsed `transforms_*.json`.
 #[derive(Clone, Debug)]
 pub struct Transforms {
+    /// Horizontal field of view in radians.
     pub camera_angle_x: f32,
     /// Image size if the file states it (`w`, `h`).
     pub size: Option<(u32, u32)>,
+    /// The frames in file order.
     pub frames: Vec<Frame>,
 }
 

@@ -12,22 +12,35 @@ const FMT: &str = "PLY";
 /// Named columns of one element, in file order.
 pub type Columns = Vec<(String, Vec<f32>)>;
 
+/// Body encoding of a PLY file.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Format {
+    /// `format ascii 1.0`: whitespace-separated text.
     Ascii,
+    /// `format binary_little_endian 1.0`.
     BinaryLe,
+    /// `format binary_big_endian 1.0`.
     BinaryBe,
 }
 
+/// A PLY scalar type.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Scalar {
+    /// `char` / `int8`.
     I8,
+    /// `uchar` / `uint8`.
     U8,
+    /// `short` / `int16`.
     I16,
+    /// `ushort` / `uint16`.
     U16,
+    /// `int` / `int32`.
     I32,
+    /// `uint` / `uint32`.
     U32,
+    /// `float` / `float32`.
     F32,
+    /// `double` / `float64`.
     F64,
 }
 
@@ -46,6 +59,7 @@ impl Scalar {
         })
     }
 
+    /// Size in bytes of one binary value.
     pub fn size(self) -> usize {
         match self {
             Self::I8 | Self::U8 => 1,
@@ -76,25 +90,36 @@ impl Scalar {
     }
 }
 
+/// One property (column) of a PLY element.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Property {
+    /// Property name as in the header (e.g. `x`, `f_dc_0`).
     pub name: String,
+    /// Value type (of the list items for a list property).
     pub ty: Scalar,
     /// `Some(count type)` for a list property.
     pub list: Option<Scalar>,
 }
 
+/// One element of a PLY header (e.g. `vertex`) with its properties.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Element {
+    /// Element name as in the header.
     pub name: String,
+    /// Number of rows.
     pub count: usize,
+    /// Properties in file order.
     pub props: Vec<Property>,
 }
 
+/// A parsed PLY header.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Header {
+    /// Body encoding.
     pub format: Format,
+    /// Elements in file order.
     pub elements: Vec<Element>,
+    /// Text of the `comment` lines, in order.
     pub comments: Vec<String>,
     /// Offset of the first body byte.
     pub body_start: usize,

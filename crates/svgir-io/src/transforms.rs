@@ -44,13 +44,21 @@ pub struct Lens {
     pub model: CameraModel,
     /// Distortion coefficients in `model`'s COLMAP order (after fx, fy, cx, cy).
     pub distortion: Vec<f64>,
+    /// `fl_x`: horizontal focal length in pixels.
     pub fl_x: Option<f64>,
+    /// `fl_y`: vertical focal length in pixels.
     pub fl_y: Option<f64>,
+    /// `camera_angle_x`: horizontal field of view in radians.
     pub angle_x: Option<f64>,
+    /// `camera_angle_y`: vertical field of view in radians.
     pub angle_y: Option<f64>,
+    /// `cx`: principal point x in pixels (default: image centre).
     pub cx: Option<f64>,
+    /// `cy`: principal point y in pixels (default: image centre).
     pub cy: Option<f64>,
+    /// `w`: image width in pixels, if stated.
     pub w: Option<u32>,
+    /// `h`: image height in pixels, if stated.
     pub h: Option<u32>,
 }
 
@@ -73,19 +81,26 @@ pub struct Frame {
     pub index: usize,
     /// `file_path` as written (frames are sorted by the path it resolves to).
     pub file_path: String,
+    /// Image file, resolved against the json's folder.
     pub image_path: PathBuf,
+    /// Mask file from the frame's `mask_path`, if any.
     pub mask_path: Option<PathBuf>,
+    /// `transform_matrix`: camera-to-world in OpenGL/Blender axes.
     pub c2w: Mat4,
+    /// The frame's lens (its own values over the top-level ones).
     pub lens: Lens,
 }
 
 /// A parsed `transforms.json`: frames sorted by `file_path`, and the split.
 #[derive(Clone, Debug)]
 pub struct Capture {
+    /// All frames, sorted by `file_path`.
     pub frames: Vec<Frame>,
     /// Indices into `frames`.
     pub train: Vec<usize>,
+    /// Indices into `frames` of the test views.
     pub test: Vec<usize>,
+    /// Sparse point cloud from `ply_file_path`, resolved against the json's folder.
     pub ply_path: Option<PathBuf>,
 }
 

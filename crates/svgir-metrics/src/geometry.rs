@@ -45,10 +45,12 @@ pub struct NormalMae {
 }
 
 impl NormalMae {
+    /// An empty accumulator (no pixels).
     pub fn new() -> Self {
         Self::default()
     }
 
+    /// Add one view: normals `pred`, `gt` (3 per pixel) and GT alpha (1 per pixel), blended with the background normal as in SPEC 8.
     pub fn add_view(&mut self, pred: &[f32], gt: &[f32], alpha: &[f32]) -> Result<()> {
         let errs = normal_error_map(pred, gt, alpha)?;
         self.sum_deg += errs.iter().map(|&e| e as f64).sum::<f64>();
@@ -61,6 +63,7 @@ impl NormalMae {
         (self.pixels > 0).then(|| self.sum_deg / self.pixels as f64)
     }
 
+    /// Number of pixels accumulated so far over all views.
     pub fn pixels(&self) -> u64 {
         self.pixels
     }
@@ -73,6 +76,7 @@ pub struct AlbedoScale {
 }
 
 impl AlbedoScale {
+    /// An empty accumulator (no ratios).
     pub fn new() -> Self {
         Self::default()
     }

@@ -10,6 +10,8 @@
 //! Kernels are generic over [`Real`] (f32/f64) where a gradient must be checked in f64.
 //! No I/O, no printing.
 
+#![warn(missing_docs)]
+
 pub mod error;
 pub mod geometry;
 pub mod lpips;
@@ -32,8 +34,11 @@ use svgir_core::Image;
 /// The three image metrics of one view (`lpips` is `None` when no LPIPS model was given).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 pub struct ImageMetrics {
+    /// Peak signal-to-noise ratio in dB (peak 1).
     pub psnr: f64,
+    /// Mean SSIM over the map and the channels, in [-1, 1].
     pub ssim: f64,
+    /// LPIPS distance (lower is better), `None` without an LPIPS model.
     pub lpips: Option<f64>,
 }
 

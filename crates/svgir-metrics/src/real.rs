@@ -5,12 +5,15 @@
 use std::iter::Sum;
 use svgir_core::Float;
 
+/// A float type the metric kernels run in: f32 for evaluation and training, f64 for gradient checks.
 pub trait Real: Float + Default + Sum {
+    /// The larger of two values (`Float::maxf`).
     #[inline]
     fn max(self, other: Self) -> Self {
         self.maxf(other)
     }
 
+    /// The smaller of two values (`Float::minf`).
     #[inline]
     fn min(self, other: Self) -> Self {
         self.minf(other)

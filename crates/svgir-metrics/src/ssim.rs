@@ -17,9 +17,13 @@ use serde::{Deserialize, Serialize};
 use crate::error::{check_eq, MetricsError, Result};
 use crate::real::Real;
 
+/// Side of the square Gaussian window in pixels.
 pub const WINDOW: usize = 11;
+/// Standard deviation of the Gaussian window in pixels.
 pub const SIGMA: f64 = 1.5;
+/// Luminance stabiliser `(0.01 L)^2` with peak L = 1.
 pub const C1: f64 = 0.01 * 0.01;
+/// Contrast stabiliser `(0.03 L)^2` with peak L = 1.
 pub const C2: f64 = 0.03 * 0.03;
 const HALF: usize = WINDOW / 2;
 
@@ -44,12 +48,16 @@ pub fn gaussian_window<T: Real>() -> [T; WINDOW] {
 /// Image geometry shared by the SSIM entry points: interleaved `channels` values per pixel.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Shape {
+    /// Image width in pixels.
     pub width: usize,
+    /// Image height in pixels.
     pub height: usize,
+    /// Interleaved values per pixel.
     pub channels: usize,
 }
 
 impl Shape {
+    /// Geometry of a `width x height` image with `channels` interleaved values per pixel.
     pub fn new(width: usize, height: usize, channels: usize) -> Self {
         Self { width, height, channels }
     }

@@ -6,6 +6,7 @@ use svgir_shading::Float;
 
 /// `Float` with a natural logarithm (softplus needs it; the shading crate's trait does not).
 pub trait Real: Float {
+    /// Natural logarithm.
     fn ln(self) -> Self;
 }
 

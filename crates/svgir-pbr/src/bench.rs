@@ -89,15 +89,22 @@ fn median_ms(mut f: impl FnMut(), reps: usize) -> f64 {
 /// indirect, 32 x 64 environment, and a random upstream gradient. Shared by the table below, the
 /// divan bench and the profiling example.
 pub struct Problem {
+    /// Synthetic micro-buffers: N Gaussians x K traced directions.
     pub mb: MicroBuffer,
+    /// Gaussian centres, N.
     pub positions: Vec<Vec3>,
+    /// Random activated vertex materials, N x M.
     pub mats: ActivatedMaterials,
+    /// The environment radiance (32 x 64) from a seeded [`EnvLight`].
     pub env: EnvMap,
+    /// All true: every Gaussian is shaded.
     pub visible: Vec<bool>,
+    /// Random upstream gradient on the shaded colour, N x M x 3.
     pub v_color: Vec<f32>,
 }
 
 impl Problem {
+    /// Build the problem for N Gaussians, M vertices and K directions from fixed seeds.
     pub fn new(n: usize, m: usize, k: usize) -> Result<Self, PbrError> {
         let mb = synthetic_microbuffer(n, k, 1);
         let positions = synthetic_positions(&mb, 1);
@@ -108,6 +115,7 @@ impl Problem {
         Ok(Self { mb, positions, mats, env, visible: vec![true; n], v_color })
     }
 
+    /// The problem as shading inputs (camera at the origin, traced indirect, default parameters).
     pub fn inputs(&self) -> ShadeInputs<'_, f32> {
         ShadeInputs {
             mb: &self.mb,

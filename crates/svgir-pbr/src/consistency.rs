@@ -23,11 +23,14 @@ use svgir_core::EnvMap;
 use svgir_shading::Float;
 use svgir_trace::{gather_pairs, gather_pairs_backward, GatherParams, MicroBuffer, VertexMaterials};
 
+/// Everything the radiance-consistency loss reads (SPEC 6, Eqn 14/16).
 #[derive(Clone, Copy, Debug)]
 pub struct ConsistencyInputs<'a> {
+    /// Frozen micro-buffers: directions, visibility, hits and traced radiance per Gaussian.
     pub mb: &'a MicroBuffer,
     /// Gaussian centres, N.
     pub positions: &'a [Vec3],
+    /// Camera centre in world space; view rays run from it to each Gaussian.
     pub camera_center: Vec3,
     /// Gaussians that take part (the rasteriser's visibility for the current view), N.
     pub visible: &'a [bool],
@@ -35,13 +38,16 @@ pub struct ConsistencyInputs<'a> {
     pub mats: VertexMaterials<'a, f32>,
     /// Environment radiance (clamped to `params.env_max` inside the gather).
     pub env: &'a EnvMap,
+    /// Indirect scale rho applied to the traced radiance (SPEC 6).
     pub rho: f32,
+    /// Settings of the one-bounce gather that computes L1b (Eqn 13).
     pub params: GatherParams<'a>,
 }
 
 /// Forward results, saved for [`radiance_consistency_backward`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct Consistency {
+    /// `L_rc`: mean absolute difference over selected pairs and channels (0 when none is selected).
     pub loss: f32,
     /// Selected (j, k_j).
     pub pairs: Vec<(u32, u32)>,

@@ -28,12 +28,16 @@ pub enum EnvActivation {
     Exp,
 }
 
+/// The learnable environment light: raw parameters of an H x 2H lat-long map and their activation.
 #[derive(Clone, Debug, PartialEq)]
 pub struct EnvLight {
+    /// Map width in texels (2H).
     pub width: u32,
+    /// Map height in texels (H).
     pub height: u32,
     /// Raw parameter per texel, row-major (row 0 = zenith).
     pub param: Vec<[f32; 3]>,
+    /// How `param` becomes radiance.
     pub activation: EnvActivation,
 }
 
@@ -96,6 +100,7 @@ impl EnvLight {
         }
     }
 
+    /// Number of texels, W x H.
     pub fn texels(&self) -> usize {
         self.param.len()
     }

@@ -7,16 +7,23 @@
 
 use svgir_shading::Float;
 
+/// Gradients of a stage-2 shading loss with respect to the activated materials, light and rho.
 #[derive(Clone, Debug, PartialEq)]
 pub struct PbrGrads<F = f32> {
+    /// dL / d albedo per vertex and channel, N x M x 3.
     pub v_albedo: Vec<F>,
+    /// dL / d roughness per vertex, N x M.
     pub v_roughness: Vec<F>,
+    /// dL / d unit shading normal per vertex, N x M x 3.
     pub v_normals: Vec<F>,
+    /// dL / d environment radiance per texel (before the clamp), row-major like `EnvMap::data`.
     pub v_env: Vec<[F; 3]>,
+    /// dL / d rho, the indirect scale.
     pub v_rho: F,
 }
 
 impl<F: Float> PbrGrads<F> {
+    /// All-zero gradients for N Gaussians with M vertices and `env_texels` texels.
     pub fn zeros(n: usize, m: usize, env_texels: usize) -> Self {
         Self {
             v_albedo: vec![F::ZERO; n * m * 3],

@@ -25,6 +25,8 @@
 //! Kernels are generic over `svgir_shading::Float` (f32 in production, f64 in the gradient
 //! checks). This crate does no I/O and prints nothing.
 
+#![warn(missing_docs)]
+
 pub mod activation;
 pub mod bench;
 pub mod consistency;
@@ -52,12 +54,23 @@ pub use shade::{shade, shade_into, shade_into_cached, Indirect, ShadeInputs, Sha
 pub use shade_backward::{shade_backward, shade_backward_cached};
 pub use two_sided::{faces, negated, shade_sides_backward, shade_sides_into, split_by_side, Side};
 
+/// Everything the stage-2 shading can reject: bad parameters, mismatched array sizes, tracer errors.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum PbrError {
+    /// A parameter out of its domain (e.g. M not in {1, 2, 4, 6}, K = 0); the message says which.
     #[error("invalid parameter: {0}")]
     InvalidParameter(String),
+    /// An array has the wrong number of entries.
     #[error("size mismatch: {what} has {got} entries, expected {want}")]
-    SizeMismatch { what: &'static str, got: usize, want: usize },
+    SizeMismatch {
+        /// Which array.
+        what: &'static str,
+        /// Entries it has.
+        got: usize,
+        /// Entries it should have.
+        want: usize,
+    },
+    /// An error of the tracer (micro-buffers, gather).
     #[error(transparent)]
     Trace(#[from] svgir_trace::TraceError),
 }

@@ -15,9 +15,13 @@ use rayon::prelude::*;
 use svgir_shading::float::dot;
 use svgir_trace::VertexMaterials;
 
+/// Albedo activation `ALBEDO_SCALE sigmoid(x) + ALBEDO_BIAS` (SPEC 3): range [0.03, 0.8].
 pub const ALBEDO_SCALE: f64 = 0.77;
+/// Albedo activation offset (see [`ALBEDO_SCALE`]).
 pub const ALBEDO_BIAS: f64 = 0.03;
+/// Roughness activation `ROUGHNESS_SCALE sigmoid(x) + ROUGHNESS_BIAS` (SPEC 3): range [0.09, 0.99].
 pub const ROUGHNESS_SCALE: f64 = 0.9;
+/// Roughness activation offset (see [`ROUGHNESS_SCALE`]).
 pub const ROUGHNESS_BIAS: f64 = 0.09;
 /// Below this length `n + dN` has no direction; the vertex falls back to n (zero gradient).
 const MIN_NORMAL_LEN: f64 = 1e-12;
@@ -43,14 +47,18 @@ pub struct SvgMaterials {
 /// Activated materials in the `VertexMaterials` layout.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ActivatedMaterials<F = f32> {
+    /// Vertices per Gaussian: 1, 2, 4 or 6.
     pub m: usize,
+    /// Linear albedo per vertex and channel, N x M x 3, in [0.03, 0.8].
     pub albedo: Vec<F>,
+    /// Roughness per vertex, N x M, in [0.09, 0.99].
     pub roughness: Vec<F>,
     /// Unit shading normals.
     pub normals: Vec<F>,
 }
 
 impl<F> ActivatedMaterials<F> {
+    /// Borrow as the [`VertexMaterials`] the tracer and shading read.
     pub fn view(&self) -> VertexMaterials<'_, F> {
         VertexMaterials { m: self.m, albedo: &self.albedo, roughness: &self.roughness, normals: &self.normals }
     }
@@ -59,8 +67,11 @@ impl<F> ActivatedMaterials<F> {
 /// Gradients with respect to the raw parameters, laid out like [`SvgMaterials`].
 #[derive(Clone, Debug, PartialEq)]
 pub struct MaterialGrads<F = f32> {
+    /// dL / d raw albedo, N x M x 3.
     pub v_albedo_raw: Vec<F>,
+    /// dL / d raw roughness, N x M.
     pub v_roughness_raw: Vec<F>,
+    /// dL / d normal offset, N x M x 3.
     pub v_normal_offset: Vec<F>,
 }
 
@@ -83,10 +94,12 @@ impl SvgMaterials {
         self.roughness_raw.len() / self.m.max(1)
     }
 
+    /// True when there are no Gaussians.
     pub fn is_empty(&self) -> bool {
         self.roughness_raw.is_empty()
     }
 
+    /// Check M and that the arrays hold N Gaussians' worth of values.
     pub fn validate(&self, n: usize) -> Result<(), PbrError> {
         check_shapes(self.m, n, &self.albedo_raw, &self.roughness_raw, &self.normal_offset)
     }

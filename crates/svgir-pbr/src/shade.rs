@@ -51,11 +51,15 @@ pub enum Indirect<'a, F> {
     /// No indirect light (ablation).
     Off,
     /// Training: `rho * L_{i,k}` with L the micro-buffer's traced radiance (SPEC 5).
-    Traced { rho: F },
+    Traced {
+        /// Scale applied to the traced radiance (learned in stage 2).
+        rho: F,
+    },
     /// Relighting: a given N x K array (`j * K + k`), e.g. one-bounce L1b; rho = 1.
     Given(&'a [[f32; 3]]),
 }
 
+/// Switches of the rendering equation (SPEC 4); the default is SPEC 4's.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct ShadeParams {
     /// Multiply the environment term by the micro-buffer visibility (off: V = 1, ablation).
@@ -76,17 +80,23 @@ impl Default for ShadeParams {
 /// `env` the radiance texels (normally `&env_geom.data`; f64 copies in the tests).
 #[derive(Clone, Copy, Debug)]
 pub struct ShadeInputs<'a, F> {
+    /// Frozen micro-buffers: directions, visibility, hits and traced radiance per Gaussian (SPEC 5).
     pub mb: &'a MicroBuffer,
     /// Gaussian centres, N.
     pub positions: &'a [Vec3],
+    /// Camera centre in world space; view directions run from each Gaussian to it.
     pub camera_center: Vec3,
     /// Which Gaussians to shade (the rasteriser's visibility), N.
     pub visible: &'a [bool],
     /// Activated vertex materials (unit shading normals).
     pub mats: VertexMaterials<'a, F>,
+    /// The environment map whose size the bilinear lookups use.
     pub env_geom: &'a EnvMap,
+    /// Environment radiance per texel, row-major like `EnvMap::data`.
     pub env: &'a [[F; 3]],
+    /// Which indirect term to add.
     pub indirect: Indirect<'a, F>,
+    /// Switches of the rendering equation.
     pub params: ShadeParams,
     /// Texels of the map shaded as directional lights (see `svgir_trace::bright`); `None`: the
     /// K-sample estimate of SPEC 4 alone.
@@ -96,9 +106,13 @@ pub struct ShadeInputs<'a, F> {
 /// Per-vertex linear HDR colour and its direct / indirect parts, each `(i * M + m) * 3 + c`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct ShadeOutput<F = f32> {
+    /// Vertices per Gaussian.
     pub m: usize,
+    /// Linear HDR colour per vertex: direct + indirect.
     pub color: Vec<F>,
+    /// Environment (direct) part of the colour per vertex.
     pub direct: Vec<F>,
+    /// Indirect part of the colour per vertex.
     pub indirect: Vec<F>,
 }
 
@@ -116,6 +130,7 @@ impl<F> Default for ShadeOutput<F> {
 }
 
 impl<F: Float> ShadeInputs<'_, F> {
+    /// Check every array against the micro-buffer's N and K and the map's texel count.
     pub fn validate(&self) -> Result<(), PbrError> {
         let n = self.mb.len();
         self.mats.validate(n)?;

@@ -30,6 +30,7 @@ pub struct Side<'a, F> {
     /// `visible` holds the Gaussians this side shades; on the back, `mats.normals` are the
     /// negated shading normals ([`negated`]) and `mb` the back micro-buffers.
     pub inputs: ShadeInputs<'a, F>,
+    /// Precomputed per-direction env lookups of `mb` (`None`: computed on the fly).
     pub cache: Option<&'a DirectionCache>,
 }
 

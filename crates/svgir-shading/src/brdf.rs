@@ -15,6 +15,7 @@ use crate::float::{dot, Float};
 use crate::layering::Diffuse;
 use std::f64::consts::PI;
 
+/// Normal-incidence Fresnel reflectance of the dielectric-only model (no metallic; SPEC 3-4).
 pub const F0: f64 = 0.04;
 /// Lower clamp of every dot product (SPEC 4).
 pub const DOT_EPS: f64 = 1e-6;
@@ -22,6 +23,7 @@ pub const DOT_EPS: f64 = 1e-6;
 /// Value and gradients of the specular term S.
 #[derive(Clone, Copy, Debug)]
 pub struct SpecularGrad<F> {
+    /// The specular term S itself.
     pub value: F,
     /// dS / d roughness.
     pub v_roughness: F,

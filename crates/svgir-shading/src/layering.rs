@@ -32,6 +32,7 @@ pub enum Diffuse {
 
 /// Grid nodes along n.v and along the roughness.
 pub const MU_NODES: usize = 65;
+/// Number of roughness grid nodes over [0, 1] (see [`MU_NODES`]).
 pub const R_NODES: usize = 33;
 /// The r = 0 column is integrated at this roughness (SPEC 4's lobe degenerates at r = 0).
 const R_FLOOR: f64 = 0.01;
@@ -41,6 +42,7 @@ const SAMPLES_PER_AXIS: usize = 96;
 /// The diffuse weight `t = 1 - E` (or 1) and its derivatives.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct DiffuseWeight<F> {
+    /// The weight t itself.
     pub value: F,
     /// dt / d(n.v); zero where n.v is clamped.
     pub v_mu: F,

@@ -5,6 +5,8 @@
 //! Everything is generic over [`Float`] (f32 for speed, f64 so tests can check hand-written
 //! gradients against finite differences). No I/O, no printing.
 
+#![warn(missing_docs)]
+
 pub mod brdf;
 pub use svgir_core::float;
 pub mod hemisphere;

@@ -12,6 +12,7 @@
 
 use crate::float::Float;
 
+/// Most vertices a spatially-varying Gaussian can carry (M = 6); weight arrays have this length.
 pub const MAX_VERTICES: usize = 6;
 
 #[inline]

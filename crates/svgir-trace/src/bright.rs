@@ -28,10 +28,12 @@ use rayon::prelude::*;
 use svgir_core::envmap::Taps;
 use svgir_core::{EnvMap, Surfels};
 
+/// The brightest environment texels shaded as directional lights, with their traced visibility per Gaussian.
 #[derive(Clone, Debug, PartialEq)]
 pub struct BrightLights {
     /// Size of the environment grid the texel indices refer to.
     pub width: u32,
+    /// Height of that grid (width is 2 x height).
     pub height: u32,
     /// Texel index (`row * width + col`) of each light.
     pub texels: Vec<u32>,
@@ -278,10 +280,12 @@ impl BrightLights {
         Ok(out)
     }
 
+    /// Number of directional lights.
     pub fn len(&self) -> usize {
         self.texels.len()
     }
 
+    /// True when no texel is a directional light (pure SPEC 4 shading).
     pub fn is_empty(&self) -> bool {
         self.texels.is_empty()
     }

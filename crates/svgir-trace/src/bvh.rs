@@ -18,7 +18,9 @@ use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 use svgir_core::Surfels;
 
+/// Most disks a leaf holds.
 pub const MAX_LEAF: usize = 4;
+/// Number of centroid bins of the binned SAH split search.
 pub const BINS: usize = 16;
 /// Subtrees with more disks than this build their children in parallel.
 pub const PAR_THRESHOLD: usize = 8192;
@@ -27,25 +29,31 @@ pub const MAX_DEPTH: u32 = 48;
 /// Relative padding of primitive boxes (see `Disk::bounds`).
 pub const BOX_PAD_REL: f32 = 1e-5;
 
+/// One BVH node, 32 bytes: bounding box plus child offset or leaf range.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct Node {
+    /// Lower corner of the node's box, world units.
     pub lo: [f32; 3],
     /// Interior: index of the right child. Leaf: first disk in `Bvh::disks`.
     pub offset: u32,
+    /// Upper corner of the node's box, world units.
     pub hi: [f32; 3],
     /// 0 for interior nodes, else the number of disks in the leaf.
     pub count: u32,
 }
 
 impl Node {
+    /// True for a leaf (it holds disks, not children).
     pub fn is_leaf(&self) -> bool {
         self.count > 0
     }
 }
 
+/// Bounding volume hierarchy over the surfel disks; node 0 is the root.
 #[derive(Clone, Debug, Default)]
 pub struct Bvh {
+    /// Nodes in depth-first order; an interior node's left child follows it.
     pub nodes: Vec<Node>,
     /// Prepared disks in leaf order; `disks[i].id` is the Gaussian index.
     pub disks: Vec<Disk>,
@@ -121,6 +129,7 @@ impl Bvh {
         Self { nodes, disks, max_scales }
     }
 
+    /// Depth of the tree: 0 when empty, 1 for a lone leaf.
     pub fn depth(&self) -> usize {
         fn rec(nodes: &[Node], i: usize) -> usize {
             let nd = &nodes[i];

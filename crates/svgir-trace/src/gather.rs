@@ -30,13 +30,18 @@ use svgir_shading::{ggx_specular, vertex_weights, Diffuse, Float, DOT_EPS, MAX_V
 /// `roughness[i*M + m]`, `normals[(i*M + m)*3 + c]` (unit shading normals, already activated).
 #[derive(Clone, Copy, Debug)]
 pub struct VertexMaterials<'a, F> {
+    /// Vertices per Gaussian: 1, 2, 4 or 6.
     pub m: usize,
+    /// Linear albedo, N x M x 3.
     pub albedo: &'a [F],
+    /// Roughness, N x M.
     pub roughness: &'a [F],
+    /// Unit shading normals, N x M x 3.
     pub normals: &'a [F],
 }
 
 impl<F> VertexMaterials<'_, F> {
+    /// Check M and that every array holds N Gaussians' worth of values.
     pub fn validate(&self, n: usize) -> Result<(), TraceError> {
         if ![1, 2, 4, 6].contains(&self.m) {
             return Err(TraceError::InvalidParameter(format!("M = {} (must be 1, 2, 4 or 6)", self.m)));
@@ -55,6 +60,7 @@ impl<F> VertexMaterials<'_, F> {
     }
 }
 
+/// Settings of the one-bounce gather (Eqn 13) shared by the consistency loss and relighting.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct GatherParams<'a> {
     /// Upper clamp of the environment radiance inside the rendering equation (SPEC 4).
@@ -284,8 +290,11 @@ pub fn gather_from(
 /// that side's directional-light visibility.
 #[derive(Clone, Copy, Debug)]
 pub struct HitSide<'a> {
+    /// Micro-buffer traced about this side's normals.
     pub mb: &'a MicroBuffer,
+    /// Activated vertex materials with the normals pointing out of this side.
     pub mats: VertexMaterials<'a, f32>,
+    /// This side's directional lights and their visibility, if any.
     pub lights: Option<&'a BrightLights>,
 }
 

@@ -28,13 +28,18 @@ use svgir_shading::{ggx_specular_grad, vertex_weights, Diffuse, DiffuseWeight, F
 /// Gradients, laid out like [`VertexMaterials`] and `EnvMap::data`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct GatherGrads<F = f32> {
+    /// dL / d albedo, N x M x 3.
     pub v_albedo: Vec<F>,
+    /// dL / d roughness, N x M.
     pub v_roughness: Vec<F>,
+    /// dL / d unit shading normal, N x M x 3.
     pub v_normals: Vec<F>,
+    /// dL / d environment radiance per texel (before the clamp).
     pub v_env: Vec<[F; 3]>,
 }
 
 impl<F: Float> GatherGrads<F> {
+    /// All-zero gradients for N Gaussians with M vertices and `env_texels` texels.
     pub fn zeros(n: usize, m: usize, env_texels: usize) -> Self {
         Self {
             v_albedo: vec![F::ZERO; n * m * 3],

@@ -24,7 +24,9 @@ pub const PARALLEL_EPS: f32 = 1e-12;
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct Disk {
+    /// Centre of the disk, world space.
     pub center: [f32; 3],
+    /// Activated opacity o in (0, 1).
     pub opacity: f32,
     /// Unit normal.
     pub normal: [f32; 3],
@@ -36,17 +38,22 @@ pub struct Disk {
     pub id: u32,
     /// t_v / s_v.
     pub axis_v: [f32; 3],
+    /// Padding to 64 bytes (Pod layout); always 0.
     pub _pad: u32,
 }
 
 /// One accepted ray-disk intersection.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Hit {
+    /// Ray parameter of the hit, world units along the unit direction.
     pub t: f32,
+    /// Gaussian index of the hit disk.
     pub id: u32,
+    /// `min(0.99, o exp(-(u^2 + v^2)/2))`, at least 1/255 (SPEC 1/5).
     pub alpha: f32,
     /// Tangent coordinates in sigma units.
     pub u: f32,
+    /// Tangent coordinate along t_v, in sigma units.
     pub v: f32,
 }
 
@@ -59,6 +66,7 @@ impl Hit {
 }
 
 impl Disk {
+    /// Prepare Gaussian `i` of `s` for ray tests.
     pub fn from_surfel(s: &Surfels, i: usize) -> Self {
         let r = s.rotation_matrix(i);
         let sc = s.scale(i);

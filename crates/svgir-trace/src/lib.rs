@@ -11,6 +11,8 @@
 //!
 //! The maths is in `svgir-shading`; this crate does no I/O and prints nothing.
 
+#![warn(missing_docs)]
+
 pub mod bench;
 pub mod bounce;
 pub mod bright;
@@ -36,12 +38,23 @@ pub use microbuffer::{MicroBuffer, NO_HIT};
 pub use reference::BruteForce;
 pub use traverse::{march, HitSource, MarchResult, Ray, TraceParams, NO_ID};
 
+/// Everything the tracer can reject: invalid surfels, bad parameters, mismatched array sizes.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum TraceError {
+    /// The surfels fail `Surfels::check` (array lengths, SH degree, non-finite values); the message says which.
     #[error("invalid surfels: {0}")]
     InvalidSurfels(String),
+    /// A parameter out of its domain (e.g. K = 0, M not in {1, 2, 4, 6}).
     #[error("invalid parameter: {0}")]
     InvalidParameter(String),
+    /// An array has the wrong number of entries.
     #[error("size mismatch: {what} has {got} entries, expected {want}")]
-    SizeMismatch { what: &'static str, got: usize, want: usize },
+    SizeMismatch {
+        /// Which array.
+        what: &'static str,
+        /// Entries it has.
+        got: usize,
+        /// Entries it should have.
+        want: usize,
+    },
 }

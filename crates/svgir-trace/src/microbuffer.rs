@@ -29,6 +29,7 @@ use svgir_shading::{gaussian_xi, hemisphere_dir};
 /// First-hit index meaning "the ray escaped".
 pub const NO_HIT: u32 = u32::MAX;
 
+/// Micro-buffers of all Gaussians (SPEC 5): K traced directions each, samples indexed `j * K + k`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MicroBuffer {
     /// Directions per Gaussian (K).
@@ -37,9 +38,13 @@ pub struct MicroBuffer {
     pub normals: Vec<Vec3>,
     /// Azimuth offset per Gaussian.
     pub xi: Vec<f32>,
+    /// Visibility V per sample, u16 unorm.
     pub vis: Vec<u16>,
+    /// Traced radiance L per sample, 3 x IEEE f16 bits.
     pub radiance: Vec<[u16; 3]>,
+    /// First-hit Gaussian per sample, [`NO_HIT`] when the ray escaped.
     pub first_hit: Vec<u32>,
+    /// First-hit tangent coordinates (u~, v~) per sample, 2 x u16 unorm.
     pub uv: Vec<[u16; 2]>,
 }
 
@@ -118,18 +123,22 @@ impl MicroBuffer {
         self.normals.len()
     }
 
+    /// True when there are no Gaussians.
     pub fn is_empty(&self) -> bool {
         self.normals.is_empty()
     }
 
+    /// Unit world direction w_k of sample (j, k), recomputed from the normal and xi (SPEC 5).
     pub fn direction(&self, j: usize, k: usize) -> Vec3 {
         hemisphere_dir(self.normals[j], k, self.k, self.xi[j])
     }
 
+    /// Visibility V of sample (j, k) in [0, 1].
     pub fn visibility(&self, j: usize, k: usize) -> f32 {
         from_unorm16(self.vis[j * self.k + k])
     }
 
+    /// Traced linear radiance L of sample (j, k), in [0, 10].
     pub fn radiance(&self, j: usize, k: usize) -> [f32; 3] {
         self.radiance[j * self.k + k].map(f16_to_f32)
     }
@@ -145,6 +154,7 @@ impl MicroBuffer {
         self.uv[j * self.k + k].map(from_unorm16)
     }
 
+    /// Bytes held by the samples and the per-Gaussian normals and offsets.
     pub fn memory_bytes(&self) -> usize {
         self.vis.len() * Self::BYTES_PER_SAMPLE + self.len() * 16
     }

@@ -38,6 +38,7 @@ pub fn f16_from_f32(x: f32) -> u16 {
     sign | r as u16
 }
 
+/// Decode IEEE half-precision bits to f32 (exact, subnormals, inf and NaN included).
 pub fn f16_to_f32(h: u16) -> f32 {
     let sign = ((h & 0x8000) as u32) << 16;
     let exp = ((h >> 10) & 0x1f) as u32;
@@ -52,11 +53,13 @@ pub fn f16_to_f32(h: u16) -> f32 {
     f32::from_bits(sign | ((exp + 112) << 23) | (man << 13))
 }
 
+/// Quantise `x` clamped to [0, 1] to u16 unorm, rounding to nearest.
 #[inline]
 pub fn unorm16(x: f32) -> u16 {
     (x.clamp(0.0, 1.0) * 65535.0 + 0.5) as u16
 }
 
+/// Decode a u16 unorm to [0, 1].
 #[inline]
 pub fn from_unorm16(q: u16) -> f32 {
     q as f32 * (1.0 / 65535.0)

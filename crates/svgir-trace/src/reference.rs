@@ -6,11 +6,14 @@ use crate::hit::{disks_of, Disk, Hit};
 use crate::traverse::{may_hit, Cursor, HitSource, Ray, TraceParams};
 use svgir_core::Surfels;
 
+/// Brute-force hit source: tests every disk against every ray (the BVH's reference in tests).
 pub struct BruteForce {
+    /// Every prepared disk, in Gaussian order.
     pub disks: Vec<Disk>,
 }
 
 impl BruteForce {
+    /// Prepare every surfel of `s` for ray tests.
     pub fn new(s: &Surfels) -> Self {
         Self { disks: disks_of(s) }
     }

@@ -37,10 +37,12 @@ pub const FIRST_PASS: usize = 4;
 /// "No Gaussian" (for `Ray::ignore` and micro-buffer first-hit indices).
 pub const NO_ID: u32 = u32::MAX;
 
+/// Offsets, range and cut-offs of the transmittance march (SPEC 5).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct TraceParams {
     /// Ray start, world units (added to `t_min_scale` x the source surfel's max scale).
     pub t_min: f32,
+    /// Extra ray start in multiples of the source surfel's max scale.
     pub t_min_scale: f32,
     /// Continuation offset after a hit, world units (SPEC 5: 0.05).
     pub eps: f32,
@@ -92,8 +94,10 @@ impl Default for TraceParams {
     }
 }
 
+/// A ray to march through the surfels.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Ray {
+    /// Ray origin, world space.
     pub origin: Vec3,
     /// Unit direction.
     pub dir: Vec3,
@@ -325,7 +329,9 @@ pub struct MarchResult {
     pub transmittance: f32,
     /// Visibility V: T, or 0 when T < v_cut.
     pub visibility: f32,
+    /// The first accepted hit, `None` if the ray escaped.
     pub first: Option<Hit>,
+    /// Number of hits the march accumulated.
     pub hits: u32,
 }
 

@@ -7,21 +7,33 @@
 
 use serde::{Deserialize, Serialize};
 
+/// Adam state of one parameter array: hyper-parameters, step count and both moments.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct AdamGroup {
+    /// Attribute name (e.g. "position"), for checkpoints and messages.
     pub name: String,
+    /// Base learning rate.
     pub lr: f32,
+    /// Floats per row (one row per Gaussian).
     pub stride: usize,
+    /// Per-component learning-rate factor, `stride` entries.
     pub lr_scale: Vec<f32>,
+    /// First-moment decay (0.9).
     pub beta1: f32,
+    /// Second-moment decay (0.999).
     pub beta2: f32,
+    /// Denominator epsilon (1e-15, SPEC 2).
     pub eps: f32,
+    /// Updates taken so far (for bias correction).
     pub step: u64,
+    /// First moment per float, rows x stride.
     pub m: Vec<f32>,
+    /// Second moment per float, rows x stride.
     pub v: Vec<f32>,
 }
 
 impl AdamGroup {
+    /// A group of `rows` rows of `stride` floats with zero moments and 3DGS's betas and eps.
     pub fn new(name: &str, lr: f32, stride: usize, rows: usize) -> Self {
         Self {
             name: name.to_string(),
@@ -37,12 +49,14 @@ impl AdamGroup {
         }
     }
 
+    /// Set the per-component learning-rate factors (`stride` of them; panics otherwise).
     pub fn with_lr_scale(mut self, lr_scale: Vec<f32>) -> Self {
         assert_eq!(lr_scale.len(), self.stride);
         self.lr_scale = lr_scale;
         self
     }
 
+    /// Number of rows (Gaussians) the moments cover.
     pub fn rows(&self) -> usize {
         self.m.len() / self.stride
     }

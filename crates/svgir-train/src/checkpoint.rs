@@ -25,14 +25,33 @@ use svgir_trace::MicroBuffer;
 
 const MAGIC: &[u8; 8] = b"SVGIRCK2";
 
+/// Why a checkpoint could not be written, read or turned back into a trainer.
 #[derive(Debug, thiserror::Error)]
 pub enum CheckpointError {
+    /// Reading or writing the file failed.
     #[error("{path}: {err}")]
-    Io { path: PathBuf, err: std::io::Error },
+    Io {
+        /// The checkpoint file.
+        path: PathBuf,
+        /// The operating-system error.
+        err: std::io::Error,
+    },
+    /// The file is not an svgir checkpoint, or its content is inconsistent.
     #[error("{path}: not an svgir checkpoint or corrupt: {what}")]
-    Corrupt { path: PathBuf, what: String },
+    Corrupt {
+        /// The checkpoint file.
+        path: PathBuf,
+        /// What is wrong with it.
+        what: String,
+    },
+    /// The content is readable but a stage-2 trainer cannot be rebuilt from it.
     #[error("{path}: cannot rebuild stage 2: {what}")]
-    Rebuild { path: PathBuf, what: String },
+    Rebuild {
+        /// The checkpoint file.
+        path: PathBuf,
+        /// Why the trainer cannot be rebuilt.
+        what: String,
+    },
 }
 
 fn bytes<T: bytemuck::Pod>(v: &[T]) -> &[u8] {
@@ -188,6 +207,7 @@ struct Header1 {
     exposure_steps: Vec<u64>,
 }
 
+/// Write a stage-1 trainer (surfels, Adam state, statistics, RNG) to `path` atomically.
 pub fn save(trainer: &Stage1, path: &Path) -> Result<(), CheckpointError> {
     let st = &trainer.stats;
     let mut arrays = surfel_arrays(&trainer.surfels);
@@ -222,6 +242,7 @@ pub fn save(trainer: &Stage1, path: &Path) -> Result<(), CheckpointError> {
     write_container(path, &header, &arrays)
 }
 
+/// Read a stage-1 checkpoint written by [`save`] for `dataset`, ready to resume.
 pub fn load(path: &Path, dataset: &Dataset) -> Result<Stage1, CheckpointError> {
     let (header, mut a): (Header1, Arrays) = read_container(path)?;
     let surfels = read_surfels(&mut a, header.sh_degree)?;
@@ -338,6 +359,7 @@ fn read_microbuffer(
     Ok(mb)
 }
 
+/// Write a stage-2 trainer (geometry, materials, light, micro-buffers, Adam state) to `path` atomically.
 pub fn save_stage2(t: &Stage2, path: &Path) -> Result<(), CheckpointError> {
     let mut arrays = surfel_arrays(&t.surfels);
     let (mb, mat) = (&t.mb, &t.materials);

@@ -4,16 +4,20 @@
 use crate::densify::DensifyConfig;
 use serde::{Deserialize, Serialize};
 
+/// Colour the renders and photos are composited over during training.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(rename_all = "lowercase")]
 pub enum BackgroundMode {
+    /// White (1, 1, 1).
     White,
+    /// Black (0, 0, 0).
     Black,
     /// A new uniformly random colour every iteration (the photo is composited over the same).
     Random,
 }
 
 impl BackgroundMode {
+    /// The constant colour of this mode, `None` for `Random`.
     pub fn fixed_color(self) -> Option<[f32; 3]> {
         match self {
             BackgroundMode::White => Some([1.0; 3]),
@@ -49,6 +53,7 @@ impl Profile {
         }
     }
 
+    /// Lowercase name as written in `config.json` and on the command line.
     pub fn name(self) -> &'static str {
         match self {
             Profile::Object => "object",
@@ -70,16 +75,22 @@ impl Profile {
     }
 }
 
+/// Stage-1 Adam learning rates per Gaussian attribute (SPEC 2).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct LearningRates {
     /// Multiplied by the scene extent (SPEC 2), decayed exponentially to `position_final`.
     pub position_init: f32,
+    /// Position learning rate at the end of the run, times the scene extent.
     pub position_final: f32,
+    /// Learning rate of the SH DC (base colour) coefficients.
     pub sh_dc: f32,
     /// Higher SH bands learn at `sh_dc / sh_rest_divisor`.
     pub sh_rest_divisor: f32,
+    /// Learning rate of the opacity logits.
     pub opacity: f32,
+    /// Learning rate of the log scales.
     pub scale: f32,
+    /// Learning rate of the rotation quaternions.
     pub rotation: f32,
 }
 
@@ -100,12 +111,17 @@ impl Default for LearningRates {
 /// SPEC 2 stage-1 loss weights.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct LossWeights {
+    /// Weight of the L1 photometric term.
     pub l1: f32,
+    /// Weight of the D-SSIM term.
     pub ssim: f32,
+    /// Weight of the mask (alpha) loss.
     pub mask: f32,
     /// Depth-normal weight ramps from `normal_start` to `normal_start + normal_ramp` over the run.
     pub normal_start: f32,
+    /// Added to the depth-normal weight over the run (see `normal_start`).
     pub normal_ramp: f32,
+    /// Weight of the opacity entropy loss.
     pub entropy: f32,
     /// 2DGS depth distortion; 0 for object datasets as 2DGS's synthetic setting.
     pub distortion: f32,
@@ -145,19 +161,28 @@ impl Default for LossWeights {
     }
 }
 
+/// Everything stage 1 (SPEC 2) needs to run; saved as the run's `config.json`.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Stage1Config {
+    /// Training iterations (one view each).
     pub iterations: u64,
+    /// Seed of every random choice of the run.
     pub seed: u64,
+    /// Highest SH degree the radiance reaches (0..=3).
     pub max_sh_degree: u32,
     /// Raise the active SH degree by one every this many iterations (3DGS: 1000).
     pub sh_upgrade_interval: u64,
+    /// Background the renders and photos are composited over.
     pub background: BackgroundMode,
     /// Random initial points when the dataset has none (SPEC 2: 100k in [-1.3, 1.3]^3).
     pub init_points: usize,
+    /// Half side of the cube the random initial points fill, world units.
     pub init_half_extent: f32,
+    /// Learning rates per attribute.
     pub lr: LearningRates,
+    /// Loss weights.
     pub loss: LossWeights,
+    /// Densification, pruning and opacity-reset schedule.
     pub densify: DensifyConfig,
     /// Use the mask and entropy losses (datasets with a meaningful alpha channel).
     pub use_mask: bool,

@@ -12,7 +12,9 @@ use svgir_core::Camera;
 
 /// A training view's camera with its rendered depth (`NaN` where the model is transparent).
 pub struct DepthView<'a> {
+    /// The view's camera.
     pub camera: &'a Camera,
+    /// Rendered expected depth per pixel, row-major, `NaN` where transparent.
     pub depth: &'a [f32],
 }
 

@@ -8,15 +8,24 @@ use glam::Vec2;
 use serde::{Deserialize, Serialize};
 use svgir_core::{surfel::logit, Rng, Surfels};
 
+/// Adaptive density control schedule and thresholds (SPEC 2, 3DGS).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct DensifyConfig {
+    /// First iteration that densifies.
     pub from_iter: u64,
+    /// Last iteration that densifies (inclusive).
     pub until_iter: u64,
+    /// Densify every this many iterations.
     pub interval: u64,
+    /// Mean screen-space position-gradient norm at or above which a Gaussian is cloned or split.
     pub grad_threshold: f32,
+    /// Gaussians larger than this fraction of the scene extent are split, smaller ones cloned.
     pub percent_dense: f32,
+    /// Gaussians below this opacity are pruned.
     pub min_opacity: f32,
+    /// Gaussians whose accumulated blending weight stays below this are pruned.
     pub min_accum_weight: f32,
+    /// Reset every opacity to a low value every this many iterations.
     pub opacity_reset_interval: u64,
     /// Screen-size pruning (pixels), active after the first opacity reset as in 3DGS.
     pub max_screen_size: f32,
@@ -66,13 +75,18 @@ impl Default for DensifyConfig {
 /// Per-Gaussian statistics since the last densification.
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct DensifyStats {
+    /// Sum of screen-space position-gradient norms over the views that saw the Gaussian.
     pub grad_accum: Vec<f32>,
+    /// Number of views that saw the Gaussian.
     pub denom: Vec<u32>,
+    /// Largest screen radius in pixels over those views.
     pub max_radius: Vec<f32>,
+    /// Sum of the Gaussian's blending weights over all views.
     pub accum_weight: Vec<f32>,
 }
 
 impl DensifyStats {
+    /// Zeroed statistics for N Gaussians.
     pub fn new(n: usize) -> Self {
         Self { grad_accum: vec![0.0; n], denom: vec![0; n], max_radius: vec![0.0; n], accum_weight: vec![0.0; n] }
     }
@@ -93,8 +107,11 @@ impl DensifyStats {
 /// Counts of a densification step.
 #[derive(Clone, Copy, Debug, Default, Serialize, Deserialize)]
 pub struct DensifyReport {
+    /// Gaussians cloned (small, high gradient).
     pub cloned: usize,
+    /// Gaussians split (large, high gradient).
     pub split: usize,
+    /// Gaussians pruned.
     pub pruned: usize,
 }
 

@@ -54,7 +54,9 @@ pub fn apply_backward<F: Float>(p: &[F; PARAMS], color: &[F], v_out: &[F]) -> (V
 /// Every training photo's correction and its optimiser state.
 #[derive(Clone, Debug)]
 pub struct ExposureCorrection {
+    /// Per photo: a row-major 3x3 matrix A then the offset b.
     pub params: Vec<[f32; PARAMS]>,
+    /// One Adam group per photo, so a correction moves only when its photo is seen.
     pub adam: Vec<AdamGroup>,
 }
 
@@ -62,6 +64,7 @@ pub struct ExposureCorrection {
 pub const LR: f32 = 1e-3;
 
 impl ExposureCorrection {
+    /// Identity corrections with fresh Adam state for `photos` training photos.
     pub fn new(photos: usize) -> Self {
         Self {
             params: vec![identity(); photos],

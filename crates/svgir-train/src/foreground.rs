@@ -24,6 +24,7 @@ use serde::{Deserialize, Serialize};
 use svgir_core::{Camera, Rng, Surfels};
 use svgir_raster::{render, Background, ColorSource, Features, RasterConfig, RenderInput};
 
+/// Thresholds of the foreground selection of a capture's Gaussians.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct ForegroundConfig {
     /// A candidate is inside at least this share of the cameras' images.
@@ -66,11 +67,14 @@ impl Default for ForegroundConfig {
 /// A plane `n . x = d` with `n` unit, the cameras on its positive side.
 #[derive(Clone, Copy, Debug, Serialize, Deserialize)]
 pub struct Plane {
+    /// Unit normal n, pointing to the cameras' side.
     pub normal: Vec3,
+    /// Offset d of `n . x = d`, world units.
     pub d: f32,
 }
 
 impl Plane {
+    /// Signed distance of `p` from the plane, positive on the cameras' side.
     pub fn signed_distance(&self, p: Vec3) -> f32 {
         self.normal.dot(p) - self.d
     }
@@ -79,21 +83,26 @@ impl Plane {
 /// What the selection found, for the masks and for the report.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Foreground {
+    /// Point nearest to the cameras' optical axes, world space.
     pub focus: Vec3,
     /// Median distance of the candidates from the focus: the unit of every tolerance.
     pub scale: f32,
+    /// Number of candidate Gaussians considered.
     pub candidates: usize,
+    /// The supporting plane (table, floor) under the object, if one was found.
     pub support: Option<Plane>,
     /// Gaussians within the plane tolerance of the support.
     pub support_inliers: usize,
     /// Size and radius (from the focus) of the seed cluster.
     pub seed_count: usize,
+    /// Radius of the seed cluster from the focus, world units.
     pub seed_radius: f32,
     /// Candidates' heights above the support: 10th, 50th and 90th percentiles (in `scale`).
     pub candidate_heights: Option<[f32; 3]>,
     /// Per Gaussian: part of the object.
     #[serde(skip)]
     pub selected: Vec<bool>,
+    /// Number of Gaussians selected as the object.
     pub selected_count: usize,
 }
 

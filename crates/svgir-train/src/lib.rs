@@ -1,6 +1,8 @@
 //! svgir-train: the optimisation layer. Depends on the maths crates (raster, metrics) and the
 //! shared types; knows nothing about files except checkpoints.
 
+#![warn(missing_docs)]
+
 pub mod adam;
 pub mod checkpoint;
 pub mod composite;

@@ -48,6 +48,7 @@ pub struct RelightSampling {
 
 /// Micro-buffers for relighting a stage-2 model.
 pub struct Relighter {
+    /// Front-side micro-buffers traced for relighting.
     pub mb: MicroBuffer,
     cache: DirectionCache,
     /// The back sides' micro-buffers and cache, for a model trained two-sided.
@@ -65,13 +66,16 @@ pub struct Relighter {
 /// One light prepared for rendering: the map and its one-bounce indirect per (Gaussian, direction)
 /// (`None` for a model trained without indirect light).
 pub struct PreparedLight {
+    /// The new environment map (linear radiance).
     pub env: EnvMap,
+    /// One-bounce indirect radiance per (Gaussian, direction), `j * K + k`.
     pub one_bounce: Option<Vec<[f32; 3]>>,
     /// The map's brightest texels as directional lights (`None` with `RelightSampling::lights = 0`).
     pub lights: Option<BrightLights>,
     /// Two-sided models: the back sides' one-bounce light and light visibility (front and back
     /// rays are reflected off the side of their hit they meet, `svgir_trace::gather_two_sided`).
     pub back_one_bounce: Option<Vec<[f32; 3]>>,
+    /// The back sides' directional-light visibility (two-sided models).
     pub back_lights: Option<BrightLights>,
 }
 

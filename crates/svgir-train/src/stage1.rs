@@ -19,23 +19,36 @@ use svgir_raster::{backward, render, Background, ColorSource, OutputGrads, Raste
 /// Wall time per phase, summed over iterations (seconds).
 #[derive(Clone, Debug, Default, Serialize, Deserialize)]
 pub struct PhaseTimes {
+    /// Rendering.
     pub forward: f64,
+    /// Loss and its output gradients.
     pub loss: f64,
+    /// Rasteriser backward pass.
     pub backward: f64,
+    /// Adam updates.
     pub optimizer: f64,
+    /// Densification and pruning.
     pub densify: f64,
 }
 
 /// What one iteration reports.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct StepStats {
+    /// Iteration number (1-based after the step).
     pub iteration: u64,
+    /// Index of the training view used.
     pub view: usize,
+    /// Total weighted loss.
     pub loss: f32,
+    /// Mean absolute colour error.
     pub l1: f32,
+    /// SSIM of render and photo.
     pub ssim: f32,
+    /// PSNR of render and photo in dB.
     pub psnr: f32,
+    /// Gaussians after the step.
     pub num_gaussians: usize,
+    /// What densification did this step, if it ran.
     pub densify: Option<DensifyReport>,
 }
 
@@ -45,15 +58,25 @@ struct Target {
     dilated: Vec<bool>,
 }
 
+/// The stage-1 trainer (SPEC 2): surfels, their Adam state and everything needed to resume.
 pub struct Stage1 {
+    /// The run's configuration.
     pub config: Stage1Config,
+    /// The Gaussians being trained.
     pub surfels: Surfels,
+    /// Adam groups: position, rotation, log scale, opacity, SH.
     pub groups: Groups,
+    /// Per-Gaussian statistics for the next densification.
     pub stats: DensifyStats,
+    /// Iterations done.
     pub iteration: u64,
+    /// Source of every random choice (view order, backgrounds, splits).
     pub rng: Rng,
+    /// Scene extent from the training cameras, world units; scales position rates and densification.
     pub extent: f32,
+    /// Wall time per phase so far.
     pub times: PhaseTimes,
+    /// Rasteriser settings.
     pub raster: RasterConfig,
     /// Per-photo colour corrections (`config.exposure`).
     pub exposure: Option<ExposureCorrection>,
@@ -92,6 +115,7 @@ pub fn alpha_of(image: &Image) -> Vec<f32> {
     }
 }
 
+/// PSNR in dB of a mean squared error on [0, 1] values (MSE floored at 1e-12).
 pub fn psnr_of_mse(mse: f64) -> f32 {
     (-10.0 * mse.max(1e-12).log10()) as f32
 }
@@ -135,6 +159,7 @@ impl Stage1 {
         }
     }
 
+    /// True once `config.iterations` iterations have run.
     pub fn is_done(&self) -> bool {
         self.iteration >= self.config.iterations
     }

@@ -72,6 +72,19 @@ pub fn loss_weights_over<W: svgir_train::NamedWeights>(mut weights: W, overrides
     Ok(weights)
 }
 
+/// A command's arguments with its own defaults and the given `flags` (as typed after the command
+/// name), for commands that run other commands (`demo`, `bench train`).
+pub fn args_of<T: clap::Args>(command: &str, flags: &[String]) -> anyhow::Result<T> {
+    use anyhow::Context;
+    #[derive(clap::Parser)]
+    struct Wrap<A: clap::Args> {
+        #[command(flatten)]
+        args: A,
+    }
+    let argv = std::iter::once(command.to_string()).chain(flags.iter().cloned());
+    Ok(<Wrap<T> as clap::Parser>::try_parse_from(argv).with_context(|| format!("building `{command}` arguments"))?.args)
+}
+
 #[cfg(test)]
 mod tests {
     use super::loss_weights;
@@ -93,17 +106,4 @@ mod tests {
             assert!(err.contains(says) && err.contains(bad), "{bad}: {err}");
         }
     }
-}
-
-/// A command's arguments with its own defaults and the given `flags` (as typed after the command
-/// name), for commands that run other commands (`demo`, `bench train`).
-pub fn args_of<T: clap::Args>(command: &str, flags: &[String]) -> anyhow::Result<T> {
-    use anyhow::Context;
-    #[derive(clap::Parser)]
-    struct Wrap<A: clap::Args> {
-        #[command(flatten)]
-        args: A,
-    }
-    let argv = std::iter::once(command.to_string()).chain(flags.iter().cloned());
-    Ok(<Wrap<T> as clap::Parser>::try_parse_from(argv).with_context(|| format!("building `{command}` arguments"))?.args)
 }

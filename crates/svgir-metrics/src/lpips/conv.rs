@@ -19,12 +19,19 @@ pub(crate) const BAND_FLOATS: usize = 8 << 20;
 /// A conv layer in OIHW layout (`weight` is `cout x (cin k k)` row-major), square kernel.
 #[derive(Clone, Debug)]
 pub struct Conv {
+    /// Output channels.
     pub cout: usize,
+    /// Input channels.
     pub cin: usize,
+    /// Kernel side length in pixels (square kernel).
     pub k: usize,
+    /// Stride in pixels, both axes.
     pub stride: usize,
+    /// Zero padding in pixels on every side.
     pub pad: usize,
+    /// Weights in OIHW order, `cout x cin x k x k` row-major.
     pub weight: Vec<f32>,
+    /// One bias per output channel.
     pub bias: Vec<f32>,
     /// Winograd-transformed weights for 3x3 / stride 1 / pad 1 layers, else empty.
     winograd: Vec<f32>,
@@ -38,6 +45,7 @@ pub struct ConvScratch {
 }
 
 impl Conv {
+    /// A layer from its shape and weights (panics if the lengths disagree); precomputes Winograd weights for 3x3/stride 1/pad 1.
     pub fn new(cout: usize, cin: usize, k: usize, stride: usize, pad: usize, weight: Vec<f32>, bias: Vec<f32>) -> Self {
         assert_eq!(weight.len(), cout * cin * k * k, "conv weight size");
         assert_eq!(bias.len(), cout, "conv bias size");

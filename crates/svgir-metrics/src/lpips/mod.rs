@@ -33,7 +33,9 @@ const NORM_EPS: f32 = 1e-10;
 /// An LPIPS distance: the total and each tap's contribution (they sum to the total).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct LpipsDistance {
+    /// The LPIPS distance: sum of the per-layer terms.
     pub total: f32,
+    /// Each tap's contribution (spatial mean of the weighted squared feature difference), in tap order.
     pub per_layer: Vec<f32>,
 }
 
@@ -50,6 +52,7 @@ impl Lpips {
         Ok(Self { net, weights })
     }
 
+    /// The backbone this model was loaded for.
     pub fn net(&self) -> Net {
         self.net
     }

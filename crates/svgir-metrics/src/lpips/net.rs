@@ -81,6 +81,7 @@ impl Net {
         }
     }
 
+    /// Short lowercase name (`"vgg"` or `"alex"`), as in the weight file names.
     pub fn name(self) -> &'static str {
         match self {
             Net::Vgg => "vgg",

@@ -9,7 +9,9 @@ use crate::error::{MetricsError, Result};
 /// One decoded tensor: row-major `data` of the given `shape`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Tensor {
+    /// Dimensions, outermost first.
     pub shape: Vec<usize>,
+    /// Values in row-major order, decoded from little-endian F32.
     pub data: Vec<f32>,
 }
 

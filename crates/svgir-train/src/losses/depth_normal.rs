@@ -13,8 +13,11 @@ use svgir_core::Camera;
 
 /// Gradients of [`depth_normal_loss`] with respect to its rendered inputs.
 pub struct DepthNormalGrads {
+    /// dL / d `sum w z` per pixel.
     pub v_depth_sum: Vec<f32>,
+    /// dL / d opacity per pixel.
     pub v_opacity: Vec<f32>,
+    /// dL / d rendered normal per pixel, 3 values each.
     pub v_normal: Vec<f32>,
 }
 
@@ -56,6 +59,7 @@ pub fn depth_normal_loss(depth_sum: &[f32], opacity: &[f32], normal: &[f32], cam
     (loss as f32, DepthNormalGrads { v_depth_sum: f(vs), v_opacity: f(vo), v_normal: f(vn) })
 }
 
+/// The f64 computation behind [`depth_normal_loss`] (also its finite-difference oracle): loss and gradients w.r.t. S, O, N.
 #[allow(clippy::type_complexity)]
 pub fn depth_normal_loss_f64(s: &[f64], o: &[f64], n: &[f64], cam: &Camera) -> (f64, Vec<f64>, Vec<f64>, Vec<f64>) {
     let (w, h) = (cam.width() as usize, cam.height() as usize);

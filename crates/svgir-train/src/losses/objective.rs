@@ -19,22 +19,33 @@ pub struct ObjectiveTarget<'a> {
 
 /// The render outputs the objective depends on.
 pub struct ObjectiveInput<'a> {
+    /// Rendered RGB over the background, `H*W*3`.
     pub color: &'a [f32],
+    /// Rendered opacity per pixel.
     pub alpha: &'a [f32],
     /// Un-normalised `sum w z` as the rasterizer outputs it.
     pub depth: &'a [f32],
+    /// Composited (unnormalised) world normal, `H*W*3`.
     pub normal: &'a [f32],
+    /// 2DGS depth distortion per pixel.
     pub distortion: &'a [f32],
 }
 
 /// Loss value, its parts, and `d loss / d output` per pixel.
 pub struct Objective {
+    /// Total weighted loss.
     pub loss: f32,
+    /// Mean absolute colour error (unweighted).
     pub l1: f32,
+    /// SSIM of render and photo (unweighted; the loss uses 1 - SSIM).
     pub ssim: f32,
+    /// dL / d colour, `H*W*3`.
     pub v_color: Vec<f32>,
+    /// dL / d opacity per pixel.
     pub v_alpha: Vec<f32>,
+    /// dL / d un-normalised depth per pixel.
     pub v_depth: Vec<f32>,
+    /// dL / d normal, `H*W*3`.
     pub v_normal: Vec<f32>,
     /// `None` when the distortion weight is 0 (the rasterizer then skips its output).
     pub v_distortion: Option<Vec<f32>>,

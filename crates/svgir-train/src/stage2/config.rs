@@ -8,15 +8,24 @@ use svgir_pbr::EnvActivation;
 use svgir_shading::Diffuse;
 use svgir_trace::TraceParams;
 
+/// Stage-2 loss weights (Eqn 15, SPEC 6).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Stage2Weights {
+    /// Weight of the L1 photometric term.
     pub l1: f32,
+    /// Weight of the D-SSIM term.
     pub ssim: f32,
+    /// Weight of the radiance-consistency loss L_rc.
     pub consistency: f32,
+    /// Weight of the depth-normal consistency loss.
     pub normal: f32,
+    /// Weight of the albedo smoothness loss.
     pub smooth_albedo: f32,
+    /// Weight of the roughness smoothness loss.
     pub smooth_roughness: f32,
+    /// Weight of the `|dN|^2` normal-offset penalty (SPEC 9.7).
     pub normal_offset: f32,
+    /// Weight of the environment map's TV-L2 regulariser.
     pub env_tv: f32,
     /// Edge-aware smoothness of the splatted shading normals over a depth guide (our addition,
     /// 0 = SPEC: stage 1's normals copy textures, tilting with the cup's stripes and the saucer's
@@ -73,14 +82,22 @@ impl NamedWeights for Stage2Weights {
     }
 }
 
+/// Stage-2 Adam learning rates per parameter (SPEC 6).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Stage2Rates {
+    /// Learning rate of the opacity logits.
     pub opacity: f32,
+    /// Learning rate of the SH coefficients.
     pub sh: f32,
+    /// Learning rate of the vertex normal offsets.
     pub normal_offset: f32,
+    /// Learning rate of the raw vertex albedo.
     pub albedo: f32,
+    /// Learning rate of the raw vertex roughness.
     pub roughness: f32,
+    /// Learning rate of the environment map parameters.
     pub env: f32,
+    /// Learning rate of the indirect scale rho.
     pub rho: f32,
 }
 
@@ -90,21 +107,30 @@ impl Default for Stage2Rates {
     }
 }
 
+/// Everything stage 2 (SPEC 6) needs to run; saved as the run's `config.json`.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Stage2Config {
+    /// Training iterations (one view each).
     pub iterations: u64,
+    /// Seed of every random choice of the run.
     pub seed: u64,
     /// Gaussian vertices per surfel (1 = constant material ablation, 2, 4, 6).
     pub vertices: usize,
     /// Micro-buffer directions per Gaussian (SPEC 4: 64 in training).
     pub directions: usize,
+    /// Height of the learned environment map in texels (width is twice this).
     pub env_height: u32,
+    /// Background the renders and photos are composited over.
     pub background: BackgroundMode,
+    /// Learning rates.
     pub lr: Stage2Rates,
+    /// Loss weights (Eqn 15).
     pub weights: Stage2Weights,
     /// Ablation switches.
     pub visibility: bool,
+    /// Add the indirect term (off: ablation).
     pub indirect: bool,
+    /// Use the radiance-consistency loss (off: ablation).
     pub consistency: bool,
     /// Tracing: continuation offset after a hit, world units. SPEC 5 says 0.05; we default to
     /// [`DEFAULT_TRACE_EPS`] (see there).
@@ -202,6 +228,7 @@ pub struct Stage2Config {
     /// views (0: never). Needs `lights > 0` and `sun_at > 0`.
     #[serde(default)]
     pub sun_search_views: usize,
+    /// Iterations between sun searches after the first.
     #[serde(default = "default_sun_search_every")]
     pub sun_search_every: u64,
     /// The first search (at `sun_at`) first scans a cone of this half-angle around the gathered
@@ -348,6 +375,7 @@ impl Stage2Config {
                     && (iteration - self.sun_at).is_multiple_of(self.sun_search_every)))
     }
 
+    /// The tracer's parameters for this configuration.
     pub fn trace_params(&self) -> TraceParams {
         TraceParams {
             eps: self.trace_eps,

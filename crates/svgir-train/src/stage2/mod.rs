@@ -42,37 +42,55 @@ use svgir_pbr::{
 use svgir_raster::{backward, render, Background, ColorSource, Features, OutputGrads, RasterConfig, RenderInput};
 use svgir_trace::{brightest_texels, concentrate_lobe, BrightLights, Bvh, GatherParams, MicroBuffer};
 
+/// What one stage-2 iteration reports (a line of `metrics.jsonl`).
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct Stage2Step {
+    /// Iteration number.
     pub iteration: u64,
+    /// The per-pixel part of Eqn 15.
     pub loss: f32,
+    /// PSNR in dB of the PBR image against the photo.
     pub psnr_pbr: f32,
+    /// PSNR in dB of the SH (stage-1 radiance) image against the photo.
     pub psnr_sh: f32,
+    /// Radiance-consistency loss L_rc.
     pub consistency: f32,
+    /// Current indirect scale rho.
     pub rho: f32,
     /// The sun direction search run before this step, if any.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub sun_search: Option<SunSearch>,
 }
 
+/// The stage-2 trainer (SPEC 6): frozen geometry, materials, light, micro-buffers and Adam state.
 pub struct Stage2 {
+    /// The run's configuration.
     pub config: Stage2Config,
     /// Frozen geometry; opacity and SH keep training.
     pub surfels: Surfels,
     /// Geometric normal per Gaussian, oriented towards the training cameras.
     pub normals: Vec<Vec3>,
+    /// Raw spatially-varying materials (SPEC 3).
     pub materials: SvgMaterials,
+    /// The learned environment light (SPEC 4).
     pub env: EnvLight,
+    /// Indirect scale rho (SPEC 6).
     pub rho: f32,
+    /// Front-side micro-buffers, traced once (SPEC 5).
     pub mb: MicroBuffer,
     /// Env-map lookup coordinates of every micro-buffer direction (fixed in stage 2).
     pub dir_cache: DirectionCache,
     /// Adam groups: opacity, sh, albedo, roughness, normal offset, env, rho.
     pub groups: [AdamGroup; 7],
+    /// Iterations done.
     pub iteration: u64,
+    /// Source of every random choice (view order, backgrounds).
     pub rng: Rng,
+    /// Rasteriser settings.
     pub raster: RasterConfig,
+    /// Wall time per phase so far.
     pub times: PhaseTimes,
+    /// Seconds spent building the BVH and tracing.
     pub trace_seconds: f64,
     /// Directional lights of the learned map (empty unless `config.lights > 0`).
     pub lights: BrightLights,
@@ -92,6 +110,7 @@ pub struct Stage2 {
 pub struct BackSide {
     /// Micro-buffers over the hemisphere of `-n`, with the front's K and azimuths.
     pub mb: MicroBuffer,
+    /// Env-map lookup coordinates of every back micro-buffer direction.
     pub dir_cache: DirectionCache,
     /// The directional lights' visibility from the back side (same texels and directions).
     pub lights: BrightLights,
@@ -114,6 +133,7 @@ fn visible_of(max_radius: &[f32]) -> Vec<bool> {
 }
 
 impl Stage2 {
+    /// Set up stage 2 on stage 1's `surfels`: orient normals, trace the micro-buffers, initialise materials and light.
     pub fn new(config: Stage2Config, mut surfels: Surfels, dataset: &Dataset) -> Result<Self, PbrError> {
         let cams: Vec<Camera> = dataset.train.iter().map(|v| v.camera).collect();
         orient_normals(&mut surfels, &cams, &raster_config());
@@ -281,6 +301,7 @@ impl Stage2 {
         (!self.lights.is_empty()).then_some(&self.lights)
     }
 
+    /// True once `config.iterations` iterations have run.
     pub fn is_done(&self) -> bool {
         self.iteration >= self.config.iterations
     }
@@ -302,6 +323,7 @@ impl Stage2 {
         objective::facing(&self.normals, &self.surfels.positions, camera.center())
     }
 
+    /// One stage-2 iteration on a random training view (sun search first when one is due).
     pub fn step(&mut self, dataset: &Dataset) -> Result<Stage2Step, PbrError> {
         let cfg = self.config.clone();
         let wts = &cfg.weights;

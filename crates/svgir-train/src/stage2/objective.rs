@@ -77,6 +77,7 @@ pub struct Stage2Target<'a> {
     /// The coverage the PBR image is blended by: the photo's alpha (`Coverage::Photo`), or
     /// `None` for the render's own opacity (SPEC 3).
     pub cover: Option<&'a [f32]>,
+    /// Background colour (RGB in [0, 1]) the photo and the SH pass are composited over.
     pub background: [f32; 3],
 }
 
@@ -84,6 +85,7 @@ pub struct Stage2Target<'a> {
 pub struct Stage2Outputs<'a> {
     /// PBR pass: composited linear radiance `sum w c` (black background), `H*W*3`.
     pub color: &'a [f32],
+    /// Rendered opacity per pixel.
     pub alpha: &'a [f32],
     /// Un-normalised `sum w z` as the rasteriser outputs it.
     pub depth: &'a [f32],
@@ -99,10 +101,15 @@ pub struct Stage2Objective {
     pub loss: f32,
     /// The PBR image compared with the photo.
     pub image: Vec<f32>,
+    /// dL / d PBR colour, `H*W*3`.
     pub v_color: Vec<f32>,
+    /// dL / d opacity per pixel.
     pub v_alpha: Vec<f32>,
+    /// dL / d un-normalised depth per pixel.
     pub v_depth: Vec<f32>,
+    /// dL / d extra channels, [`EXTRA_CHANNELS`] per pixel.
     pub v_extra: Vec<f32>,
+    /// dL / d SH colour, `H*W*3`.
     pub v_sh_color: Vec<f32>,
 }
 

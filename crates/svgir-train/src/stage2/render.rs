@@ -17,14 +17,19 @@ use svgir_trace::{BrightLights, MicroBuffer};
 
 /// Everything a PBR render produces, per pixel, after dividing by opacity.
 pub struct PbrRender {
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
     /// sRGB image composited over the background.
     pub image: Vec<f32>,
+    /// Rendered opacity per pixel.
     pub alpha: Vec<f32>,
     /// Linear albedo, roughness and unit shading normal (0 where nothing was hit).
     pub albedo: Vec<f32>,
+    /// Roughness per pixel (0 where nothing was hit).
     pub roughness: Vec<f32>,
+    /// Unit world shading normal per pixel, 3 values (0 where nothing was hit).
     pub normal: Vec<f32>,
 }
 
@@ -44,10 +49,15 @@ impl PbrRender {
 /// What a PBR render shades with: micro-buffers (and their direction cache), the light, the
 /// indirect term and the shading parameters.
 pub struct Shading<'a> {
+    /// Front-side micro-buffers.
     pub mb: &'a MicroBuffer,
+    /// Their direction cache (`None`: lookups computed on the fly).
     pub cache: Option<&'a DirectionCache>,
+    /// The environment light.
     pub env: &'a svgir_core::EnvMap,
+    /// The indirect term.
     pub indirect: Indirect<'a, f32>,
+    /// Switches of the rendering equation.
     pub params: ShadeParams,
     /// Texels of `env` shaded as directional lights.
     pub lights: Option<&'a BrightLights>,
@@ -57,9 +67,13 @@ pub struct Shading<'a> {
 
 /// The back sides' micro-buffers (over -n), direction cache, indirect term and light visibility.
 pub struct BackShading<'a> {
+    /// Back-side micro-buffers (over -n).
     pub mb: &'a MicroBuffer,
+    /// Their direction cache (`None`: lookups computed on the fly).
     pub cache: Option<&'a DirectionCache>,
+    /// The back sides' indirect term.
     pub indirect: Indirect<'a, f32>,
+    /// The back sides' directional-light visibility.
     pub lights: Option<&'a BrightLights>,
 }
 

@@ -37,11 +37,15 @@ pub const CONE_SPACING_DEG: f32 = 15.0;
 /// What one search did (logged in `metrics.jsonl`).
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct SunSearch {
+    /// Sun direction before the search (unit, world).
     pub from: [f32; 3],
+    /// Sun direction after the search (unit, world).
     pub to: [f32; 3],
     /// Angle between `from` and `to`, degrees.
     pub moved_deg: f32,
+    /// Photo loss on the search views with the sun at `from`.
     pub loss_before: f32,
+    /// Photo loss on the search views with the sun at `to`.
     pub loss_after: f32,
     /// Candidate directions scored, the start included.
     pub evaluations: usize,
