@@ -16,25 +16,25 @@ pub struct Image {
 impl Image {
     /// A zero-filled `width` x `height` image with `channels` channels.
     pub fn new(width: u32, height: u32, channels: u32) -> Self {
-        Self { width, height, channels, data: vec![0.0; (width * height * channels) as usize] }
+        Self { width, height, channels, data: vec![0.0; width as usize * height as usize * channels as usize] }
     }
 
     /// Wrap row-major interleaved `data`; panics if its length is not width x height x channels.
     pub fn from_data(width: u32, height: u32, channels: u32, data: Vec<f32>) -> Self {
-        assert_eq!(data.len(), (width * height * channels) as usize, "image data length");
+        assert_eq!(data.len(), width as usize * height as usize * channels as usize, "image data length");
         Self { width, height, channels, data }
     }
 
     /// An image with every pixel equal to `value` (its length is the channel count).
     pub fn filled(width: u32, height: u32, value: &[f32]) -> Self {
         let channels = value.len() as u32;
-        let data = value.iter().copied().cycle().take((width * height * channels) as usize).collect();
+        let data = value.iter().copied().cycle().take(width as usize * height as usize * channels as usize).collect();
         Self { width, height, channels, data }
     }
 
     /// Number of pixels, width x height.
     pub fn pixel_count(&self) -> usize {
-        (self.width * self.height) as usize
+        self.width as usize * self.height as usize
     }
 
     /// The channels of pixel (x, y), x from the left, y from the top.

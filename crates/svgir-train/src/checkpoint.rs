@@ -79,9 +79,9 @@ fn write_container<H: Serialize>(path: &Path, header: &H, arrays: &[(String, &[u
         bytes.extend_from_slice(a);
     }
     let tmp = path.with_extension("tmp");
-    let io = |err| CheckpointError::Io { path: path.to_path_buf(), err };
-    std::fs::write(&tmp, &bytes).map_err(io)?;
-    std::fs::rename(&tmp, path).map_err(io)
+    // The error names the file that failed: the temporary one while writing, the final one when renaming.
+    std::fs::write(&tmp, &bytes).map_err(|err| CheckpointError::Io { path: tmp.clone(), err })?;
+    std::fs::rename(&tmp, path).map_err(|err| CheckpointError::Io { path: path.to_path_buf(), err })
 }
 
 /// The arrays of a container, consumed in order by name.
