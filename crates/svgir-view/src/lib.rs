@@ -12,6 +12,8 @@
 //!
 //! The maths here do no I/O: `svgir view` reads the run and writes the page.
 
+#![warn(missing_docs)]
+
 pub mod light;
 pub mod model;
 pub mod oracle;

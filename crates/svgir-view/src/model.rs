@@ -35,12 +35,17 @@ pub const VERTICES: usize = 4;
 /// Why a model cannot be viewed.
 #[derive(Debug, thiserror::Error)]
 pub enum ViewError {
+    /// The model's Gaussian vertices per surfel (M) is not [`VERTICES`].
     #[error("the model has M = {0} Gaussian vertices per surfel; the viewer supports M = 4 (SPEC 3's default)")]
     Vertices(usize),
+    /// The requested SH degree of the transfer is outside 1..=3.
     #[error("SH degree {0} is not supported (1..=3)")]
     Degree(u32),
+    /// The model has no surfels.
     #[error("the model has no Gaussians")]
     Empty,
+    /// Array lengths disagree (surfels, micro-buffers, vertex materials) or the materials
+    /// cannot be activated; the message says which.
     #[error("{0}")]
     Inconsistent(String),
 }

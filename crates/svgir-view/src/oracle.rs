@@ -30,13 +30,13 @@ pub struct View {
     pub trans: [f64; 3],
     /// Camera centre.
     pub eye: [f64; 3],
-    /// Focal lengths and principal point in pixels.
+    /// Horizontal focal length in pixels.
     pub fx: f64,
-    /// Vertical focal length.
+    /// Vertical focal length in pixels.
     pub fy: f64,
-    /// Principal point x.
+    /// Principal point x in pixels.
     pub cx: f64,
-    /// Principal point y.
+    /// Principal point y in pixels.
     pub cy: f64,
     /// Image width.
     pub width: u32,
@@ -50,13 +50,13 @@ pub struct View {
 pub struct Orbit {
     /// Point looked at.
     pub target: [f64; 3],
-    /// Azimuth about +Z.
+    /// Azimuth about +Z in radians.
     pub yaw: f64,
-    /// Elevation.
+    /// Elevation above the XY plane in radians.
     pub pitch: f64,
     /// Distance from the target.
     pub dist: f64,
-    /// Vertical field of view.
+    /// Vertical field of view in radians.
     pub fov_y: f64,
 }
 

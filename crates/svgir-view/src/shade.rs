@@ -58,9 +58,9 @@ pub struct Light<'a> {
     pub sh: &'a [[f32; 3]],
     /// Prefiltered chain ([`crate::light::prefilter`]) of the unrotated, unscaled map.
     pub chain: &'a [[f32; 3]],
-    /// Map width and height.
+    /// Map width in texels (2 x height).
     pub width: u32,
-    /// Map height.
+    /// Map height in texels.
     pub height: u32,
     /// Rotation about +Z (radians).
     pub angle: f32,
