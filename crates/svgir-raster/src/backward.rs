@@ -28,11 +28,11 @@ use crate::{
 use rayon::prelude::*;
 
 // Per-entry gradient slot layout.
-const OFF_H: usize = 0;
-const OFF_C: usize = 9;
-const OFF_OP: usize = 11;
-const OFF_N: usize = 12;
-const OFF_COL: usize = 15;
+pub(crate) const OFF_H: usize = 0;
+pub(crate) const OFF_C: usize = 9;
+pub(crate) const OFF_OP: usize = 11;
+pub(crate) const OFF_N: usize = 12;
+pub(crate) const OFF_COL: usize = 15;
 
 /// Per-pixel upstream gradients and saved state of one tile (one record per pixel, as the
 /// forward's accumulator: one cache line per pixel visit).
@@ -196,19 +196,19 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     }
 }
 
-struct Ctx<'a, F: Real> {
-    bins: &'a TileBins,
-    recs: &'a [TileRec<F>],
-    state: &'a ForwardStateOf<F>,
-    cf: &'a FeatView<'a, F>,
-    ef: &'a FeatView<'a, F>,
-    grads: &'a OutputGradsOf<'a, F>,
-    bg: &'a BackgroundOf<'a, F>,
-    cfg: &'a RasterConfig,
-    w: u32,
-    h: u32,
-    dim: usize,
-    off_ext: usize,
+pub(crate) struct Ctx<'a, F: Real> {
+    pub(crate) bins: &'a TileBins,
+    pub(crate) recs: &'a [TileRec<F>],
+    pub(crate) state: &'a ForwardStateOf<F>,
+    pub(crate) cf: &'a FeatView<'a, F>,
+    pub(crate) ef: &'a FeatView<'a, F>,
+    pub(crate) grads: &'a OutputGradsOf<'a, F>,
+    pub(crate) bg: &'a BackgroundOf<'a, F>,
+    pub(crate) cfg: &'a RasterConfig,
+    pub(crate) w: u32,
+    pub(crate) h: u32,
+    pub(crate) dim: usize,
+    pub(crate) off_ext: usize,
 }
 
 /// Per-task buffers of the tile kernel, reused from tile to tile.
@@ -222,6 +222,8 @@ struct Scratch<F> {
     /// Per tile row, the columns that composited the current entry (they only join as the walk
     /// goes back to front).
     row_act: Vec<u64>,
+    /// The SIMD kernel's per-pixel arrays ([`crate::backward_simd`]).
+    lanes: Vec<f32>,
 }
 
 impl<F: Real> Scratch<F> {
@@ -234,6 +236,7 @@ impl<F: Real> Scratch<F> {
             ev: Box::default(),
             by_ncon: Vec::with_capacity(tp),
             row_act: vec![0; tile],
+            lanes: Vec::new(),
         }
     }
 }
@@ -244,6 +247,25 @@ fn backward_tile<F: Real>(ctx: &Ctx<F>, t: usize, eg: &mut [F], scr: &mut Scratc
     let ci = ctx.cf.vertices > 1;
     let ex = ctx.ef.channels > 0;
     let dist = ctx.cfg.distortion && ctx.grads.distortion.is_some();
+    if !ci && !ex && crate::simd::is_f32::<F>() {
+        // SAFETY: `F` is `f32` (checked above), so these are the same types.
+        let (ctx32, eg32, lanes) = unsafe {
+            (&*(ctx as *const Ctx<F> as *const Ctx<f32>), &mut *(eg as *mut [F] as *mut [f32]), &mut scr.lanes)
+        };
+        let path = ctx.cfg.simd.resolve();
+        if crate::backward_simd::backward_tile_simd(
+            path,
+            dist,
+            ctx32,
+            t,
+            eg32,
+            lanes,
+            &mut scr.by_ncon,
+            &mut scr.row_act,
+        ) {
+            return;
+        }
+    }
     match (ci, ex, dist) {
         (false, false, false) => backward_tile_k::<F, false, false, false>(ctx, t, eg, scr),
         (false, false, true) => backward_tile_k::<F, false, false, true>(ctx, t, eg, scr),
@@ -277,7 +299,7 @@ fn backward_tile_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
     let m_scale = far / (far - near);
     let wu = ctx.w as usize;
     let tile = bins.tile as usize;
-    let Scratch { px, ge_px, ext, ev, by_ncon, row_act } = scr;
+    let Scratch { px, ge_px, ext, ev, by_ncon, row_act, .. } = scr;
     let g = ctx.grads;
     let st = ctx.state;
     let (mut wc, mut wcu, mut wcv) = ([F::ZERO; MAX_VERTICES], [F::ZERO; MAX_VERTICES], [F::ZERO; MAX_VERTICES]);

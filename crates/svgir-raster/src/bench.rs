@@ -6,7 +6,7 @@
 //! [-1, 3], SH degree 3 with small random higher bands; the camera sits 3.2 units away with a
 //! 40-degree field of view. Timing: median of repeated calls in a rayon pool of the given size.
 
-use crate::{render, Background, ColorSource, OutputGrads, RasterConfig, RenderInput};
+use crate::{render, Background, ColorSource, OutputGrads, RasterConfig, RenderInput, Simd};
 use glam::{Mat4, Quat, Vec2, Vec3};
 use std::fmt::Write;
 use std::time::Instant;
@@ -102,6 +102,10 @@ fn median_ms(mut f: impl FnMut(), reps: usize) -> f64 {
             t0.elapsed().as_secs_f64() * 1e3
         })
         .collect();
+    median(&mut t)
+}
+
+fn median(t: &mut [f64]) -> f64 {
     t.sort_by(|a, b| a.total_cmp(b));
     t[t.len() / 2]
 }
@@ -112,53 +116,176 @@ fn thread_counts(threads: usize) -> Vec<usize> {
     t
 }
 
+/// CPU seconds (user + system) this process has used so far, from `/proc/self/stat` (10 ms
+/// ticks); `None` where that file does not exist. Wall time on a shared machine also counts the
+/// other processes' time slices, CPU time does not.
+pub fn process_cpu_seconds() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which is in parentheses and may hold spaces).
+    let rest = &s[s.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    Some(ticks / 100.0)
+}
+
+/// What [`bench_table_with`] times.
+#[derive(Clone, Debug)]
+pub struct BenchOptions {
+    /// Largest thread count (1 is always timed too).
+    pub threads: usize,
+    /// Image sides.
+    pub sizes: Vec<u32>,
+    /// Gaussian counts.
+    pub gaussians: Vec<usize>,
+    /// Kernel paths; each is lowered to what the CPU has ([`Simd::resolve`]), duplicates dropped.
+    pub paths: Vec<Simd>,
+    /// Timed calls per path (interleaved across paths, so they share the machine's noise).
+    pub reps: usize,
+}
+
+impl BenchOptions {
+    /// The full grid: 10k / 100k / 300k Gaussians at 256, 400, 800 px, every path the CPU has.
+    pub fn full(threads: usize) -> Self {
+        Self {
+            threads,
+            sizes: vec![256, 400, 800],
+            gaussians: vec![10_000, 100_000, 300_000],
+            paths: Simd::available(),
+            reps: 5,
+        }
+    }
+}
+
+/// The machine line of the tables: CPU model, threads, detected features, the `Auto` path.
+pub fn machine_line() -> String {
+    let cpu = std::fs::read_to_string("/proc/cpuinfo")
+        .ok()
+        .and_then(|s| {
+            s.lines()
+                .find(|l| l.starts_with("model name"))
+                .map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string())
+        })
+        .unwrap_or_else(|| std::env::consts::ARCH.to_string());
+    format!(
+        "{cpu}, {} threads available; features {}; default path {}",
+        std::thread::available_parallelism().map_or(1, |n| n.get()),
+        crate::simd::cpu_features(),
+        Simd::Auto.resolve().name()
+    )
+}
+
 fn header(s: &mut String) {
     let _ = writeln!(
         s,
-        "{:>9} {:>8} {:>7} {:>10} {:>12} {:>9} {:>12} {:>12}",
-        "size", "gauss", "threads", "pairs", "box evals", "fwd ms", "fwd+bwd ms", "Mevals/s f+b"
+        "{:>9} {:>8} {:>7} {:>7} {:>8} {:>10} {:>8} {:>8} {:>9} {:>8} {:>10}",
+        "size", "gauss", "threads", "path", "pairs", "box evals", "fwd ms", "bwd ms", "total ms", "cpu ms", "Mevals/s"
     );
 }
 
 /// Forward and forward+backward timings at 256^2, 400^2, 800^2 with 10k, 100k, 300k random
-/// Gaussians, on 1 and `threads` threads.
+/// Gaussians, on 1 and `threads` threads, for every kernel path the CPU has.
 pub fn bench_table(threads: usize) -> String {
+    bench_table_with(&BenchOptions::full(threads))
+}
+
+/// The random-scene table for the given sizes, counts, threads and paths (see [`BenchOptions`]).
+pub fn bench_table_with(o: &BenchOptions) -> String {
     let mut s = String::new();
     let _ = writeln!(s, "svgir-raster bench, random object scene: SH degree 3, colour + all aux outputs");
+    let _ = writeln!(s, "machine: {}", machine_line());
     header(&mut s);
-    for t in thread_counts(threads) {
-        bench_random(&mut s, t);
+    let mut paths: Vec<Simd> = o.paths.iter().map(|p| p.resolve()).collect();
+    paths.dedup();
+    for t in thread_counts(o.threads) {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().expect("rayon pool");
+        for &n in &o.gaussians {
+            let mut surfels = Some(random_scene(n, 7));
+            for &res in &o.sizes {
+                let problem = Problem::with_surfels(surfels.take().expect("scene"), res);
+                bench_problem(
+                    &mut s,
+                    &pool,
+                    &problem,
+                    &format!("{res}x{res}"),
+                    t,
+                    &paths,
+                    o.reps,
+                    RasterConfig::default(),
+                );
+                surfels = Some(problem.surfels);
+            }
+        }
     }
-    let _ = writeln!(s, "box evals: Gaussian-pixel pairs inside each Gaussian's box (upper bound, before early stop).");
+    let _ = writeln!(
+        s,
+        "box evals: Gaussian-pixel pairs inside each Gaussian's box (upper bound, before early stop); \
+         fwd / bwd / total: medians of {} calls; cpu ms: process CPU time per forward+backward; \
+         Mevals/s: 2 x box evals / total.",
+        o.reps
+    );
     s
 }
 
-fn bench_random(s: &mut String, threads: usize) {
-    let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("rayon pool");
-    let cfg = RasterConfig::default();
-    for &n in &[10_000usize, 100_000, 300_000] {
-        let mut surfels = Some(random_scene(n, 7));
-        for &res in &[256u32, 400, 800] {
-            let problem = Problem::with_surfels(surfels.take().expect("scene"), res);
-            let (input, grads) = (problem.input(), problem.grads());
-            let (pairs, evals) = pool.install(|| {
-                let (_, st) = render(&input, &cfg);
-                (st.num_tile_entries(), st.box_evaluations())
+/// Times `problem` on every path, the paths interleaved call by call, one row each.
+#[allow(clippy::too_many_arguments)]
+fn bench_problem(
+    s: &mut String,
+    pool: &rayon::ThreadPool,
+    problem: &Problem,
+    size: &str,
+    threads: usize,
+    paths: &[Simd],
+    reps: usize,
+    base: RasterConfig,
+) {
+    let (input, grads) = (problem.input(), problem.grads());
+    let (pairs, evals) = pool.install(|| {
+        let (_, st) = render(&input, &base);
+        (st.num_tile_entries(), st.box_evaluations())
+    });
+    let k = paths.len();
+    let (mut fwd, mut bwd, mut tot) = (vec![Vec::new(); k], vec![Vec::new(); k], vec![Vec::new(); k]);
+    let mut cpu = vec![0.0f64; k];
+    for rep in 0..reps + 1 {
+        for (i, &path) in paths.iter().enumerate() {
+            let cfg = RasterConfig { simd: path, ..base };
+            let c0 = process_cpu_seconds();
+            let (f, b) = pool.install(|| {
+                let t0 = Instant::now();
+                let (out, st) = render(&input, &cfg);
+                let f = t0.elapsed().as_secs_f64() * 1e3;
+                let t1 = Instant::now();
+                drop(crate::backward(&input, &cfg, &st, &out, &grads));
+                (f, t1.elapsed().as_secs_f64() * 1e3)
             });
-            let reps = if n * (res as usize) > 40_000_000 { 3 } else { 5 };
-            let fwd = pool.install(|| median_ms(|| drop(render(&input, &cfg)), reps));
-            let fb = pool.install(|| {
-                median_ms(
-                    || {
-                        let (out, st) = render(&input, &cfg);
-                        drop(crate::backward(&input, &cfg, &st, &out, &grads));
-                    },
-                    reps,
-                )
-            });
-            row(s, &format!("{res}x{res}"), n, threads, pairs as u64, evals, fwd, fb);
-            surfels = Some(problem.surfels);
+            // The first round warms the pool and the allocator up.
+            if rep > 0 {
+                fwd[i].push(f);
+                bwd[i].push(b);
+                tot[i].push(f + b);
+                if let (Some(a), Some(b)) = (c0, process_cpu_seconds()) {
+                    cpu[i] += b - a;
+                }
+            }
         }
+    }
+    for (i, path) in paths.iter().enumerate() {
+        let total = median(&mut tot[i]);
+        let _ = writeln!(
+            s,
+            "{:>9} {:>8} {:>7} {:>7} {:>8} {:>10} {:>8.1} {:>8.1} {:>9.1} {:>8.1} {:>10.1}",
+            size,
+            problem.surfels.len(),
+            threads,
+            path.name(),
+            pairs,
+            evals,
+            median(&mut fwd[i]),
+            median(&mut bwd[i]),
+            total,
+            cpu[i] * 1e3 / reps as f64,
+            2.0 * evals as f64 / total / 1e3
+        );
     }
 }
 
@@ -166,14 +293,17 @@ fn bench_random(s: &mut String, threads: usize) {
 fn row(s: &mut String, size: &str, n: usize, threads: usize, pairs: u64, evals: u64, fwd: f64, fb: f64) {
     let _ = writeln!(
         s,
-        "{:>9} {:>8} {:>7} {:>10} {:>12} {:>9.1} {:>12.1} {:>12.1}",
+        "{:>9} {:>8} {:>7} {:>7} {:>8} {:>10} {:>8.1} {:>8.1} {:>9.1} {:>8} {:>10.1}",
         size,
         n,
         threads,
+        Simd::Auto.resolve().name(),
         pairs,
         evals,
         fwd,
+        fb - fwd,
         fb,
+        "-",
         2.0 * evals as f64 / fb / 1e3
     );
 }

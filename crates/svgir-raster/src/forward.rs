@@ -93,21 +93,21 @@ pub(crate) fn background_at<F: Real>(bg: &BackgroundOf<F>, pix: usize) -> [F; 3]
 }
 
 /// Mutable row band of every per-pixel buffer for one row of tiles.
-struct Band<'a, F> {
-    ty: u32,
-    color: &'a mut [F],
-    alpha: &'a mut [F],
-    depth: &'a mut [F],
-    median: &'a mut [F],
-    normal: &'a mut [F],
-    dist: &'a mut [F],
-    extra: &'a mut [F],
-    final_t: &'a mut [F],
-    n_contrib: &'a mut [u32],
-    m1: &'a mut [F],
-    m2: &'a mut [F],
+pub(crate) struct Band<'a, F> {
+    pub(crate) ty: u32,
+    pub(crate) color: &'a mut [F],
+    pub(crate) alpha: &'a mut [F],
+    pub(crate) depth: &'a mut [F],
+    pub(crate) median: &'a mut [F],
+    pub(crate) normal: &'a mut [F],
+    pub(crate) dist: &'a mut [F],
+    pub(crate) extra: &'a mut [F],
+    pub(crate) final_t: &'a mut [F],
+    pub(crate) n_contrib: &'a mut [u32],
+    pub(crate) m1: &'a mut [F],
+    pub(crate) m2: &'a mut [F],
     /// Per entry of this row's tiles: sum of w.
-    wsum: &'a mut [F],
+    pub(crate) wsum: &'a mut [F],
 }
 
 /// Splits `v` into consecutive chunks of the given lengths.
@@ -248,6 +248,19 @@ fn render_band<F: Real>(
 ) {
     let ci = cf.vertices > 1;
     let ex = ef.channels > 0;
+    if !ci && !ex && crate::simd::is_f32::<F>() {
+        // SAFETY: `F` is `f32` (checked above), so these are the same types.
+        let (b32, recs32, bg32) = unsafe {
+            (
+                &mut *(b as *mut Band<F> as *mut Band<f32>),
+                &*(recs as *const [TileRec<F>] as *const [TileRec<f32>]),
+                &*(bg as *const BackgroundOf<F> as *const BackgroundOf<f32>),
+            )
+        };
+        if crate::forward_simd::render_band_simd(cfg.simd.resolve(), b32, bins, recs32, bg32, cfg, w, h) {
+            return;
+        }
+    }
     macro_rules! go {
         ($ci:literal, $ex:literal, $d:literal) => {
             render_band_k::<F, $ci, $ex, $d>(b, bins, recs, cf, ef, bg, cfg, w, h)

@@ -13,13 +13,16 @@
 //! tests run the same code in `f64` against finite differences of the dense [`reference`](mod@reference) renderer.
 
 pub mod backward;
+mod backward_simd;
 pub mod bench;
 pub mod forward;
+mod forward_simd;
 pub mod interp;
 pub mod preprocess;
 pub mod preprocess_backward;
 pub mod real;
 pub mod reference;
+pub mod simd;
 pub mod splat;
 pub mod tiles;
 
@@ -29,6 +32,7 @@ pub use backward::backward_generic;
 pub use bench::bench_table;
 pub use forward::render_generic;
 pub use real::Real;
+pub use simd::Simd;
 
 /// Rasterizer settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -45,11 +49,14 @@ pub struct RasterConfig {
     /// given for it is ignored, which saves a division and the moments per composited pixel
     /// (training with a zero distortion weight, as 2DGS on object scenes).
     pub distortion: bool,
+    /// Which f32 tile kernels run ([`Simd::Auto`]: `SVGIR_SIMD` or the best the CPU has). The
+    /// choice changes no image bit, and gradients only by the rounding of per-Gaussian sums.
+    pub simd: Simd,
 }
 
 impl Default for RasterConfig {
     fn default() -> Self {
-        Self { near: 0.2, far: 1e4, t_stop: 1e-4, tile: 16, distortion: true }
+        Self { near: 0.2, far: 1e4, t_stop: 1e-4, tile: 16, distortion: true, simd: Simd::Auto }
     }
 }
 

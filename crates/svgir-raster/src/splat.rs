@@ -284,6 +284,18 @@ pub struct SplatGrad<F> {
 }
 
 impl<F: Real> SplatGrad<F> {
+    /// From sums accumulated elsewhere (the SIMD kernels): `sum gp`, `sum x gp`, `sum y gp`.
+    pub(crate) fn from_sums(
+        h_depth: [F; 3],
+        center: [F; 2],
+        opacity: F,
+        gp: [F; 3],
+        gp_x: [F; 3],
+        gp_y: [F; 3],
+    ) -> Self {
+        Self { h_depth, center, opacity, gp, gp_x, gp_y }
+    }
+
     /// dL/dH from the accumulated sums.
     pub fn h_grad(&self, h: &[F; 9]) -> [F; 9] {
         let (tu, tv, tw) = ([h[0], h[1], h[2]], [h[3], h[4], h[5]], [h[6], h[7], h[8]]);

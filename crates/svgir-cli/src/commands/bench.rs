@@ -35,8 +35,25 @@ pub struct BenchArgs {
     /// raster: background colour r,g,b for --ply.
     #[arg(long, default_value = "1,1,1", value_parser = super::eval::parse_rgb)]
     pub background: [f32; 3],
+    /// raster: image sides of the random-scene table (comma-separated; default 256,400,800).
+    #[arg(long, value_delimiter = ',')]
+    pub size: Vec<u32>,
+    /// raster: Gaussian counts of the random-scene table (default 10000,100000,300000).
+    #[arg(long, value_delimiter = ',')]
+    pub gaussians: Vec<usize>,
+    /// raster: kernel paths to compare, interleaved call by call: scalar, avx2, avx512, auto
+    /// (comma-separated; default every path the CPU has).
+    #[arg(long, value_delimiter = ',', value_parser = parse_simd)]
+    pub simd: Vec<svgir_raster::Simd>,
+    /// raster: timed calls per path and case.
+    #[arg(long, default_value_t = 5)]
+    pub reps: usize,
     #[command(flatten)]
     pub train: super::bench_train::TrainBenchArgs,
+}
+
+fn parse_simd(s: &str) -> Result<svgir_raster::Simd, String> {
+    svgir_raster::Simd::parse(s).ok_or_else(|| format!("unknown kernel path {s:?} (scalar, avx2, avx512 or auto)"))
 }
 
 /// `svgir bench raster --ply --data`: the scene's timing table.
@@ -78,7 +95,20 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let table = match args.kernel {
         Kernel::Raster => match (&args.ply, &args.data) {
             (Some(ply), Some(data)) => raster_scene(ply, data, args.views, args.background, threads)?,
-            _ => svgir_raster::bench_table(threads),
+            _ => {
+                let mut o = svgir_raster::bench::BenchOptions::full(threads);
+                if !args.size.is_empty() {
+                    o.sizes = args.size.clone();
+                }
+                if !args.gaussians.is_empty() {
+                    o.gaussians = args.gaussians.clone();
+                }
+                if !args.simd.is_empty() {
+                    o.paths = args.simd.clone();
+                }
+                o.reps = args.reps.max(1);
+                svgir_raster::bench::bench_table_with(&o)
+            }
         },
         Kernel::Trace => svgir_trace::bench::bench_table(threads),
         Kernel::Pbr => svgir_pbr::bench::bench_table(threads),

@@ -1,0 +1,284 @@
+//! The forward tile kernel ([`crate::forward`]) vectorised across the pixels of a row, for f32
+//! with one colour per Gaussian and no extra channels (stage 1 and the SH renders), compiled for
+//! AVX2 and AVX-512 and chosen at run time ([`crate::simd`]).
+//!
+//! Same work split and order as the scalar kernel: per row of tiles, per tile front to back,
+//! per Gaussian the rows of its box narrowed by the row chord and the live-pixel masks. A row
+//! segment is processed `N` pixels at a time: the ray-splat evaluation ([`eval_lanes`], the
+//! arithmetic of [`crate::splat::eval_row`] lane by lane) and the compositing, with the per-pixel
+//! accumulators of the tile kept as one array per quantity so that `N` neighbouring pixels are
+//! one load. Skipped, finished and outside pixels are masked, never branched on. Every per-pixel
+//! value is computed with the scalar kernel's operations in its order (no FMA), so the images are
+//! bit-identical to the scalar path; only the per-Gaussian weight sums are summed lane-wise.
+
+// The lane methods and kernels are `unsafe fn`s with one contract -- the CPU has the features
+// of the path that runs them (checked once by `Simd::resolve`) and every pointer stays inside
+// its tile buffer -- so the operations inside need no block of their own.
+#![allow(unsafe_op_in_unsafe_fn)]
+
+use crate::forward::{background_at, Band};
+use crate::simd::Lanes;
+use crate::splat::{row_setup, RowSetup};
+use crate::tiles::{columns_mask, live_span, TileBins, TileRec};
+use crate::{BackgroundOf, RasterConfig};
+
+/// One lane group's evaluation; `alpha == 0` marks a skipped pixel.
+#[derive(Clone, Copy)]
+pub(crate) struct Eval<S: Lanes> {
+    pub alpha: S,
+    pub u: S,
+    pub v: S,
+    pub z: S,
+    pub g: S,
+    pub inv_pz: S,
+    /// `rho3 <= rho2`: the Gaussian, not the filter, decided rho.
+    pub use3d: S::M,
+}
+
+/// [`crate::splat::eval_row`]'s per-pixel arithmetic at pixel centres `x` of the row with centre
+/// `y` set up by `rs` (same operations, same order, so the same bits).
+#[inline(always)]
+pub(crate) unsafe fn eval_lanes<S: Lanes>(rec: &TileRec<f32>, rs: &RowSetup<f32>, x: S, y: f32, near: f32) -> Eval<S> {
+    let sp = |v: f32| S::splat(v);
+    let px = x.mul(sp(rs.a[0])).sub(sp(rs.b[0]));
+    let py = x.mul(sp(rs.a[1])).sub(sp(rs.b[1]));
+    let pz = x.mul(sp(rs.a[2])).sub(sp(rs.b[2]));
+    let inv_pz = sp(1.0).div(pz);
+    let u = px.mul(inv_pz);
+    let v = py.mul(inv_pz);
+    let rho3 = u.mul(u).add(v.mul(v));
+    let dx = sp(rec.center[0]).sub(x);
+    let dy = rec.center[1] - y;
+    let rho2 = sp(2.0).mul(dx.mul(dx).add(sp(dy * dy)));
+    let use3d = rho3.le(rho2);
+    let rho = S::select(use3d, rho3, rho2);
+    let z = u.mul(sp(rec.h[6])).add(v.mul(sp(rec.h[7]))).add(sp(rec.h[8]));
+    let g = sp(-0.5).mul(rho).exp_fast();
+    let a = sp(rec.opacity).mul(g);
+    let alpha = S::select(a.gt(sp(0.99)), sp(0.99), a);
+    let valid =
+        S::and(S::and(pz.ne(sp(0.0)), rho.le(sp(9.0))), S::and(z.ge(sp(near)), alpha.ge(sp((1.0f64 / 255.0) as f32))));
+    Eval { alpha: S::select(valid, alpha, sp(0.0)), u, v, z, g, inv_pz, use3d }
+}
+
+/// `*p += d` on the lanes of `m`.
+#[inline(always)]
+pub(crate) unsafe fn add_masked<S: Lanes>(p: *mut f32, m: S::M, d: S) {
+    let v = S::load(p);
+    S::select(m, v.add(d), v).store(p);
+}
+
+/// `*p = d` on the lanes of `m`.
+#[inline(always)]
+pub(crate) unsafe fn set_masked<S: Lanes>(p: *mut f32, m: S::M, d: S) {
+    let v = S::load(p);
+    S::select(m, d, v).store(p);
+}
+
+// The tile's per-pixel accumulators, one array of `stride * tile` each.
+const T: usize = 0;
+const COL: usize = 1;
+const NRM: usize = 4;
+const DEP: usize = 7;
+const DST: usize = 8;
+const M1: usize = 9;
+const M2: usize = 10;
+const MED: usize = 11;
+const NCON: usize = 12;
+const ARRAYS: usize = 13;
+
+/// One row of tiles, `S::N` pixels at a time (see the module docs).
+#[inline(always)]
+unsafe fn band<S: Lanes, const DIST: bool>(
+    b: &mut Band<f32>,
+    bins: &TileBins,
+    recs: &[TileRec<f32>],
+    bg: &BackgroundOf<f32>,
+    cfg: &RasterConfig,
+    w: u32,
+    h: u32,
+) {
+    let sp = |v: f32| S::splat(v);
+    let (near, far, t_stop) = (cfg.near, cfg.far, cfg.t_stop);
+    let m_scale = far / (far - near);
+    let wu = w as usize;
+    let tile = bins.tile as usize;
+    // Row stride: a full lane group from any column of the tile stays in its row.
+    let stride = tile + S::N;
+    let np = stride * tile;
+    let e_band0 = bins.row_range(b.ty)[0] as usize;
+    let y_band0 = (b.ty * bins.tile) as usize;
+    let mut buf = vec![0f32; np * ARRAYS];
+    let mut row_live = vec![0u64; tile];
+    for tx in 0..bins.tiles_x {
+        let t = (b.ty * bins.tiles_x + tx) as usize;
+        let tr = bins.tile_rect(t, w, h);
+        let [r0, r1] = bins.ranges[t];
+        let (tx0, ty0) = (tr[0] as usize, tr[2] as usize);
+        buf[..np].fill(1.0);
+        buf[np..].fill(0.0);
+        let base = buf.as_mut_ptr();
+        let a = |k: usize| base.add(k * np);
+        let (pt, pdep, pdst, pm1, pm2, pmed, pncon) = (a(T), a(DEP), a(DST), a(M1), a(M2), a(MED), a(NCON));
+        let pcol = [a(COL), a(COL + 1), a(COL + 2)];
+        let pnrm = [a(NRM), a(NRM + 1), a(NRM + 2)];
+        let mut remaining = (tr[1] - tr[0]) as usize * (tr[3] - tr[2]) as usize;
+        row_live.fill(columns_mask(0, (tr[1] - tr[0]) as usize));
+        for e in r0 as usize..r1 as usize {
+            if remaining == 0 {
+                break;
+            }
+            let s = &recs[e];
+            let (x0, x1) = (s.rect[0].max(tr[0]) as usize, s.rect[1].min(tr[1]) as usize);
+            let (y0, y1) = (s.rect[2].max(tr[2]) as usize, s.rect[3].min(tr[3]) as usize);
+            let local = sp((e - r0 as usize + 1) as f32);
+            let col = s.color.map(sp);
+            let nrm = s.normal.map(sp);
+            let mut ws = sp(0.0);
+            for y in y0..y1 {
+                let ry = y - ty0;
+                if row_live[ry] == 0 {
+                    continue;
+                }
+                let yf = y as f32 + 0.5;
+                let (xa, xb) = s.conic.span(s.center, yf, x0, x1);
+                let Some((xa, xb)) = live_span(row_live[ry], tx0, xa, xb) else { continue };
+                let rs = row_setup(&s.h, yf);
+                let xs = sp((xa as f64 + 0.5) as f32);
+                let mut k = xa;
+                while k < xb {
+                    let c0 = k - tx0;
+                    let lanes = (xb - k).min(S::N);
+                    let lb = (row_live[ry] >> c0) as u32 & ((1u64 << lanes) - 1) as u32;
+                    let xk = k;
+                    k += S::N;
+                    if lb == 0 {
+                        continue;
+                    }
+                    let x = xs.add(S::iota().add(sp((xk - xa) as f32)));
+                    let ev = eval_lanes::<S>(s, &rs, x, yf, near);
+                    let live = S::and(S::from_bits(lb), ev.alpha.ne(sp(0.0)));
+                    if S::bits(live) == 0 {
+                        continue;
+                    }
+                    let i = ry * stride + c0;
+                    let tcur = S::load(pt.add(i));
+                    let test = tcur.mul(sp(1.0).sub(ev.alpha));
+                    let stop = S::and(live, test.lt(sp(t_stop)));
+                    let sb = S::bits(stop);
+                    if sb != 0 {
+                        row_live[ry] &= !((sb as u64) << c0);
+                        remaining -= sb.count_ones() as usize;
+                    }
+                    let comp = S::andnot(live, stop);
+                    let wgt = ev.alpha.mul(tcur);
+                    for ch in 0..3 {
+                        add_masked::<S>(pcol[ch].add(i), comp, wgt.mul(col[ch]));
+                        add_masked::<S>(pnrm[ch].add(i), comp, wgt.mul(nrm[ch]));
+                    }
+                    add_masked::<S>(pdep.add(i), comp, wgt.mul(ev.z));
+                    if DIST {
+                        // As the scalar kernel: w_i (m_i^2 A_i + M2 - 2 m_i M1), A_i = 1 - T_i.
+                        let m = sp(m_scale).mul(sp(1.0).sub(sp(near).div(ev.z)));
+                        let (m1, m2) = (S::load(pm1.add(i)), S::load(pm2.add(i)));
+                        let d = m.mul(m).mul(sp(1.0).sub(tcur)).add(m2).sub(sp(2.0).mul(m).mul(m1)).mul(wgt);
+                        add_masked::<S>(pdst.add(i), comp, d);
+                        S::select(comp, m1.add(m.mul(wgt)), m1).store(pm1.add(i));
+                        S::select(comp, m2.add(m.mul(m).mul(wgt)), m2).store(pm2.add(i));
+                    }
+                    set_masked::<S>(pmed.add(i), S::and(comp, tcur.gt(sp(0.5))), ev.z);
+                    set_masked::<S>(pt.add(i), comp, test);
+                    set_masked::<S>(pncon.add(i), comp, local);
+                    ws = ws.add(S::select(comp, wgt, sp(0.0)));
+                }
+            }
+            b.wsum[e - e_band0] = ws.hsum();
+        }
+        let at = |k: usize, li: usize| buf[k * np + li];
+        for y in tr[2] as usize..tr[3] as usize {
+            for x in tr[0] as usize..tr[1] as usize {
+                let li = (y - ty0) * stride + (x - tx0);
+                let bi = (y - y_band0) * wu + x;
+                let tn = at(T, li);
+                let c = background_at(bg, y * wu + x);
+                for ch in 0..3 {
+                    b.color[bi * 3 + ch] = at(COL + ch, li) + tn * c[ch];
+                    b.normal[bi * 3 + ch] = at(NRM + ch, li);
+                }
+                b.alpha[bi] = 1.0 - tn;
+                b.depth[bi] = at(DEP, li);
+                b.median[bi] = at(MED, li);
+                b.dist[bi] = at(DST, li);
+                b.final_t[bi] = tn;
+                b.n_contrib[bi] = at(NCON, li) as u32;
+                b.m1[bi] = at(M1, li);
+                b.m2[bi] = at(M2, li);
+            }
+        }
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn band_avx2<const DIST: bool>(
+    b: &mut Band<f32>,
+    bins: &TileBins,
+    recs: &[TileRec<f32>],
+    bg: &BackgroundOf<f32>,
+    cfg: &RasterConfig,
+    w: u32,
+    h: u32,
+) {
+    band::<crate::simd::F8, DIST>(b, bins, recs, bg, cfg, w, h)
+}
+
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f,avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn band_avx512<const DIST: bool>(
+    b: &mut Band<f32>,
+    bins: &TileBins,
+    recs: &[TileRec<f32>],
+    bg: &BackgroundOf<f32>,
+    cfg: &RasterConfig,
+    w: u32,
+    h: u32,
+) {
+    band::<crate::simd::F16, DIST>(b, bins, recs, bg, cfg, w, h)
+}
+
+/// Runs the row of tiles on the SIMD path `path` (already resolved); false when `path` is
+/// scalar (the caller runs the generic kernel).
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn render_band_simd(
+    path: crate::simd::Simd,
+    b: &mut Band<f32>,
+    bins: &TileBins,
+    recs: &[TileRec<f32>],
+    bg: &BackgroundOf<f32>,
+    cfg: &RasterConfig,
+    w: u32,
+    h: u32,
+) -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use crate::simd::Simd;
+        // SAFETY: `resolve` only returns a path whose features the CPU has.
+        unsafe {
+            match (path, cfg.distortion) {
+                (Simd::Avx2, false) => band_avx2::<false>(b, bins, recs, bg, cfg, w, h),
+                (Simd::Avx2, true) => band_avx2::<true>(b, bins, recs, bg, cfg, w, h),
+                (Simd::Avx512, false) => band_avx512::<false>(b, bins, recs, bg, cfg, w, h),
+                (Simd::Avx512, true) => band_avx512::<true>(b, bins, recs, bg, cfg, w, h),
+                _ => return false,
+            }
+        }
+        true
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = (path, b, bins, recs, bg, cfg, w, h);
+        false
+    }
+}
