@@ -30,26 +30,32 @@ pub fn bench_camera(width: u32, height: u32) -> Camera {
 /// opacity, depth, normal and distortion (so every backward path runs). Shared by the table
 /// below, the divan bench and the profiling example.
 pub struct Problem {
+    /// The Gaussians.
     pub surfels: Surfels,
+    /// The camera rendered from.
     pub camera: Camera,
     g3: Vec<f32>,
     g1: Vec<f32>,
 }
 
 impl Problem {
+    /// `n` random Gaussians (seed 7) seen by the benchmark camera at `res x res`.
     pub fn new(n: usize, res: u32) -> Self {
         Self::with_surfels(random_scene(n, 7), res)
     }
 
+    /// Given Gaussians seen by the benchmark camera at `res x res`.
     pub fn with_surfels(surfels: Surfels, res: u32) -> Self {
         Self::with_camera(surfels, bench_camera(res, res))
     }
 
+    /// Given Gaussians and camera.
     pub fn with_camera(surfels: Surfels, camera: Camera) -> Self {
         let npx = camera.intrinsics.width as usize * camera.intrinsics.height as usize;
         Self { surfels, camera, g3: vec![1e-3; npx * 3], g1: vec![1e-3; npx] }
     }
 
+    /// Render input: SH colours, black background, no extra features.
     pub fn input(&self) -> RenderInput<'_> {
         RenderInput {
             surfels: &self.surfels,
@@ -60,6 +66,7 @@ impl Problem {
         }
     }
 
+    /// Upstream gradients: `1e-3` on colour, alpha, depth, normal and distortion.
     pub fn grads(&self) -> OutputGrads<'_> {
         OutputGrads {
             color: Some(&self.g3),

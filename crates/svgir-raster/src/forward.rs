@@ -25,8 +25,11 @@ use rayon::prelude::*;
 /// A feature table seen by the kernels: `data[(g * vertices + m) * channels + c]`.
 #[derive(Clone, Copy, Debug)]
 pub struct FeatView<'a, F> {
+    /// Values, `[gaussian][vertex][channel]`.
     pub data: &'a [F],
+    /// Vertices per Gaussian.
     pub vertices: usize,
+    /// Channels per vertex (0 for an absent table).
     pub channels: usize,
 }
 
@@ -39,6 +42,7 @@ impl<'a, F: Real> FeatView<'a, F> {
         }
     }
 
+    /// The extra-feature table; empty (0 channels) without extra features.
     pub fn extra(extra: &Option<crate::FeaturesOf<'a, F>>) -> Self {
         match extra {
             Some(f) => Self { data: f.data, vertices: f.vertices, channels: f.channels },

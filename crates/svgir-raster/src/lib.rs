@@ -12,6 +12,8 @@
 //! Every kernel is generic over [`Real`]: training uses `f32` ([`render`], [`backward()`]); the
 //! tests run the same code in `f64` against finite differences of the dense [`reference`](mod@reference) renderer.
 
+#![warn(missing_docs)]
+
 pub mod backward;
 mod backward_simd;
 pub mod bench;
@@ -63,14 +65,26 @@ impl Default for RasterConfig {
 /// Why an input cannot be rendered.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum RasterError {
+    /// The surfel arrays disagree in length or content (message says which).
     #[error("surfel arrays are inconsistent: {0}")]
     Surfels(String),
+    /// A buffer has the wrong length: `what` names it, `expected` and `got` are value counts.
     #[error("{what}: expected {expected} values, got {got}")]
-    Length { what: &'static str, expected: usize, got: usize },
+    Length {
+        /// The buffer's name.
+        what: &'static str,
+        /// Values it must hold.
+        expected: usize,
+        /// Values it holds.
+        got: usize,
+    },
+    /// A feature table (named) has a vertex count other than 1, 2, 4 or 6.
     #[error("{0}: unsupported vertex count {1} (1, 2, 4 or 6)")]
     Vertices(&'static str, usize),
+    /// Colour features with a channel count other than 3.
     #[error("colour features must have 3 channels, got {0}")]
     ColorChannels(usize),
+    /// `RasterConfig::tile` outside 1..=64.
     #[error("tile size must be in 1..=64, got {0}")]
     Tile(u32),
 }
@@ -78,12 +92,17 @@ pub enum RasterError {
 /// Read access to the raw Gaussian parameters in the kernels' scalar type. [`Surfels`] implements
 /// it for both `f32` and `f64`; tests implement it on `f64` arrays to perturb parameters finely.
 pub trait GaussianParams<F: Real>: Sync {
+    /// Number of Gaussians.
     fn count(&self) -> usize;
+    /// SH degree of the colour coefficients (0..=3).
     fn sh_degree(&self) -> u32;
+    /// World-space centre of Gaussian `i`.
     fn position(&self, i: usize) -> [F; 3];
     /// Raw (unnormalised) quaternion, glam order `x, y, z, w`.
     fn rotation(&self, i: usize) -> [F; 4];
+    /// Log of the two tangent-axis standard deviations `(s_u, s_v)` of Gaussian `i`.
     fn log_scale(&self, i: usize) -> [F; 2];
+    /// Opacity logit of Gaussian `i` (opacity is its sigmoid, SPEC 1).
     fn opacity_logit(&self, i: usize) -> F;
     /// Coefficient `k` (0..16) of channel `ch`.
     fn sh(&self, i: usize, k: usize, ch: usize) -> F;
@@ -123,10 +142,14 @@ impl<F: Real> GaussianParams<F> for Surfels {
 /// vertices interpolated at the pixel's tangent coordinates with the SPEC 3 weights, see [`interp`]).
 #[derive(Clone, Copy, Debug)]
 pub struct FeaturesOf<'a, F> {
+    /// Values, `[gaussian][vertex][channel]`.
     pub data: &'a [F],
+    /// Vertices per Gaussian: 1, or M = 2, 4, 6 (SPEC 3).
     pub vertices: usize,
+    /// Channels per vertex.
     pub channels: usize,
 }
+/// [`FeaturesOf`] in `f32`, as training uses it.
 pub type Features<'a> = FeaturesOf<'a, f32>;
 
 /// Where Gaussian colours come from.
@@ -138,31 +161,42 @@ pub enum ColorSourceOf<'a, F> {
     /// Given colours (`channels == 3`), possibly per vertex.
     Features(FeaturesOf<'a, F>),
 }
+/// [`ColorSourceOf`] in `f32`, as training uses it.
 pub type ColorSource<'a> = ColorSourceOf<'a, f32>;
 
 /// Colour behind the Gaussians, weighted by the final transmittance.
 #[derive(Clone, Copy, Debug)]
 pub enum BackgroundOf<'a, F> {
+    /// One RGB colour for every pixel.
     Color([F; 3]),
     /// Per-pixel RGB, `H * W * 3`.
     Image(&'a [F]),
 }
+/// [`BackgroundOf`] in `f32`, as training uses it.
 pub type Background<'a> = BackgroundOf<'a, f32>;
 
 /// Everything one render reads.
 pub struct RenderInputOf<'a, F: Real, P: GaussianParams<F> + ?Sized> {
+    /// The Gaussians' raw parameters.
     pub surfels: &'a P,
+    /// The camera rendered from.
     pub camera: &'a Camera,
+    /// Where the Gaussians' colours come from.
     pub colors: ColorSourceOf<'a, F>,
+    /// Optional extra features composited like colour into [`RenderOutputOf::extra`].
     pub extra: Option<FeaturesOf<'a, F>>,
+    /// Colour behind the Gaussians.
     pub background: BackgroundOf<'a, F>,
 }
+/// [`RenderInputOf`] in `f32` over [`Surfels`], as training uses it.
 pub type RenderInput<'a> = RenderInputOf<'a, f32, Surfels>;
 
 /// Rendered buffers, row-major, interleaved channels.
 #[derive(Clone, Debug, Default)]
 pub struct RenderOutputOf<F> {
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
     /// `H*W*3`: `sum_i c_i w_i + T_N * bg`.
     pub color: Vec<F>,
@@ -188,6 +222,7 @@ pub struct RenderOutputOf<F> {
     /// Per Gaussian: screen radius in pixels (0 = not visible).
     pub max_radius: Vec<f32>,
 }
+/// [`RenderOutputOf`] in `f32`, as training uses it.
 pub type RenderOutput = RenderOutputOf<f32>;
 
 /// What [`backward()`] needs from [`render`]: per-Gaussian projected data and SH colours, the tile
@@ -204,6 +239,7 @@ pub struct ForwardStateOf<F> {
     pub(crate) moment1: Vec<F>,
     pub(crate) moment2: Vec<F>,
 }
+/// [`ForwardStateOf`] in `f32`, as training uses it.
 pub type ForwardState = ForwardStateOf<f32>;
 
 impl<F> ForwardStateOf<F> {
@@ -234,22 +270,32 @@ impl<F> ForwardStateOf<F> {
 /// Gradients of the loss w.r.t. each output (same layouts as [`RenderOutputOf`]); `None` = zero.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct OutputGradsOf<'a, F> {
+    /// `dL/d color`, `H*W*3`.
     pub color: Option<&'a [F]>,
+    /// `dL/d alpha`, `H*W`.
     pub alpha: Option<&'a [F]>,
+    /// `dL/d depth` (the undivided weighted depth), `H*W`.
     pub depth: Option<&'a [F]>,
+    /// `dL/d normal`, `H*W*3`.
     pub normal: Option<&'a [F]>,
+    /// `dL/d distortion`, `H*W`.
     pub distortion: Option<&'a [F]>,
+    /// `dL/d extra`, `H*W*C`.
     pub extra: Option<&'a [F]>,
 }
+/// [`OutputGradsOf`] in `f32`, as training uses it.
 pub type OutputGrads<'a> = OutputGradsOf<'a, f32>;
 
 /// Gradients w.r.t. the raw parameters stored in [`Surfels`] and the other inputs.
 #[derive(Clone, Debug)]
 pub struct GradsOf<F: Real> {
+    /// W.r.t. the world-space centres, one per Gaussian.
     pub v_positions: Vec<F::V3>,
     /// W.r.t. the raw unnormalised quaternion.
     pub v_rotations: Vec<F::Q>,
+    /// W.r.t. the log-scales `(log s_u, log s_v)`, one per Gaussian.
     pub v_log_scales: Vec<F::V2>,
+    /// W.r.t. the opacity logits, one per Gaussian.
     pub v_opacity_logits: Vec<F>,
     /// Zero if the colours came from features.
     pub v_sh: Vec<F::Sh>,
@@ -266,6 +312,7 @@ pub struct GradsOf<F: Real> {
     /// centre's depth. 0 for culled Gaussians.
     pub v_mean2d_norm: Vec<F>,
 }
+/// [`GradsOf`] in `f32`, as training uses it.
 pub type Grads = GradsOf<f32>;
 
 /// Checks lengths, vertex counts and surfel arrays; [`render`] panics on what this rejects.

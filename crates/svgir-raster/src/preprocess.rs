@@ -36,18 +36,26 @@ pub const FILTER_SIZE: f64 = std::f64::consts::FRAC_1_SQRT_2;
 pub struct Cam<F> {
     /// World-to-camera rotation, row-major.
     pub r: [[F; 3]; 3],
+    /// World-to-camera translation (`x_cam = R x_world + t`).
     pub t: [F; 3],
+    /// Focal length along x, pixels.
     pub fx: F,
+    /// Focal length along y, pixels.
     pub fy: F,
+    /// Principal point x, pixels (pixel-centre convention: pixel i has centre i + 0.5).
     pub cx: F,
+    /// Principal point y, pixels.
     pub cy: F,
     /// Camera centre in world space.
     pub center: [F; 3],
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
 }
 
 impl<F: Real> Cam<F> {
+    /// Converts a [`Camera`] to the kernels' scalar type (and precomputes its centre `-R^T t`).
     pub fn new(cam: &Camera) -> Self {
         let rows = [0, 1, 2].map(|i| cam.rotation.row(i).to_array().map(F::from_f32));
         let t = cam.translation.to_array().map(F::from_f32);
@@ -80,6 +88,7 @@ pub struct Splat<F> {
     pub h: [F; 9],
     /// Projected centre in pixels (for the low-pass filter).
     pub center: [F; 2],
+    /// Opacity `o = sigmoid(opacity logit)`.
     pub opacity: F,
     /// Camera depth of the centre: the sort key.
     pub depth: F,
@@ -91,12 +100,14 @@ pub struct Splat<F> {
     pub rect: [u32; 4],
     /// Per-row chords of the pixels that can pass the cut ([`crate::splat::RowConic`]).
     pub conic: crate::splat::RowConic,
+    /// Screen radius in pixels (2DGS's 3-sigma rule), reported as `max_radius`.
     pub radius: f32,
     /// Bit c set when SH colour channel c was clamped at 0.
     pub clamped: u8,
 }
 
 impl<F> Splat<F> {
+    /// Whether the pixel box is non-empty (the Gaussian survived culling).
     #[inline]
     pub fn visible(&self) -> bool {
         self.rect[0] < self.rect[1] && self.rect[2] < self.rect[3]

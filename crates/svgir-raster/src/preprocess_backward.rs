@@ -12,8 +12,11 @@ use crate::GaussianParams;
 /// Summed gradients of one Gaussian's splat record.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct SplatGradSum<F> {
+    /// W.r.t. H (rows `T_u, T_v, T_w`, row-major).
     pub h: [F; 9],
+    /// W.r.t. the projected centre, pixels (through the low-pass filter).
     pub center: [F; 2],
+    /// W.r.t. the opacity `o` (after the sigmoid).
     pub opacity: F,
     /// W.r.t. the flipped (camera-facing) world normal.
     pub normal: [F; 3],
@@ -24,11 +27,17 @@ pub struct SplatGradSum<F> {
 /// Gradients w.r.t. one Gaussian's raw parameters.
 #[derive(Clone, Copy, Debug)]
 pub struct ParamGrad<F> {
+    /// W.r.t. the world-space centre.
     pub position: [F; 3],
+    /// W.r.t. the raw unnormalised quaternion (`x, y, z, w`).
     pub rotation: [F; 4],
+    /// W.r.t. the log-scales `(log s_u, log s_v)`.
     pub log_scale: [F; 2],
+    /// W.r.t. the opacity logit.
     pub opacity_logit: F,
+    /// W.r.t. the SH coefficients, `[k][channel]` (zero unless colours come from SH).
     pub sh: [[F; 3]; 16],
+    /// Densification statistic, see [`crate::GradsOf::v_mean2d_norm`].
     pub mean2d_norm: F,
 }
 

@@ -29,22 +29,35 @@ pub trait Real:
 {
     /// Gradient vector types (`Vec2`/`Vec3`/`Quat`/`ShCoeffs` for `f32`).
     type V2: Copy + Send + Sync + Debug + Default;
+    /// 3-vector gradient type (`Vec3` for `f32`, `DVec3` for `f64`).
     type V3: Copy + Send + Sync + Debug + Default;
+    /// Quaternion gradient type (`Quat` for `f32`, `DQuat` for `f64`).
     type Q: Copy + Send + Sync + Debug;
+    /// SH-coefficient gradient type (`ShCoeffs` for `f32`, `[[f64; 3]; 16]` for `f64`).
     type Sh: Copy + Send + Sync + Debug;
 
+    /// Additive identity.
     const ZERO: Self;
+    /// Multiplicative identity.
     const ONE: Self;
+    /// A constant, rounded from `f64`.
     fn c(x: f64) -> Self;
+    /// Converts from `f32` (exact).
     fn from_f32(x: f32) -> Self;
+    /// Converts to `f64` (exact).
     fn to_f64(self) -> f64;
+    /// Converts to `f32` (rounding for `f64`).
     fn to_f32(self) -> f32;
+    /// `e^self`.
     fn exp(self) -> Self;
     /// `exp` for the per-pixel Gaussian falloff: inlined polynomial in `f32` (relative error
     /// below 3e-7 on [-87, 88]), `std` in `f64`.
     fn exp_fast(self) -> Self;
+    /// Square root.
     fn sqrt(self) -> Self;
+    /// Absolute value.
     fn abs(self) -> Self;
+    /// The smaller of the two (`self` when they are equal or `o` is NaN).
     #[inline]
     fn min(self, o: Self) -> Self {
         if o < self {
@@ -53,6 +66,7 @@ pub trait Real:
             self
         }
     }
+    /// The larger of the two (`self` when they are equal or `o` is NaN).
     #[inline]
     fn max(self, o: Self) -> Self {
         if o > self {
@@ -61,9 +75,13 @@ pub trait Real:
             self
         }
     }
+    /// Packs two scalars into [`Real::V2`].
     fn v2(a: [Self; 2]) -> Self::V2;
+    /// Packs three scalars into [`Real::V3`].
     fn v3(a: [Self; 3]) -> Self::V3;
+    /// Packs `x, y, z, w` into [`Real::Q`].
     fn quat(a: [Self; 4]) -> Self::Q;
+    /// Packs SH coefficients `[k][channel]` into [`Real::Sh`].
     fn sh(a: &[[Self; 3]; 16]) -> Self::Sh;
     /// Real SH basis (3DGS convention) of a unit direction; `f32` calls `svgir_core::sh::basis`.
     fn sh_basis(degree: u32, d: [Self; 3], out: &mut [Self; 16]);

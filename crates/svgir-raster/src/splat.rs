@@ -23,11 +23,15 @@ use crate::real::{cross3, Real};
 /// Result of a successful evaluation.
 #[derive(Clone, Copy, Debug)]
 pub struct Hit<F> {
+    /// Tangent coordinate u of the ray-splat hit, sigma units.
     pub u: F,
+    /// Tangent coordinate v of the ray-splat hit, sigma units.
     pub v: F,
+    /// Camera depth of the hit, `z = u T_w.x + v T_w.y + T_w.z` (SPEC 1).
     pub z: F,
     /// `exp(-rho / 2)`.
     pub g: F,
+    /// `alpha = min(0.99, o g)` (SPEC 1).
     pub alpha: F,
     /// `o * g > 0.99` (alpha clamped: no gradient to opacity or rho).
     pub clamped: bool,
@@ -75,6 +79,7 @@ pub struct RowConic {
 }
 
 impl RowConic {
+    /// Chord coefficients of the splat with rows `h`, projected centre `c` (pixels) and cut `rho <= rho_max`.
     pub fn new(h: &[f64; 9], c: [f64; 2], rho_max: f64) -> Self {
         let (tu, tv, tw) = ([h[0], h[1], h[2]], [h[3], h[4], h[5]], [h[6], h[7], h[8]]);
         let alpha = cross3(tv, tw);
@@ -146,10 +151,13 @@ fn floor_clamped(v: f32, lo: f32, hi: f32) -> usize {
 /// `p = k x l = x (T_w x l) - (T_u x l) = x a - b`.
 #[derive(Clone, Copy, Debug)]
 pub struct RowSetup<F> {
+    /// `T_w x l`: the hit plane cross product is `x a - b` at pixel centre x.
     pub a: [F; 3],
+    /// `T_u x l`.
     pub b: [F; 3],
 }
 
+/// The [`RowSetup`] of the splat with rows `h` on the pixel row with centre `y`.
 #[inline(always)]
 pub fn row_setup<F: Real>(h: &[F; 9], y: F) -> RowSetup<F> {
     let tw = [h[6], h[7], h[8]];
@@ -164,11 +172,17 @@ pub const MAX_ROW: usize = 64;
 /// One row segment's evaluations; `alpha == 0` marks a skipped pixel.
 #[derive(Clone, Copy, Debug)]
 pub struct RowEval<F> {
+    /// Alpha per pixel (0 = skipped).
     pub alpha: [F; MAX_ROW],
+    /// Tangent coordinate u of the hit per pixel.
     pub u: [F; MAX_ROW],
+    /// Tangent coordinate v of the hit per pixel.
     pub v: [F; MAX_ROW],
+    /// Camera depth of the hit per pixel.
     pub z: [F; MAX_ROW],
+    /// Gaussian falloff `exp(-rho / 2)` per pixel.
     pub g: [F; MAX_ROW],
+    /// `1 / p.z` per pixel.
     pub inv_pz: [F; MAX_ROW],
 }
 
@@ -275,7 +289,9 @@ pub fn intersect<F: Real>(h: &[F; 9], c: [F; 2], o: F, x: F, y: F, near: F) -> O
 pub struct SplatGrad<F> {
     /// dL/dH[6..9] through the explicit depth term `z = u T_w.x + v T_w.y + T_w.z`.
     pub h_depth: [F; 3],
+    /// dL/d(projected centre), pixels (through the low-pass filter).
     pub center: [F; 2],
+    /// dL/d(opacity `o`).
     pub opacity: F,
     /// `sum gp`, `sum x gp`, `sum y gp` over the evaluated pixels.
     gp: [F; 3],

@@ -23,15 +23,21 @@ pub fn sort_key<F: Real>(depth: F, id: u32) -> u64 {
 /// What the tile kernels read for one (tile, Gaussian) entry.
 #[derive(Clone, Copy, Debug, Default)]
 pub struct TileRec<F> {
+    /// Rows `T_u, T_v, T_w` of H, row-major.
     pub h: [F; 9],
+    /// Projected centre, pixels.
     pub center: [F; 2],
+    /// Opacity `o` (after the sigmoid).
     pub opacity: F,
+    /// World normal flipped to face the camera.
     pub normal: [F; 3],
     /// The colour when the colour source has one vertex (SH or constant features).
     pub color: [F; 3],
+    /// The splat's pixel box `[x0, x1, y0, y1]`, ends exclusive.
     pub rect: [u32; 4],
     /// The splat's per-row chords (culling bound, [`crate::splat::RowConic`]).
     pub conic: crate::splat::RowConic,
+    /// The Gaussian's index.
     pub id: u32,
 }
 
@@ -63,8 +69,11 @@ pub fn gather_records<F: Real>(bins: &TileBins, splats: &[Splat<F>], colors: Opt
 /// Tile lists in one flat array.
 #[derive(Clone, Debug, Default)]
 pub struct TileBins {
+    /// Tile side in pixels.
     pub tile: u32,
+    /// Number of tile columns (tiles across the width).
     pub tiles_x: u32,
+    /// Number of tile rows (tiles down the height).
     pub tiles_y: u32,
     /// Per tile (row-major), the range of `ids`.
     pub ranges: Vec<[u32; 2]>,
@@ -73,6 +82,7 @@ pub struct TileBins {
     /// Gaussian g's entries are `entries[entry_offsets[g]..entry_offsets[g + 1]]` (positions in
     /// `ids`, in tile order).
     pub entry_offsets: Vec<u32>,
+    /// Positions in `ids` of each Gaussian's entries, grouped by Gaussian (see `entry_offsets`).
     pub entries: Vec<u32>,
 }
 
