@@ -1,0 +1,1 @@
+//! Splats for viewers (filled in below).
