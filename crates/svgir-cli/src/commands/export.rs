@@ -20,6 +20,7 @@ use std::path::{Path, PathBuf};
 use svgir_core::{Camera, EnvMap, Image, Surfels};
 use svgir_export::{files, isosurface, mesh, tsdf, Mesh};
 
+mod compare;
 mod splats;
 
 #[derive(Args)]
@@ -85,6 +86,13 @@ pub struct ExportArgs {
     /// Largest TSDF grid, in voxels.
     #[arg(long, default_value_t = 40_000_000)]
     pub max_voxels: usize,
+    /// After writing --mesh: render it with three.js (headless Chromium) and with `svgir relight`
+    /// under the exported light, and write both, their PSNR and a side-by-side image here.
+    #[arg(long, requires = "mesh")]
+    pub compare: Option<PathBuf>,
+    /// Test view (index) for --compare.
+    #[arg(long, default_value_t = 0)]
+    pub compare_view: usize,
     /// Samples per surface for the Chamfer distance.
     #[arg(long, default_value_t = 200_000)]
     pub chamfer_samples: usize,
@@ -284,6 +292,9 @@ pub fn run(args: ExportArgs) -> Result<()> {
     files::write_all_or_nothing(&outputs)?;
     for (p, b) in &outputs {
         println!("wrote {} ({} bytes)", p.display(), b.len());
+    }
+    if let (Some(dir), Some(glb), Some(s2)) = (&args.compare, &args.mesh, &s2) {
+        compare::compare(s2, &dataset, glb, &glb.with_extension("hdr"), args.compare_view, dir)?;
     }
     Ok(())
 }
