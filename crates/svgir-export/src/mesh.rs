@@ -154,29 +154,31 @@ pub fn keep_largest_components(mesh: &Mesh, min_fraction: f32) -> Mesh {
     Mesh { positions: mesh.positions.clone(), triangles }.compact()
 }
 
-/// Simplifies to about `target_triangles` with meshopt's quadric simplifier, never moving the
-/// surface by more than `max_error` (world units); the border is locked so open edges stay put.
-pub fn simplify(mesh: &Mesh, target_triangles: usize, max_error: f32) -> Result<Mesh, ExportError> {
+/// Simplifies to about `target_triangles` with meshopt's quadric simplifier; with `max_error`
+/// (world units) it stops earlier rather than move the surface further. The border is locked so
+/// open edges stay put. Returns the mesh and the deviation meshopt reports (world units).
+pub fn simplify(mesh: &Mesh, target_triangles: usize, max_error: Option<f32>) -> Result<(Mesh, f32), ExportError> {
     mesh.validate()?;
     if mesh.len() <= target_triangles {
-        return Ok(mesh.clone());
+        return Ok((mesh.clone(), 0.0));
     }
     let bytes: &[u8] = bytemuck::cast_slice(&mesh.positions);
     let adapter = meshopt::VertexDataAdapter::new(bytes, 12, 0)
         .map_err(|e| ExportError::Invalid(format!("meshopt vertex data: {e:?}")))?;
     let indices: Vec<u32> = mesh.triangles.iter().flatten().copied().collect();
+    let mut error = 0.0f32;
     let out = meshopt::simplify(
         &indices,
         &adapter,
         target_triangles * 3,
-        max_error,
+        max_error.unwrap_or(f32::MAX),
         meshopt::SimplifyOptions::LockBorder | meshopt::SimplifyOptions::ErrorAbsolute,
-        None,
+        Some(&mut error),
     );
     let triangles = out.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
     let m = Mesh { positions: mesh.positions.clone(), triangles }.compact();
     m.validate()?;
-    Ok(m)
+    Ok((m, error))
 }
 
 #[cfg(test)]
@@ -205,6 +207,35 @@ mod tests {
         assert_eq!(kept.len(), 2);
         assert_eq!(kept.positions.len(), 4);
         assert!((kept.area() - 1.0).abs() < 1e-6);
+    }
+
+    #[test]
+    fn simplify_meets_the_budget_and_keeps_a_sphere_round() {
+        // A UV sphere of 2 * 64 * 32 triangles down to 500.
+        let (nu, nv) = (64u32, 33u32);
+        let mut m = Mesh::default();
+        for j in 0..nv {
+            for i in 0..nu {
+                let (t, p) =
+                    (i as f32 / nu as f32 * std::f32::consts::TAU, j as f32 / (nv - 1) as f32 * std::f32::consts::PI);
+                m.positions.push(Vec3::new(p.sin() * t.cos(), p.sin() * t.sin(), p.cos()));
+            }
+        }
+        for j in 0..nv - 1 {
+            for i in 0..nu {
+                let (a, b) = (j * nu + i, j * nu + (i + 1) % nu);
+                m.triangles.push([a, a + nu, b]);
+                m.triangles.push([b, a + nu, b + nu]);
+            }
+        }
+        let m = m.compact();
+        let (s, err) = simplify(&m, 500, None).unwrap();
+        assert!(s.len() <= 500 && s.len() > 250, "{} triangles", s.len());
+        assert!(err > 0.0 && err < 0.1, "error {err}");
+        assert!(s.positions.iter().all(|p| (p.length() - 1.0).abs() < 1e-5), "vertices stay on the sphere");
+        // A tight error bound stops early.
+        let (t, _) = simplify(&m, 500, Some(1e-4)).unwrap();
+        assert!(t.len() > s.len());
     }
 
     #[test]

@@ -77,9 +77,10 @@ pub struct ExportArgs {
     /// Triangle budget after simplification.
     #[arg(long, default_value_t = 30000)]
     pub triangles: usize,
-    /// Largest surface deviation the simplifier may introduce, in voxels.
-    #[arg(long, default_value_t = 0.5)]
-    pub simplify_error: f32,
+    /// Stop simplifying before the surface moves more than this many voxels (default: the
+    /// triangle budget decides).
+    #[arg(long)]
+    pub simplify_error: Option<f32>,
     /// Texture side in texels.
     #[arg(long, default_value_t = 2048)]
     pub texture: u32,
@@ -103,6 +104,7 @@ struct Extraction {
     mesh: Mesh,
     raw_triangles: usize,
     kept_triangles: usize,
+    simplify_error: f32,
     params: tsdf::TsdfParams,
     dims: [u32; 3],
 }
@@ -146,9 +148,9 @@ fn extract(args: &ExportArgs, surfels: &Surfels, cameras: &[Camera]) -> Result<E
     let grid = tsdf::fuse(lo - pad, hi + pad, &params, &views, args.max_voxels)?;
     let raw = isosurface::extract(&grid)?;
     let kept = mesh::keep_largest_components(&raw, args.keep_fraction);
-    let simplified = mesh::simplify(&kept, args.triangles, args.simplify_error * voxel)?;
+    let (simplified, moved) = mesh::simplify(&kept, args.triangles, args.simplify_error.map(|e| e * voxel))?;
     eprintln!(
-        "surface: {}x{}x{} voxels of {voxel:.4}, {} -> {} (largest components) -> {} triangles in {:.1} s",
+        "surface: {}x{}x{} voxels of {voxel:.4}, {} -> {} (largest components) -> {} triangles (moved <= {moved:.4}) in {:.1} s",
         grid.dims[0],
         grid.dims[1],
         grid.dims[2],
@@ -157,7 +159,14 @@ fn extract(args: &ExportArgs, surfels: &Surfels, cameras: &[Camera]) -> Result<E
         simplified.len(),
         t0.elapsed().as_secs_f64()
     );
-    Ok(Extraction { mesh: simplified, raw_triangles: raw.len(), kept_triangles: kept.len(), params, dims: grid.dims })
+    Ok(Extraction {
+        mesh: simplified,
+        raw_triangles: raw.len(),
+        kept_triangles: kept.len(),
+        simplify_error: moved,
+        params,
+        dims: grid.dims,
+    })
 }
 
 /// The light as an equirectangular image of at least 128 rows (bilinear from the learned map).
@@ -228,6 +237,7 @@ pub fn run(args: ExportArgs) -> Result<()> {
             "voxel": ex.params.voxel, "trunc": ex.params.trunc, "depth_max": ex.params.depth_max, "grid": ex.dims,
             "depth": if args.mean_depth { "expected" } else { "median" },
             "triangles_raw": ex.raw_triangles, "triangles_kept": ex.kept_triangles, "triangles": ex.mesh.len(),
+            "simplify_error": ex.simplify_error,
         });
         if let Some(reference) = &args.reference {
             let truth = files::read_mesh_ply(reference)?;
