@@ -69,8 +69,9 @@ pub fn decode_mesh_ply(bytes: &[u8]) -> Result<Mesh, String> {
     if lines.next() != Some("ply") {
         return Err("not a PLY file".into());
     }
-    // Elements: (name, count, properties as (type, list count type or None)).
-    let mut elements: Vec<(String, usize, Vec<(String, Option<String>, String)>)> = Vec::new();
+    // Elements: (name, count, properties as (type, list count type or None, name)).
+    type Property = (String, Option<String>, String);
+    let mut elements: Vec<(String, usize, Vec<Property>)> = Vec::new();
     let mut format = "";
     for l in lines {
         let w: Vec<&str> = l.split_whitespace().collect();

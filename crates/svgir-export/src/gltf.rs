@@ -38,7 +38,7 @@ pub struct GlbBuilder {
 impl GlbBuilder {
     /// Appends `bytes` 4-byte aligned as a buffer view; returns its index.
     pub fn push_view(&mut self, bytes: &[u8], target: Option<u32>) -> usize {
-        while self.bin.len() % 4 != 0 {
+        while !self.bin.len().is_multiple_of(4) {
             self.bin.push(0);
         }
         let mut v = json!({ "buffer": 0, "byteOffset": self.bin.len(), "byteLength": bytes.len() });
@@ -53,7 +53,7 @@ impl GlbBuilder {
     /// A float accessor of `type_` ("SCALAR", "VEC2", ...) with `comps` values per element;
     /// `min`/`max` are written when `bounds` (glTF requires them for POSITION).
     pub fn push_floats(&mut self, data: &[f32], comps: usize, type_: &str, bounds: bool) -> Result<usize, ExportError> {
-        if data.is_empty() || data.len() % comps != 0 || data.iter().any(|v| !v.is_finite()) {
+        if data.is_empty() || !data.len().is_multiple_of(comps) || data.iter().any(|v| !v.is_finite()) {
             return Err(ExportError::Invalid(format!(
                 "{type_} data: {} values, empty, ragged or not finite",
                 data.len()
@@ -102,11 +102,11 @@ impl GlbBuilder {
 pub fn glb_bytes(json: &Value, bin: &[u8]) -> Result<Vec<u8>, ExportError> {
     let mut text =
         serde_json::to_vec(json).map_err(|e| ExportError::Encode { what: "glTF JSON", detail: e.to_string() })?;
-    while text.len() % 4 != 0 {
+    while !text.len().is_multiple_of(4) {
         text.push(b' ');
     }
     let mut binp = bin.to_vec();
-    while binp.len() % 4 != 0 {
+    while !binp.len().is_multiple_of(4) {
         binp.push(0);
     }
     let total = 12 + 8 + text.len() + if binp.is_empty() { 0 } else { 8 + binp.len() };

@@ -155,8 +155,10 @@ pub fn keep_largest_components(mesh: &Mesh, min_fraction: f32) -> Mesh {
 }
 
 /// Simplifies to about `target_triangles` with meshopt's quadric simplifier; with `max_error`
-/// (world units) it stops earlier rather than move the surface further. The border is locked so
-/// open edges stay put. Returns the mesh and the deviation meshopt reports (world units).
+/// (world units) it stops earlier rather than move the surface further. Where the topology
+/// stops the edge collapses short of the budget (surface nets leave a few non-manifold
+/// vertices), and no `max_error` was given, meshopt's sloppy simplifier (vertex clustering)
+/// finishes the job. Returns the mesh and the deviation meshopt reports (world units).
 pub fn simplify(mesh: &Mesh, target_triangles: usize, max_error: Option<f32>) -> Result<(Mesh, f32), ExportError> {
     mesh.validate()?;
     if mesh.len() <= target_triangles {
@@ -167,14 +169,21 @@ pub fn simplify(mesh: &Mesh, target_triangles: usize, max_error: Option<f32>) ->
         .map_err(|e| ExportError::Invalid(format!("meshopt vertex data: {e:?}")))?;
     let indices: Vec<u32> = mesh.triangles.iter().flatten().copied().collect();
     let mut error = 0.0f32;
-    let out = meshopt::simplify(
+    let mut out = meshopt::simplify(
         &indices,
         &adapter,
         target_triangles * 3,
         max_error.unwrap_or(f32::MAX),
-        meshopt::SimplifyOptions::LockBorder | meshopt::SimplifyOptions::ErrorAbsolute,
+        meshopt::SimplifyOptions::ErrorAbsolute,
         Some(&mut error),
     );
+    if max_error.is_none() && out.len() > target_triangles * 3 * 11 / 10 {
+        let mut rel = 0.0f32;
+        out = meshopt::simplify_sloppy(&out, &adapter, target_triangles * 3, f32::MAX, Some(&mut rel));
+        // Sloppy errors are relative to the mesh's extent.
+        let (lo, hi) = mesh.bounds().unwrap_or_default();
+        error = error.max(rel * (hi - lo).max_element());
+    }
     let triangles = out.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
     let m = Mesh { positions: mesh.positions.clone(), triangles }.compact();
     m.validate()?;

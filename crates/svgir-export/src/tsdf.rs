@@ -91,7 +91,7 @@ pub fn fuse(
     views: &[DepthView],
     max_voxels: usize,
 ) -> Result<TsdfGrid, ExportError> {
-    if !(p.voxel > 0.0 && p.trunc > 0.0 && p.depth_max > 0.0) || !lo.is_finite() || !hi.is_finite() {
+    if !(p.voxel > 0.0 && p.trunc > 0.0 && p.depth_max > 0.0 && lo.is_finite() && hi.is_finite()) {
         return Err(ExportError::Invalid(format!("bad TSDF settings {p:?} or bounds {lo} .. {hi}")));
     }
     for v in views {

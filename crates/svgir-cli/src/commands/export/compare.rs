@@ -6,7 +6,7 @@
 //! `DIR/threejs.png` (three.js in headless Chromium, `tools/browser/gltf_render.mjs`),
 //! `DIR/side_by_side.png` (relight | three.js | 4x absolute difference) and
 //! `DIR/compare.json` (PSNR of the whole image, both over black, and inside the relit
-//! object's mask: opacity > 0.5).
+//! object's mask: opacity > 0.5; and the IoU of the two silhouettes).
 
 use anyhow::{bail, Context, Result};
 use serde_json::json;
@@ -79,6 +79,12 @@ pub fn compare(
     let mask: Vec<f32> = r.alpha.iter().map(|&a| if a > 0.5 { 1.0 } else { 0.0 }).collect();
     let psnr = svgir_metrics::psnr(&relit.data, &three.data, 3, None)?;
     let psnr_masked = svgir_metrics::psnr(&relit.data, &three.data, 3, Some(&mask))?;
+    // Silhouette agreement: pixels that are not background (any channel > 0.02) in each image.
+    let fg = |img: &Image| img.data.chunks_exact(3).map(|p| p.iter().any(|&c| c > 0.02)).collect::<Vec<bool>>();
+    let (fa, fb) = (fg(&relit), fg(&three));
+    let inter = fa.iter().zip(&fb).filter(|(a, b)| **a && **b).count();
+    let union = fa.iter().zip(&fb).filter(|(a, b)| **a || **b).count();
+    let iou = inter as f64 / union.max(1) as f64;
     let (w, h) = (relit.width, relit.height);
     // Small renders are enlarged (nearest) so the report shows them at a readable size.
     let s = (384 / h).max(1);
@@ -95,7 +101,7 @@ pub fn compare(
     svgir_io::write_png(dir.join("side_by_side.png"), &side, 8)?;
     let out = json!({
         "view": v.name, "glb": glb, "hdr": hdr, "width": w, "height": h,
-        "psnr_db": psnr, "psnr_masked_db": psnr_masked,
+        "psnr_db": psnr, "psnr_masked_db": psnr_masked, "silhouette_iou": iou,
         "mask": "relit opacity > 0.5", "engine": "three.js 0.187.0, WebGL2 (SwiftShader), NoToneMapping, sRGB output, PMREM of the .hdr",
         "images": { "relight": "relight.png", "threejs": "threejs.png", "side_by_side": "side_by_side.png (relight | three.js | 4x |difference|)" },
     });
