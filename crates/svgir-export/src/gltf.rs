@@ -236,6 +236,47 @@ mod tests {
     }
 
     #[test]
+    fn mesh_glb_round_trips_through_gltf_json() {
+        use crate::mesh::Mesh;
+        use glam::Vec3;
+        let m = Mesh {
+            positions: vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z],
+            triangles: vec![[0, 2, 1], [0, 1, 3], [0, 3, 2], [1, 2, 3]],
+        };
+        let atlas = crate::atlas::build_atlas(&m, 64, 1.0).unwrap();
+        let img = |v: f32| svgir_core::Image::filled(64, 64, &[v, 0.5, 0.25]);
+        let tex = BakedTextures { base_color: img(0.8), metallic_roughness: img(1.0), normal: img(0.5), covered: 1.0 };
+        let bytes = mesh_glb(&atlas, &tex, "tetra").unwrap();
+        let (json, bin) = parse_glb(&bytes).unwrap();
+        let root: gltf_json::Root = serde_json::from_value(json.clone()).unwrap();
+        assert_eq!(root.meshes.len(), 1);
+        assert_eq!(root.images.len(), 3);
+        let prim = &json["meshes"][0]["primitives"][0];
+        let count =
+            |a: &str| json["accessors"][prim["attributes"][a].as_u64().unwrap() as usize]["count"].as_u64().unwrap();
+        for a in ["POSITION", "NORMAL", "TANGENT", "TEXCOORD_0"] {
+            assert_eq!(count(a), 12, "{a}");
+        }
+        // The PNGs decode back to the baked values.
+        let view = &json["bufferViews"][json["images"][0]["bufferView"].as_u64().unwrap() as usize];
+        let (o, l) = (view["byteOffset"].as_u64().unwrap() as usize, view["byteLength"].as_u64().unwrap() as usize);
+        let png = svgir_io::image_io::decode_image(&bin[o..o + l], svgir_io::image_io::ImageKind::Png).unwrap();
+        assert!((png.pixel(3, 3)[0] - 0.8).abs() < 1.0 / 255.0 + 1e-6);
+        // Positions read back from the buffer equal the atlas corners.
+        let acc = &json["accessors"][prim["attributes"]["POSITION"].as_u64().unwrap() as usize];
+        let v = &json["bufferViews"][acc["bufferView"].as_u64().unwrap() as usize];
+        let o = v["byteOffset"].as_u64().unwrap() as usize;
+        let p: Vec<f32> = bin[o..o + 36].chunks_exact(4).map(|c| f32::from_le_bytes(c.try_into().unwrap())).collect();
+        assert_eq!(
+            p,
+            [atlas.positions[0], atlas.positions[1], atlas.positions[2]]
+                .iter()
+                .flat_map(|v| v.to_array())
+                .collect::<Vec<_>>()
+        );
+    }
+
+    #[test]
     fn typed_check_rejects_a_dangling_index() {
         let ok = json!({ "asset": { "version": "2.0" }, "scenes": [{ "nodes": [] }] });
         assert!(checked(&ok).is_ok());

@@ -6,7 +6,7 @@
 //! `DIR/threejs.png` (three.js in headless Chromium, `tools/browser/gltf_render.mjs`),
 //! `DIR/side_by_side.png` (relight | three.js | 4x absolute difference) and
 //! `DIR/compare.json` (PSNR of the whole image, both over black, and inside the relit
-//! object's mask: opacity > 0.5; and the IoU of the two silhouettes).
+//! object's mask: opacity > 0.5; and the IoU of that mask with three.js's non-black pixels).
 
 use anyhow::{bail, Context, Result};
 use serde_json::json;
@@ -79,9 +79,10 @@ pub fn compare(
     let mask: Vec<f32> = r.alpha.iter().map(|&a| if a > 0.5 { 1.0 } else { 0.0 }).collect();
     let psnr = svgir_metrics::psnr(&relit.data, &three.data, 3, None)?;
     let psnr_masked = svgir_metrics::psnr(&relit.data, &three.data, 3, Some(&mask))?;
-    // Silhouette agreement: pixels that are not background (any channel > 0.02) in each image.
-    let fg = |img: &Image| img.data.chunks_exact(3).map(|p| p.iter().any(|&c| c > 0.02)).collect::<Vec<bool>>();
-    let (fa, fb) = (fg(&relit), fg(&three));
+    // Silhouette agreement: the relit opacity > 0.5 against three.js's non-background pixels
+    // (any channel > 0.02).
+    let fa: Vec<bool> = mask.iter().map(|&m| m > 0.0).collect();
+    let fb: Vec<bool> = three.data.chunks_exact(3).map(|p| p.iter().any(|&c| c > 0.02)).collect();
     let inter = fa.iter().zip(&fb).filter(|(a, b)| **a && **b).count();
     let union = fa.iter().zip(&fb).filter(|(a, b)| **a || **b).count();
     let iou = inter as f64 / union.max(1) as f64;
@@ -107,7 +108,7 @@ pub fn compare(
     });
     std::fs::write(dir.join("compare.json"), serde_json::to_vec_pretty(&out)?)?;
     println!(
-        "three.js vs svgir relight ({}): PSNR {psnr:.2} dB, {psnr_masked:.2} dB inside the object: {}",
+        "three.js vs svgir relight ({}): PSNR {psnr:.2} dB, {psnr_masked:.2} dB inside the object, silhouette IoU {iou:.3}: {}",
         v.name,
         dir.display()
     );
