@@ -35,6 +35,8 @@ enum Command {
     Inverse(commands::inverse::InverseArgs),
     /// Render a stage-2 model under a new HDR environment map.
     Relight(commands::relight::RelightArgs),
+    /// Export relightable assets: a textured PBR mesh (GLB + light .hdr) and splats (PLY, glTF).
+    Export(commands::export::ExportArgs),
     /// Compare images (two folders, or a run's test renders with its dataset) and print PSNR/SSIM/LPIPS.
     Eval(commands::eval::EvalArgs),
     /// Write a self-contained HTML report for a run folder.
@@ -63,6 +65,7 @@ fn main() {
         Command::Eval(a) => commands::eval::run(a),
         Command::Inverse(a) => commands::inverse::run(a),
         Command::Relight(a) => commands::relight::run(a),
+        Command::Export(a) => commands::export::run(a),
         Command::Bench(a) => commands::bench::run(a),
         Command::Report(a) => commands::report::run(a),
         Command::Demo(a) => commands::demo::run(a),

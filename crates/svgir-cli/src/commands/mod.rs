@@ -8,6 +8,7 @@ pub mod bench;
 pub mod bench_train;
 pub mod demo;
 pub mod eval;
+pub mod export;
 pub mod info;
 pub mod inverse;
 pub mod masks;
