@@ -105,7 +105,7 @@ fn export_mesh_and_splats_from_the_quick_demo() {
         .arg(&sunset);
     cmd.arg("--report-json").arg(out.join("export.json"));
     if tools.is_some() {
-        cmd.arg("--compare").arg(root.join("compare"));
+        cmd.arg("--compare").arg(run.join("export/compare"));
     }
     let o = cmd.output().unwrap();
     assert!(o.status.success(), "svgir export failed: {}", stderr(&o));
@@ -132,7 +132,7 @@ fn export_mesh_and_splats_from_the_quick_demo() {
     assert!(o.status.success(), "glTF-Validator: {text}{}", stderr(&o));
     assert!(text.contains("bowl.glb: 0 errors, 0 warnings"), "{text}");
     let cmp: serde_json::Value =
-        serde_json::from_slice(&std::fs::read(root.join("compare/compare.json")).unwrap()).unwrap();
+        serde_json::from_slice(&std::fs::read(run.join("export/compare/compare.json")).unwrap()).unwrap();
     // The quick demo's model is too rough (and its light too bright) for a close match, so this
     // checks that the engine drew the object where relight does (camera, pose and scale), and
     // that the images are comparable; the PSNR of a full run is in docs/experiments.md.
@@ -140,5 +140,11 @@ fn export_mesh_and_splats_from_the_quick_demo() {
     let iou = cmp["silhouette_iou"].as_f64().unwrap();
     assert!(psnr.is_finite() && psnr > 8.0, "three.js vs relight PSNR {psnr}");
     assert!(iou > 0.5, "three.js and relight silhouettes overlap by IoU {iou}");
+    // The report shows both images side by side with the PSNR.
+    assert!(svgir().arg("report").arg(&run).status().unwrap().success());
+    let html = std::fs::read_to_string(run.join("report.html")).unwrap();
+    assert!(
+        html.contains("Exported mesh in three.js vs svgir relight") && html.contains(&format!("PSNR {psnr:.2} dB"))
+    );
     std::fs::remove_dir_all(&root).ok();
 }

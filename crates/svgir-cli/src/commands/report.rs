@@ -202,6 +202,30 @@ fn stage2_pictures(dir: &Path) -> String {
     s + "</div>"
 }
 
+/// The exported mesh in a real engine beside `svgir relight`, when `svgir export --compare
+/// RUN/export/compare` has run: the three images and their PSNR.
+fn export_compare(run: &Path) -> String {
+    let dir = run.join("export/compare");
+    let Some(cmp) =
+        std::fs::read_to_string(dir.join("compare.json")).ok().and_then(|t| serde_json::from_str::<Value>(&t).ok())
+    else {
+        return String::new();
+    };
+    let num = |k: &str| cmp[k].as_f64().map_or("-".to_string(), |x| format!("{x:.2}"));
+    let mut s = format!(
+        "<h3>Exported mesh in three.js vs svgir relight ({}, view {})</h3><p>PSNR {} dB over the image, {} dB on the \
+object; silhouette IoU {}</p><div class=row>",
+        cmp["engine"].as_str().unwrap_or("three.js"),
+        cmp["view"].as_str().unwrap_or("?"),
+        num("psnr_db"),
+        num("psnr_masked_db"),
+        num("silhouette_iou"),
+    );
+    s += &img_tag(&dir.join("relight.png"), "svgir relight");
+    s += &img_tag(&dir.join("threejs.png"), "three.js, the exported GLB under the exported .hdr");
+    s + "</div>"
+}
+
 /// Stage 1's test views: the photo against our render, normals and depth.
 fn stage1_pictures(run: &Path) -> String {
     let test_dir = run.join("test");
@@ -271,6 +295,7 @@ change the map, look at albedo, roughness, normals and visibility)</p>";
     // Pictures first (the relit object, its materials and light; then stage 1), then the
     // metric tables, then the curves, then the configuration.
     html += &stage2_pictures(&stage2);
+    html += &export_compare(run);
     html += &stage1_pictures(run);
     html += "<h2>Metrics</h2>";
     if let Some(eval2) = read_json(&stage2.join("eval.json")) {
