@@ -192,21 +192,23 @@ pub fn splat_glb(s: &Surfels, extras: &[ExtraAttribute]) -> Result<Vec<u8>, Expo
     glb_bytes(&json, &b.bin)
 }
 
+/// `n` unit directions spread evenly over the whole sphere (Fibonacci lattice), the view
+/// directions the radiance of a splat is sampled from before the SH fit.
+pub fn sphere_directions(n: usize) -> Vec<Vec3> {
+    let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
+    (0..n)
+        .map(|i| {
+            let z = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
+            let r = (1.0 - z * z).sqrt();
+            Vec3::new(r * (golden * i as f32).cos(), r * (golden * i as f32).sin(), z)
+        })
+        .collect()
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
     use glam::Vec2;
-
-    fn fib(n: usize) -> Vec<Vec3> {
-        let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
-        (0..n)
-            .map(|i| {
-                let z = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
-                let r = (1.0 - z * z).sqrt();
-                Vec3::new(r * (golden * i as f32).cos(), r * (golden * i as f32).sin(), z)
-            })
-            .collect()
-    }
 
     #[test]
     fn sh_fit_recovers_a_degree_two_field() {
@@ -214,7 +216,7 @@ mod tests {
         for k in 0..9 {
             truth.0[k] = [0.3 / (k + 1) as f32, -0.2 * (k as f32 - 4.0) / 9.0, 0.1];
         }
-        let dirs = fib(200);
+        let dirs = sphere_directions(200);
         let cols: Vec<[f32; 3]> = dirs.iter().map(|d| truth.eval(2, *d)).collect();
         let fit = fit_sh(&dirs, &cols, &vec![1.0; dirs.len()], 2, 1e-9);
         for k in 0..9 {

@@ -77,20 +77,8 @@ fn raster_scene(ply: &Path, data: &Path, views: usize, background: [f32; 3], thr
     Ok(s)
 }
 
-fn machine() -> String {
-    let cpu = std::fs::read_to_string("/proc/cpuinfo")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("model name"))
-                .map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string())
-        })
-        .unwrap_or_else(|| "unknown CPU".into());
-    format!("{cpu}, {} threads available", std::thread::available_parallelism().map_or(1, |n| n.get()))
-}
-
 pub fn run(args: BenchArgs) -> Result<()> {
-    println!("machine: {}", machine());
+    println!("machine: {}", svgir_raster::bench::machine_line());
     let threads = rayon::current_num_threads();
     let table = match args.kernel {
         Kernel::Raster => match (&args.ply, &args.data) {
@@ -119,7 +107,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
                 .context("LPIPS Alex weights not found")?;
             svgir_metrics::lpips::bench_table(&std::fs::read(vgg)?, &std::fs::read(alex)?, threads)?
         }
-        Kernel::Train => super::bench_train::run(&args.train, &machine(), threads)?,
+        Kernel::Train => super::bench_train::run(&args.train, &svgir_raster::bench::machine_line(), threads)?,
     };
     println!("{table}");
     Ok(())

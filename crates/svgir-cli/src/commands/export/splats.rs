@@ -17,24 +17,13 @@ use serde_json::json;
 use std::path::PathBuf;
 use svgir_core::color::linear_to_srgb;
 use svgir_core::ShCoeffs;
-use svgir_export::splats::{fit_sh, oriented, splat_glb, to_y_up, ExtraAttribute};
+use svgir_export::splats::{fit_sh, oriented, sphere_directions, splat_glb, to_y_up, ExtraAttribute};
 use svgir_pbr::{shade_into_cached, Indirect, ShadeInputs, ShadeOutput, ShadeParams};
 use svgir_train::relight::{RelightSampling, Relighter, RELIGHT_LIGHTS};
 use svgir_train::stage2::Stage2;
 
 /// View directions the radiance is sampled from.
 const VIEWS: usize = 64;
-
-fn fibonacci(n: usize) -> Vec<Vec3> {
-    let golden = std::f32::consts::PI * (3.0 - 5f32.sqrt());
-    (0..n)
-        .map(|i| {
-            let z = 1.0 - 2.0 * (i as f32 + 0.5) / n as f32;
-            let r = (1.0 - z * z).sqrt();
-            Vec3::new(r * (golden * i as f32).cos(), r * (golden * i as f32).sin(), z)
-        })
-        .collect()
-}
 
 pub fn export(
     args: &ExportArgs,
@@ -59,7 +48,7 @@ pub fn export(
     let centroid = 0.5 * (lo + hi);
     let far = 1e3 * (hi - lo).length().max(1.0);
     let visible = vec![true; n];
-    let views = fibonacci(VIEWS);
+    let views = sphere_directions(VIEWS);
     // colours[d * n + i]: Gaussian i seen from direction d (towards the viewer), sRGB.
     let mut colours = vec![[0.0f32; 3]; VIEWS * n];
     let mut shaded = ShadeOutput::new();
