@@ -78,7 +78,10 @@ fn raster_scene(ply: &Path, data: &Path, views: usize, background: [f32; 3], thr
 }
 
 pub fn run(args: BenchArgs) -> Result<()> {
-    println!("machine: {}", svgir_raster::bench::machine_line());
+    // The rasterizer table prints its own machine line.
+    if !matches!(args.kernel, Kernel::Raster) {
+        println!("machine: {}", svgir_raster::bench::machine_line());
+    }
     let threads = rayon::current_num_threads();
     let table = match args.kernel {
         Kernel::Raster => match (&args.ply, &args.data) {
