@@ -239,6 +239,12 @@ impl Stage1Config {
         w
     }
 
+    /// Whether iteration `it` (1-based) ends by resetting every opacity (SPEC 2: every
+    /// `opacity_reset_interval` iterations while densifying).
+    pub fn resets_opacity_at(&self, it: u64) -> bool {
+        it <= self.densify.until_iter && it.is_multiple_of(self.densify.opacity_reset_interval)
+    }
+
     /// The defaults of `profile` for a run of `iterations` on `training_pixels` pixels.
     pub fn for_profile(profile: Profile, iterations: u64, training_pixels: usize) -> Self {
         match profile {
@@ -308,6 +314,14 @@ mod tests {
         assert_eq!(c.weights_at(2999).distortion, 0.0);
         assert_eq!(c.weights_at(3000).distortion, 100.0);
         assert_eq!(c.weights_at(2999).l1, c.loss.l1);
+    }
+
+    #[test]
+    fn opacity_resets_stop_with_densification() {
+        let c = Stage1Config::default().scaled_to(5000);
+        assert_eq!(c.densify.opacity_reset_interval, 500);
+        assert!(c.resets_opacity_at(500) && c.resets_opacity_at(2500));
+        assert!(!c.resets_opacity_at(501) && !c.resets_opacity_at(3000));
     }
 
     #[test]

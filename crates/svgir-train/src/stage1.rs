@@ -266,7 +266,7 @@ impl Stage1 {
                 ));
                 self.stats = DensifyStats::new(self.surfels.len());
             }
-            if it.is_multiple_of(d.opacity_reset_interval) {
+            if cfg.resets_opacity_at(it) {
                 reset_opacity(&mut self.surfels, &mut self.groups[3]);
             }
         }
