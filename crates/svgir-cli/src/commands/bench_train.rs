@@ -145,7 +145,7 @@ pub fn run(args: &TrainBenchArgs, machine: &str, threads: usize) -> Result<Strin
         series.push(Series { name: name_of(scene), points });
     }
     let stamp = format!("{}, commit {}, {machine}, {threads} threads", today(), commit());
-    let xlabel = format!("training minutes, evaluations excluded ({stamp})");
+    let xlabel = format!("training minutes, evaluations excluded ({}, {}, {threads} threads)", today(), commit());
     let svg = line_plot(&series, "svgir stage 1: test PSNR vs training time", &xlabel, "test PSNR (dB)", 760.0, 340.0);
     let write = |name: &str, text: String| -> Result<()> {
         let path = args.out.join(name);
