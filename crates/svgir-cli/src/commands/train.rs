@@ -258,17 +258,7 @@ fn train_loop(trainer: &mut Stage1, dataset: &Dataset, args: &TrainArgs) -> Resu
         let next = trainer.iteration + 1;
         let eval_before = eval_due(next) && trainer.config.resets_opacity_at(next) && trainer.iteration > 0;
         if eval_before {
-            let train_s = start.elapsed().as_secs_f64() - eval_s;
-            let t_eval = Instant::now();
-            let m = evaluate(trainer, dataset, args.eval_views, None)?;
-            eval_s += t_eval.elapsed().as_secs_f64();
-            let it = trainer.iteration;
-            writeln!(
-                log,
-                "{}",
-                json!({"iteration": it, "elapsed_s": start.elapsed().as_secs_f64(), "train_s": train_s, "test": m})
-            )?;
-            pb.println(format!("iteration {it}: test PSNR {:.2} dB", m["psnr"]));
+            periodic_eval(trainer, dataset, args.eval_views, start, &mut eval_s, &mut log, &pb)?;
         }
         let s = trainer.step(dataset);
         let ema = |e: Option<f32>, v: f32| Some(e.map_or(v, |e| 0.9 * e + 0.1 * v));
@@ -288,16 +278,7 @@ fn train_loop(trainer: &mut Stage1, dataset: &Dataset, args: &TrainArgs) -> Resu
             writeln!(log, "{v}")?;
         }
         if eval_due(s.iteration) && !eval_before && !trainer.is_done() {
-            let train_s = start.elapsed().as_secs_f64() - eval_s;
-            let t_eval = Instant::now();
-            let m = evaluate(trainer, dataset, args.eval_views, None)?;
-            eval_s += t_eval.elapsed().as_secs_f64();
-            writeln!(
-                log,
-                "{}",
-                json!({"iteration": s.iteration, "elapsed_s": start.elapsed().as_secs_f64(), "train_s": train_s, "test": m})
-            )?;
-            pb.println(format!("iteration {}: test PSNR {:.2} dB", s.iteration, m["psnr"]));
+            periodic_eval(trainer, dataset, args.eval_views, start, &mut eval_s, &mut log, &pb)?;
         }
         let interrupted = stop.load(Ordering::SeqCst);
         if s.iteration.is_multiple_of(args.checkpoint_every) || interrupted {
@@ -311,6 +292,32 @@ fn train_loop(trainer: &mut Stage1, dataset: &Dataset, args: &TrainArgs) -> Resu
     }
     pb.finish();
     checkpoint::save(trainer, &ckpt_path)?;
+    Ok(())
+}
+
+/// One periodic evaluation on `views` test views at the trainer's current iteration, logged to
+/// `metrics.jsonl` with the training time so far (`eval_s`, the time spent evaluating, is left
+/// out and grows by this evaluation).
+fn periodic_eval(
+    trainer: &Stage1,
+    dataset: &Dataset,
+    views: usize,
+    start: Instant,
+    eval_s: &mut f64,
+    log: &mut std::fs::File,
+    pb: &indicatif::ProgressBar,
+) -> Result<()> {
+    let train_s = start.elapsed().as_secs_f64() - *eval_s;
+    let t_eval = Instant::now();
+    let m = evaluate(trainer, dataset, views, None)?;
+    *eval_s += t_eval.elapsed().as_secs_f64();
+    let it = trainer.iteration;
+    writeln!(
+        log,
+        "{}",
+        json!({"iteration": it, "elapsed_s": start.elapsed().as_secs_f64(), "train_s": train_s, "test": m})
+    )?;
+    pb.println(format!("iteration {it}: test PSNR {:.2} dB", m["psnr"]));
     Ok(())
 }
 
