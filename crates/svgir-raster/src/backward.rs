@@ -16,6 +16,7 @@
 
 use crate::forward::{background_at, split_lens, FeatView};
 use crate::interp::{normalised_coord, weight_grads, weights, MAX_VERTICES};
+use crate::phases::Stopwatch;
 use crate::preprocess::Cam;
 use crate::preprocess_backward::{gaussian_backward, SplatGradSum};
 use crate::real::Real;
@@ -62,6 +63,7 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     _out: &RenderOutputOf<F>,
     grads: &OutputGradsOf<F>,
 ) -> GradsOf<F> {
+    let mut sw = Stopwatch::start();
     let cam = Cam::<F>::new(input.camera);
     let (w, h) = (cam.width, cam.height);
     let npx = w as usize * h as usize;
@@ -74,6 +76,7 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     let dim = off_ext + ef.vertices * ce;
 
     let mut entry_grads = vec![F::ZERO; bins.ids.len() * dim];
+    sw.lap("buffers");
     {
         // One task per tile (its entries are a contiguous run of `entry_grads`): finer than the
         // forward's rows of tiles, since the back-to-front walk's cost is more uneven.
@@ -101,6 +104,7 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
         );
     }
 
+    sw.lap("tiles");
     // Per-Gaussian reduction in entry order, then the preprocess backward.
     let sh_mode = matches!(input.colors, ColorSourceOf::Sh);
     let sum_entries = |g: usize, lo: usize, hi: usize, out: &mut [F]| {
@@ -118,25 +122,22 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     let hi = if sh_mode { OFF_COL + 3 } else { OFF_COL };
     let mut sums = vec![[F::ZERO; OFF_COL + 3]; n];
     sums.par_iter_mut().enumerate().with_min_len(1024).for_each(|(g, acc)| sum_entries(g, 0, hi, &mut acc[..hi]));
-    let mut v_positions = vec![F::V3::default(); n];
-    let mut v_rotations = vec![F::quat([F::ZERO; 4]); n];
-    let mut v_log_scales = vec![F::V2::default(); n];
-    let mut v_opacity_logits = vec![F::ZERO; n];
-    let mut v_sh = vec![F::sh(&[[F::ZERO; 3]; 16]); n];
-    let mut v_mean2d_norm = vec![F::ZERO; n];
-    v_positions
-        .par_iter_mut()
-        .zip(v_rotations.par_iter_mut())
-        .zip(v_log_scales.par_iter_mut())
-        .zip(v_opacity_logits.par_iter_mut())
-        .zip(v_sh.par_iter_mut())
-        .zip(v_mean2d_norm.par_iter_mut())
-        .enumerate()
+    sw.lap("reduce");
+    // One parallel pass writes each output once (no zero fill of ~24 MB of fresh pages first).
+    type Row<F> = (<F as Real>::V3, (<F as Real>::Q, (<F as Real>::V2, (F, (<F as Real>::Sh, F)))));
+    let zero_sh = F::sh(&[[F::ZERO; 3]; 16]);
+    #[allow(clippy::type_complexity)]
+    let (v_positions, (v_rotations, (v_log_scales, (v_opacity_logits, (v_sh, v_mean2d_norm))))): (
+        Vec<_>,
+        (Vec<_>, (Vec<_>, (Vec<_>, (Vec<_>, Vec<_>)))),
+    ) = (0..n)
+        .into_par_iter()
         .with_min_len(256)
-        .for_each(|(g, (((((vp, vr), vs), vo), vsh), vm))| {
+        .map(|g| -> Row<F> {
             let splat = &state.splats[g];
             if !splat.visible() {
-                return;
+                let z = F::ZERO;
+                return (F::v3([z; 3]), (F::quat([z; 4]), (F::v2([z; 2]), (z, (zero_sh, z)))));
             }
             let acc = &sums[g];
             let mut sg = SplatGradSum::<F>::default();
@@ -146,16 +147,15 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
             sg.normal.copy_from_slice(&acc[OFF_N..OFF_N + 3]);
             sg.color.copy_from_slice(&acc[OFF_COL..OFF_COL + 3]);
             let pg = gaussian_backward(input.surfels, &cam, splat, &sg, sh_mode, g);
-            *vp = F::v3(pg.position);
-            *vr = F::quat(pg.rotation);
-            *vs = F::v2(pg.log_scale);
-            *vo = pg.opacity_logit;
-            if sh_mode {
-                *vsh = F::sh(&pg.sh);
-            }
-            *vm = pg.mean2d_norm;
-        });
+            let vsh = if sh_mode { F::sh(&pg.sh) } else { zero_sh };
+            (
+                F::v3(pg.position),
+                (F::quat(pg.rotation), (F::v2(pg.log_scale), (pg.opacity_logit, (vsh, pg.mean2d_norm)))),
+            )
+        })
+        .unzip();
 
+    sw.lap("gaussians");
     let feature_grads = |fv: &FeatView<F>, lo: usize| -> Vec<F> {
         let len = fv.vertices * fv.channels;
         let mut v = vec![F::ZERO; n * len];
@@ -183,6 +183,7 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
         (BackgroundOf::Image(_), Some(gc)) => (0..npx * 3).map(|i| state.final_t[i / 3] * gc[i]).collect(),
     };
 
+    sw.lap("features");
     GradsOf {
         v_positions,
         v_rotations,
@@ -193,6 +194,7 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
         v_extra,
         v_background,
         v_mean2d_norm,
+        phases: sw.finish(),
     }
 }
 
@@ -224,6 +226,8 @@ struct Scratch<F> {
     row_act: Vec<u64>,
     /// The SIMD kernel's per-pixel arrays ([`crate::backward_simd`]).
     lanes: Vec<f32>,
+    /// The SIMD kernel's lane groups of the current entry.
+    groups: Vec<crate::forward_simd::Group>,
 }
 
 impl<F: Real> Scratch<F> {
@@ -237,6 +241,7 @@ impl<F: Real> Scratch<F> {
             by_ncon: Vec::with_capacity(tp),
             row_act: vec![0; tile],
             lanes: Vec::new(),
+            groups: Vec::new(),
         }
     }
 }
@@ -262,6 +267,7 @@ fn backward_tile<F: Real>(ctx: &Ctx<F>, t: usize, eg: &mut [F], scr: &mut Scratc
             lanes,
             &mut scr.by_ncon,
             &mut scr.row_act,
+            &mut scr.groups,
         ) {
             return;
         }

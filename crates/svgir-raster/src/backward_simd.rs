@@ -17,10 +17,9 @@
 
 use crate::backward::{Ctx, OFF_C, OFF_COL, OFF_H, OFF_N, OFF_OP};
 use crate::forward::background_at;
-use crate::forward_simd::eval_lanes;
+use crate::forward_simd::{eval_lanes, list_groups, Group};
 use crate::simd::{Lanes, Simd};
-use crate::splat::{row_setup, SplatGrad};
-use crate::tiles::live_span;
+use crate::splat::SplatGrad;
 
 // Per-pixel arrays of the tile, `stride * tile` each.
 const T: usize = 0;
@@ -69,6 +68,7 @@ unsafe fn tile_k<S: Lanes, const DIST: bool>(
     buf: &mut Vec<f32>,
     by_ncon: &mut Vec<(u32, u32)>,
     row_act: &mut [u64],
+    groups: &mut Vec<Group>,
 ) {
     let sp = |v: f32| S::splat(v);
     let bins = ctx.bins;
@@ -134,8 +134,6 @@ unsafe fn tile_k<S: Lanes, const DIST: bool>(
             next_act += 1;
         }
         let s = &ctx.recs[e];
-        let (x0, x1) = (s.rect[0].max(tr[0]) as usize, s.rect[1].min(tr[1]) as usize);
-        let (y0, y1) = (s.rect[2].max(tr[2]) as usize, s.rect[3].min(tr[3]) as usize);
         let col = s.color.map(sp);
         let nrm = s.normal.map(sp);
         let (h6, h7) = (sp(s.h[6]), sp(s.h[7]));
@@ -150,95 +148,73 @@ unsafe fn tile_k<S: Lanes, const DIST: bool>(
             v_n: [zero; 3],
             v_col: [zero; 3],
         };
+        list_groups(s, &tr, row_act, tx0, ty0, stride, S::N, groups);
         let mut any = false;
-        for y in y0..y1 {
-            let ry = y - ty0;
-            let act = row_act[ry];
-            if act == 0 {
-                continue;
+        for gr in groups.iter() {
+            let x = sp(gr.xs).add(S::iota().add(sp(gr.off)));
+            let ev = eval_lanes::<S>(s, &gr.rs, x, gr.yf, near);
+            let m = S::and(S::from_bits(gr.lb), ev.alpha.ne(zero));
+            // Branch-free: a group without live lanes adds nothing (every update is masked).
+            any |= S::bits(m) != 0;
+            let i = gr.i as usize;
+            let yv = sp(gr.yf);
+            let dy = sp(s.center[1] - gr.yf);
+            let ld = |k: usize| S::load(arr(k).add(i));
+            let inv_one_m = sp(1.0).div(sp(1.0).sub(ev.alpha));
+            let tcur = ld(T);
+            let ti = tcur.mul(inv_one_m);
+            S::select(m, ti, tcur).store(arr(T).add(i));
+            let wgt = ev.alpha.mul(ti);
+            let gc = [ld(GC), ld(GC + 1), ld(GC + 2)];
+            let gn = [ld(GN), ld(GN + 1), ld(GN + 2)];
+            let gd = ld(GD);
+            let mut gw = gc[0]
+                .mul(col[0])
+                .add(gc[1].mul(col[1]))
+                .add(gc[2].mul(col[2]))
+                .add(ld(GO))
+                .add(gd.mul(ev.z))
+                .add(gn[0].mul(nrm[0]))
+                .add(gn[1].mul(nrm[1]))
+                .add(gn[2].mul(nrm[2]));
+            let mut v_z = wgt.mul(gd);
+            if DIST {
+                let inv_z = sp(1.0).div(ev.z);
+                let mz = sp(m_scale).mul(sp(1.0).sub(sp(near).mul(inv_z)));
+                let dm_dz = sp(m_scale).mul(sp(near)).mul(inv_z).mul(inv_z);
+                let (a, m1, m2, gdist) = (ld(A), ld(M1), ld(M2), ld(GDIST));
+                gw = gw.add(gdist.mul(a.mul(mz).mul(mz).sub(sp(2.0).mul(mz).mul(m1)).add(m2)));
+                v_z = v_z.add(gdist.mul(sp(2.0)).mul(wgt).mul(mz.mul(a).sub(m1)).mul(dm_dz));
             }
-            let yf = y as f32 + 0.5;
-            let (xa, xb) = s.conic.span(s.center, yf, x0, x1);
-            let Some((xa, xb)) = live_span(act, tx0, xa, xb) else { continue };
-            let rs = row_setup(&s.h, yf);
-            let xs = sp((xa as f64 + 0.5) as f32);
-            let yv = sp(yf);
-            let dy = sp(s.center[1] - yf);
-            let mut k = xa;
-            while k < xb {
-                let c0 = k - tx0;
-                let lanes = (xb - k).min(S::N);
-                let lb = (act >> c0) as u32 & ((1u64 << lanes) - 1) as u32;
-                let xk = k;
-                k += S::N;
-                if lb == 0 {
-                    continue;
-                }
-                let x = xs.add(S::iota().add(sp((xk - xa) as f32)));
-                let ev = eval_lanes::<S>(s, &rs, x, yf, near);
-                let m = S::and(S::from_bits(lb), ev.alpha.ne(zero));
-                if S::bits(m) == 0 {
-                    continue;
-                }
-                any = true;
-                let i = ry * stride + c0;
-                let ld = |k: usize| S::load(arr(k).add(i));
-                let inv_one_m = sp(1.0).div(sp(1.0).sub(ev.alpha));
-                let tcur = ld(T);
-                let ti = tcur.mul(inv_one_m);
-                S::select(m, ti, tcur).store(arr(T).add(i));
-                let wgt = ev.alpha.mul(ti);
-                let gc = [ld(GC), ld(GC + 1), ld(GC + 2)];
-                let gn = [ld(GN), ld(GN + 1), ld(GN + 2)];
-                let gd = ld(GD);
-                let mut gw = gc[0]
-                    .mul(col[0])
-                    .add(gc[1].mul(col[1]))
-                    .add(gc[2].mul(col[2]))
-                    .add(ld(GO))
-                    .add(gd.mul(ev.z))
-                    .add(gn[0].mul(nrm[0]))
-                    .add(gn[1].mul(nrm[1]))
-                    .add(gn[2].mul(nrm[2]));
-                let mut v_z = wgt.mul(gd);
-                if DIST {
-                    let inv_z = sp(1.0).div(ev.z);
-                    let mz = sp(m_scale).mul(sp(1.0).sub(sp(near).mul(inv_z)));
-                    let dm_dz = sp(m_scale).mul(sp(near)).mul(inv_z).mul(inv_z);
-                    let (a, m1, m2, gdist) = (ld(A), ld(M1), ld(M2), ld(GDIST));
-                    gw = gw.add(gdist.mul(a.mul(mz).mul(mz).sub(sp(2.0).mul(mz).mul(m1)).add(m2)));
-                    v_z = v_z.add(gdist.mul(sp(2.0)).mul(wgt).mul(mz.mul(a).sub(m1)).mul(dm_dz));
-                }
-                for ch in 0..3 {
-                    acc(&mut sm.v_col[ch], m, wgt.mul(gc[ch]));
-                    acc(&mut sm.v_n[ch], m, wgt.mul(gn[ch]));
-                }
-                let pacc = ld(ACC);
-                let v_alpha = ti.mul(gw).sub(pacc.mul(inv_one_m));
-                S::select(m, pacc.add(gw.mul(wgt)), pacc).store(arr(ACC).add(i));
-                // The hit's backward ([`crate::splat::intersect_backward`]) with no (u, v) input.
-                let mut gu = v_z.mul(h6);
-                let mut gv = v_z.mul(h7);
-                acc(&mut sm.h_depth[0], m, v_z.mul(ev.u));
-                acc(&mut sm.h_depth[1], m, v_z.mul(ev.v));
-                acc(&mut sm.h_depth[2], m, v_z);
-                let free = S::andnot(m, o.mul(ev.g).gt(sp(0.99)));
-                acc(&mut sm.opacity, free, v_alpha.mul(ev.g));
-                let v_rho = sp(-0.5).mul(v_alpha).mul(o).mul(ev.g);
-                let on3d = S::and(free, ev.use3d);
-                gu = S::select(on3d, gu.add(sp(2.0).mul(v_rho).mul(ev.u)), gu);
-                gv = S::select(on3d, gv.add(sp(2.0).mul(v_rho).mul(ev.v)), gv);
-                let on2d = S::andnot(free, ev.use3d);
-                let v4 = sp(4.0).mul(v_rho);
-                acc(&mut sm.center[0], on2d, v4.mul(c0v.sub(x)));
-                acc(&mut sm.center[1], on2d, v4.mul(dy));
-                let inv = ev.inv_pz;
-                let gp = [gu.mul(inv), gv.mul(inv), zero.sub(gu.mul(ev.u).add(gv.mul(ev.v))).mul(inv)];
-                for j in 0..3 {
-                    acc(&mut sm.gp[j], m, gp[j]);
-                    acc(&mut sm.gp_x[j], m, x.mul(gp[j]));
-                    acc(&mut sm.gp_y[j], m, yv.mul(gp[j]));
-                }
+            for ch in 0..3 {
+                acc(&mut sm.v_col[ch], m, wgt.mul(gc[ch]));
+                acc(&mut sm.v_n[ch], m, wgt.mul(gn[ch]));
+            }
+            let pacc = ld(ACC);
+            let v_alpha = ti.mul(gw).sub(pacc.mul(inv_one_m));
+            S::select(m, pacc.add(gw.mul(wgt)), pacc).store(arr(ACC).add(i));
+            // The hit's backward ([`crate::splat::intersect_backward`]) with no (u, v) input.
+            let mut gu = v_z.mul(h6);
+            let mut gv = v_z.mul(h7);
+            acc(&mut sm.h_depth[0], m, v_z.mul(ev.u));
+            acc(&mut sm.h_depth[1], m, v_z.mul(ev.v));
+            acc(&mut sm.h_depth[2], m, v_z);
+            let free = S::andnot(m, o.mul(ev.g).gt(sp(0.99)));
+            acc(&mut sm.opacity, free, v_alpha.mul(ev.g));
+            let v_rho = sp(-0.5).mul(v_alpha).mul(o).mul(ev.g);
+            let on3d = S::and(free, ev.use3d);
+            gu = S::select(on3d, gu.add(sp(2.0).mul(v_rho).mul(ev.u)), gu);
+            gv = S::select(on3d, gv.add(sp(2.0).mul(v_rho).mul(ev.v)), gv);
+            let on2d = S::andnot(free, ev.use3d);
+            let v4 = sp(4.0).mul(v_rho);
+            acc(&mut sm.center[0], on2d, v4.mul(c0v.sub(x)));
+            acc(&mut sm.center[1], on2d, v4.mul(dy));
+            let inv = ev.inv_pz;
+            let gp = [gu.mul(inv), gv.mul(inv), zero.sub(gu.mul(ev.u).add(gv.mul(ev.v))).mul(inv)];
+            for j in 0..3 {
+                acc(&mut sm.gp[j], m, gp[j]);
+                acc(&mut sm.gp_x[j], m, x.mul(gp[j]));
+                acc(&mut sm.gp_y[j], m, yv.mul(gp[j]));
             }
         }
         if !any {
@@ -280,8 +256,9 @@ unsafe fn tile_avx2<const DIST: bool>(
     buf: &mut Vec<f32>,
     by_ncon: &mut Vec<(u32, u32)>,
     row_act: &mut [u64],
+    groups: &mut Vec<Group>,
 ) {
-    tile_k::<crate::simd::F8, DIST>(ctx, t, eg, buf, by_ncon, row_act)
+    tile_k::<crate::simd::F8, DIST>(ctx, t, eg, buf, by_ncon, row_act, groups)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -293,8 +270,9 @@ unsafe fn tile_avx512<const DIST: bool>(
     buf: &mut Vec<f32>,
     by_ncon: &mut Vec<(u32, u32)>,
     row_act: &mut [u64],
+    groups: &mut Vec<Group>,
 ) {
-    tile_k::<crate::simd::F16, DIST>(ctx, t, eg, buf, by_ncon, row_act)
+    tile_k::<crate::simd::F16, DIST>(ctx, t, eg, buf, by_ncon, row_act, groups)
 }
 
 /// Runs tile `t` on the SIMD path `path` (already resolved); false when `path` is scalar (the
@@ -309,16 +287,17 @@ pub(crate) fn backward_tile_simd(
     buf: &mut Vec<f32>,
     by_ncon: &mut Vec<(u32, u32)>,
     row_act: &mut [u64],
+    groups: &mut Vec<Group>,
 ) -> bool {
     #[cfg(target_arch = "x86_64")]
     {
         // SAFETY: `resolve` only returns a path whose features the CPU has.
         unsafe {
             match (path, dist) {
-                (Simd::Avx2, false) => tile_avx2::<false>(ctx, t, eg, buf, by_ncon, row_act),
-                (Simd::Avx2, true) => tile_avx2::<true>(ctx, t, eg, buf, by_ncon, row_act),
-                (Simd::Avx512, false) => tile_avx512::<false>(ctx, t, eg, buf, by_ncon, row_act),
-                (Simd::Avx512, true) => tile_avx512::<true>(ctx, t, eg, buf, by_ncon, row_act),
+                (Simd::Avx2, false) => tile_avx2::<false>(ctx, t, eg, buf, by_ncon, row_act, groups),
+                (Simd::Avx2, true) => tile_avx2::<true>(ctx, t, eg, buf, by_ncon, row_act, groups),
+                (Simd::Avx512, false) => tile_avx512::<false>(ctx, t, eg, buf, by_ncon, row_act, groups),
+                (Simd::Avx512, true) => tile_avx512::<true>(ctx, t, eg, buf, by_ncon, row_act, groups),
                 _ => return false,
             }
         }
@@ -326,7 +305,7 @@ pub(crate) fn backward_tile_simd(
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
-        let _ = (path, dist, ctx, t, eg, buf, by_ncon, row_act);
+        let _ = (path, dist, ctx, t, eg, buf, by_ncon, row_act, groups);
         false
     }
 }

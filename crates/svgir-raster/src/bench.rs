@@ -6,7 +6,7 @@
 //! [-1, 3], SH degree 3 with small random higher bands; the camera sits 3.2 units away with a
 //! 40-degree field of view. Timing: median of repeated calls in a rayon pool of the given size.
 
-use crate::{render, Background, ColorSource, OutputGrads, RasterConfig, RenderInput, Simd};
+use crate::{render, Background, ColorSource, OutputGrads, PhaseTimes, RasterConfig, RenderInput, Simd};
 use glam::{Mat4, Quat, Vec2, Vec3};
 use std::fmt::Write;
 use std::time::Instant;
@@ -203,6 +203,7 @@ pub fn bench_table_with(o: &BenchOptions) -> String {
     header(&mut s);
     let mut paths: Vec<Simd> = o.paths.iter().map(|p| p.resolve()).collect();
     paths.dedup();
+    let mut breakdown = Vec::new();
     for t in thread_counts(o.threads) {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().expect("rayon pool");
         for &n in &o.gaussians {
@@ -218,6 +219,7 @@ pub fn bench_table_with(o: &BenchOptions) -> String {
                     &paths,
                     o.reps,
                     RasterConfig::default(),
+                    &mut breakdown,
                 );
                 surfels = Some(problem.surfels);
             }
@@ -230,6 +232,10 @@ pub fn bench_table_with(o: &BenchOptions) -> String {
          Mevals/s: 2 x box evals / total.",
         o.reps
     );
+    let _ = writeln!(s, "phases (ms, medians; tiles = the tile kernels, reduce = per-Gaussian sums):");
+    for line in breakdown {
+        let _ = writeln!(s, "{line}");
+    }
     s
 }
 
@@ -244,6 +250,7 @@ fn bench_problem(
     paths: &[Simd],
     reps: usize,
     base: RasterConfig,
+    breakdown: &mut Vec<String>,
 ) {
     let (input, grads) = (problem.input(), problem.grads());
     let (pairs, evals) = pool.install(|| {
@@ -253,23 +260,32 @@ fn bench_problem(
     let k = paths.len();
     let (mut fwd, mut bwd, mut tot) = (vec![Vec::new(); k], vec![Vec::new(); k], vec![Vec::new(); k]);
     let mut cpu = vec![0.0f64; k];
+    let mut phases: Vec<Vec<Vec<(String, f64)>>> = vec![Vec::new(); k];
     for rep in 0..reps + 1 {
         for (i, &path) in paths.iter().enumerate() {
             let cfg = RasterConfig { simd: path, ..base };
             let c0 = process_cpu_seconds();
-            let (f, b) = pool.install(|| {
+            let (f, b, ph) = pool.install(|| {
                 let t0 = Instant::now();
                 let (out, st) = render(&input, &cfg);
                 let f = t0.elapsed().as_secs_f64() * 1e3;
                 let t1 = Instant::now();
-                drop(crate::backward(&input, &cfg, &st, &out, &grads));
-                (f, t1.elapsed().as_secs_f64() * 1e3)
+                let g = crate::backward(&input, &cfg, &st, &out, &grads);
+                let b = t1.elapsed().as_secs_f64() * 1e3;
+                let named = |pre: &str, p: &PhaseTimes| -> Vec<(String, f64)> {
+                    p.ms.iter().map(|(n, t)| (format!("{pre} {n}"), *t)).collect()
+                };
+                let mut ph = named("fwd", &st.phases);
+                ph.extend(named("bwd", &g.phases));
+                drop(g);
+                (f, b, ph)
             });
             // The first round warms the pool and the allocator up.
             if rep > 0 {
                 fwd[i].push(f);
                 bwd[i].push(b);
                 tot[i].push(f + b);
+                phases[i].push(ph);
                 if let (Some(a), Some(b)) = (c0, process_cpu_seconds()) {
                     cpu[i] += b - a;
                 }
@@ -294,6 +310,21 @@ fn bench_problem(
             2.0 * evals as f64 / total / 1e3
         );
     }
+    for (i, path) in paths.iter().enumerate() {
+        let label = format!("{size} {} {threads}t {}", problem.surfels.len(), path.name());
+        breakdown.push(phase_line(&label, &phases[i]));
+    }
+}
+
+/// One line of the phase breakdown: the median milliseconds of each phase over the calls.
+fn phase_line(label: &str, calls: &[Vec<(String, f64)>]) -> String {
+    let mut line = format!("{label:>24}:");
+    let Some(first) = calls.first() else { return line };
+    for (j, (name, _)) in first.iter().enumerate() {
+        let mut t: Vec<f64> = calls.iter().filter_map(|c| c.get(j).map(|p| p.1)).collect();
+        let _ = write!(line, " {name} {:.1}", median(&mut t));
+    }
+    line
 }
 
 #[allow(clippy::too_many_arguments)]

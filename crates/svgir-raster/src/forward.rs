@@ -15,6 +15,7 @@
 //! reduced per Gaussian in entry order (deterministic).
 
 use crate::interp::{normalised_coord, weights, MAX_VERTICES};
+use crate::phases::Stopwatch;
 use crate::preprocess::{preprocess, Cam};
 use crate::real::Real;
 use crate::splat::{eval_row, row_offsets, row_setup, RowEval};
@@ -130,13 +131,17 @@ pub fn render_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     input: &RenderInputOf<F, P>,
     cfg: &RasterConfig,
 ) -> (RenderOutputOf<F>, ForwardStateOf<F>) {
+    let mut sw = Stopwatch::start();
     let cam = Cam::<F>::new(input.camera);
     let (w, h) = (cam.width, cam.height);
     let npx = w as usize * h as usize;
     let (splats, sh_colors) = preprocess(input.surfels, &cam, &input.colors, cfg);
+    sw.lap("preprocess");
     let bins = bin(&splats, w, h, cfg.tile);
+    sw.lap("bin");
     let cf = FeatView::colors(&input.colors, &sh_colors);
     let recs = gather_records(&bins, &splats, (cf.vertices == 1).then_some(cf.data));
+    sw.lap("records");
     let ef = FeatView::extra(&input.extra);
     let ce = ef.channels;
 
@@ -196,9 +201,11 @@ pub fn render_generic<F: Real, P: GaussianParams<F> + ?Sized>(
             })
             .collect()
     };
+    sw.lap("buffers");
     bands.into_par_iter().for_each(|mut b| {
         render_band(&mut b, &bins, &recs, &cf, &ef, &input.background, cfg, w, h);
     });
+    sw.lap("tiles");
 
     out.accum_weight = (0..splats.len())
         .into_par_iter()
@@ -212,7 +219,18 @@ pub fn render_generic<F: Real, P: GaussianParams<F> + ?Sized>(
             s
         })
         .collect();
-    let state = ForwardStateOf { splats, sh_colors, recs, bins, final_t, n_contrib, moment1: m1, moment2: m2 };
+    sw.lap("reduce");
+    let state = ForwardStateOf {
+        splats,
+        sh_colors,
+        recs,
+        bins,
+        final_t,
+        n_contrib,
+        moment1: m1,
+        moment2: m2,
+        phases: sw.finish(),
+    };
     (out, state)
 }
 

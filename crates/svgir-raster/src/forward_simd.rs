@@ -75,6 +75,81 @@ pub(crate) unsafe fn set_masked<S: Lanes>(p: *mut f32, m: S::M, d: S) {
     S::select(m, d, v).store(p);
 }
 
+/// One lane group of a (tile, Gaussian) entry: up to `S::N` pixels of one row of the Gaussian's
+/// box, narrowed by the row chord and the live pixels. An entry's groups are listed first (the
+/// branchy scalar part: chords, live masks) and then run through a branch-free lane loop, so the
+/// out-of-order core overlaps the long dependency chains of neighbouring groups instead of
+/// stalling on a mispredicted branch between them.
+#[derive(Clone, Copy, Default)]
+pub(crate) struct Group {
+    /// The row's hit-plane setup.
+    pub rs: RowSetup<f32>,
+    /// Row centre y.
+    pub yf: f32,
+    /// Centre x of the row segment's first pixel.
+    pub xs: f32,
+    /// This group's first pixel, counted from the segment's first.
+    pub off: f32,
+    /// Tile-local index of the first pixel, `row * stride + column`.
+    pub i: u32,
+    /// Row in the tile.
+    pub ry: u16,
+    /// Column in the tile of the first pixel.
+    pub c0: u16,
+    /// Live lanes.
+    pub lb: u32,
+}
+
+/// Lists in `out` the lane groups of entry `s` clipped to the tile with top-left pixel `(tx0,
+/// ty0)` and pixel rectangle `tr`, where `live[row]` marks the tile's live columns.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn list_groups(
+    s: &TileRec<f32>,
+    tr: &[u32; 4],
+    live: &[u64],
+    tx0: usize,
+    ty0: usize,
+    stride: usize,
+    n: usize,
+    out: &mut Vec<Group>,
+) {
+    out.clear();
+    let (x0, x1) = (s.rect[0].max(tr[0]) as usize, s.rect[1].min(tr[1]) as usize);
+    let (y0, y1) = (s.rect[2].max(tr[2]) as usize, s.rect[3].min(tr[3]) as usize);
+    for y in y0..y1 {
+        let ry = y - ty0;
+        let lv = live[ry];
+        if lv == 0 {
+            continue;
+        }
+        let yf = y as f32 + 0.5;
+        let (xa, xb) = s.conic.span(s.center, yf, x0, x1);
+        let Some((xa, xb)) = live_span(lv, tx0, xa, xb) else { continue };
+        let rs = row_setup(&s.h, yf);
+        let xs = (xa as f64 + 0.5) as f32;
+        let mut k = xa;
+        while k < xb {
+            let c0 = k - tx0;
+            let lanes = (xb - k).min(n);
+            let lb = (lv >> c0) as u32 & ((1u64 << lanes) - 1) as u32;
+            if lb != 0 {
+                out.push(Group {
+                    rs,
+                    yf,
+                    xs,
+                    off: (k - xa) as f32,
+                    i: (ry * stride + c0) as u32,
+                    ry: ry as u16,
+                    c0: c0 as u16,
+                    lb,
+                });
+            }
+            k += n;
+        }
+    }
+}
+
 // The tile's per-pixel accumulators, one array of `stride * tile` each.
 const T: usize = 0;
 const COL: usize = 1;
@@ -110,6 +185,7 @@ unsafe fn band<S: Lanes, const DIST: bool>(
     let y_band0 = (b.ty * bins.tile) as usize;
     let mut buf = vec![0f32; np * ARRAYS];
     let mut row_live = vec![0u64; tile];
+    let mut groups: Vec<Group> = Vec::with_capacity(tile * (tile / S::N + 2));
     for tx in 0..bins.tiles_x {
         let t = (b.ty * bins.tiles_x + tx) as usize;
         let tr = bins.tile_rect(t, w, h);
@@ -129,68 +205,43 @@ unsafe fn band<S: Lanes, const DIST: bool>(
                 break;
             }
             let s = &recs[e];
-            let (x0, x1) = (s.rect[0].max(tr[0]) as usize, s.rect[1].min(tr[1]) as usize);
-            let (y0, y1) = (s.rect[2].max(tr[2]) as usize, s.rect[3].min(tr[3]) as usize);
+            list_groups(s, &tr, &row_live, tx0, ty0, stride, S::N, &mut groups);
             let local = sp((e - r0 as usize + 1) as f32);
             let col = s.color.map(sp);
             let nrm = s.normal.map(sp);
             let mut ws = sp(0.0);
-            for y in y0..y1 {
-                let ry = y - ty0;
-                if row_live[ry] == 0 {
-                    continue;
+            for gr in &groups {
+                let x = sp(gr.xs).add(S::iota().add(sp(gr.off)));
+                let ev = eval_lanes::<S>(s, &gr.rs, x, gr.yf, near);
+                let live = S::and(S::from_bits(gr.lb), ev.alpha.ne(sp(0.0)));
+                let i = gr.i as usize;
+                let tcur = S::load(pt.add(i));
+                let test = tcur.mul(sp(1.0).sub(ev.alpha));
+                let stop = S::and(live, test.lt(sp(t_stop)));
+                let sb = S::bits(stop);
+                // Branch-free: a group without stopping lanes clears nothing.
+                row_live[gr.ry as usize] &= !((sb as u64) << gr.c0);
+                remaining -= sb.count_ones() as usize;
+                let comp = S::andnot(live, stop);
+                let wgt = ev.alpha.mul(tcur);
+                for ch in 0..3 {
+                    add_masked::<S>(pcol[ch].add(i), comp, wgt.mul(col[ch]));
+                    add_masked::<S>(pnrm[ch].add(i), comp, wgt.mul(nrm[ch]));
                 }
-                let yf = y as f32 + 0.5;
-                let (xa, xb) = s.conic.span(s.center, yf, x0, x1);
-                let Some((xa, xb)) = live_span(row_live[ry], tx0, xa, xb) else { continue };
-                let rs = row_setup(&s.h, yf);
-                let xs = sp((xa as f64 + 0.5) as f32);
-                let mut k = xa;
-                while k < xb {
-                    let c0 = k - tx0;
-                    let lanes = (xb - k).min(S::N);
-                    let lb = (row_live[ry] >> c0) as u32 & ((1u64 << lanes) - 1) as u32;
-                    let xk = k;
-                    k += S::N;
-                    if lb == 0 {
-                        continue;
-                    }
-                    let x = xs.add(S::iota().add(sp((xk - xa) as f32)));
-                    let ev = eval_lanes::<S>(s, &rs, x, yf, near);
-                    let live = S::and(S::from_bits(lb), ev.alpha.ne(sp(0.0)));
-                    if S::bits(live) == 0 {
-                        continue;
-                    }
-                    let i = ry * stride + c0;
-                    let tcur = S::load(pt.add(i));
-                    let test = tcur.mul(sp(1.0).sub(ev.alpha));
-                    let stop = S::and(live, test.lt(sp(t_stop)));
-                    let sb = S::bits(stop);
-                    if sb != 0 {
-                        row_live[ry] &= !((sb as u64) << c0);
-                        remaining -= sb.count_ones() as usize;
-                    }
-                    let comp = S::andnot(live, stop);
-                    let wgt = ev.alpha.mul(tcur);
-                    for ch in 0..3 {
-                        add_masked::<S>(pcol[ch].add(i), comp, wgt.mul(col[ch]));
-                        add_masked::<S>(pnrm[ch].add(i), comp, wgt.mul(nrm[ch]));
-                    }
-                    add_masked::<S>(pdep.add(i), comp, wgt.mul(ev.z));
-                    if DIST {
-                        // As the scalar kernel: w_i (m_i^2 A_i + M2 - 2 m_i M1), A_i = 1 - T_i.
-                        let m = sp(m_scale).mul(sp(1.0).sub(sp(near).div(ev.z)));
-                        let (m1, m2) = (S::load(pm1.add(i)), S::load(pm2.add(i)));
-                        let d = m.mul(m).mul(sp(1.0).sub(tcur)).add(m2).sub(sp(2.0).mul(m).mul(m1)).mul(wgt);
-                        add_masked::<S>(pdst.add(i), comp, d);
-                        S::select(comp, m1.add(m.mul(wgt)), m1).store(pm1.add(i));
-                        S::select(comp, m2.add(m.mul(m).mul(wgt)), m2).store(pm2.add(i));
-                    }
-                    set_masked::<S>(pmed.add(i), S::and(comp, tcur.gt(sp(0.5))), ev.z);
-                    set_masked::<S>(pt.add(i), comp, test);
-                    set_masked::<S>(pncon.add(i), comp, local);
-                    ws = ws.add(S::select(comp, wgt, sp(0.0)));
+                add_masked::<S>(pdep.add(i), comp, wgt.mul(ev.z));
+                if DIST {
+                    // As the scalar kernel: w_i (m_i^2 A_i + M2 - 2 m_i M1), A_i = 1 - T_i.
+                    let m = sp(m_scale).mul(sp(1.0).sub(sp(near).div(ev.z)));
+                    let (m1, m2) = (S::load(pm1.add(i)), S::load(pm2.add(i)));
+                    let d = m.mul(m).mul(sp(1.0).sub(tcur)).add(m2).sub(sp(2.0).mul(m).mul(m1)).mul(wgt);
+                    add_masked::<S>(pdst.add(i), comp, d);
+                    S::select(comp, m1.add(m.mul(wgt)), m1).store(pm1.add(i));
+                    S::select(comp, m2.add(m.mul(m).mul(wgt)), m2).store(pm2.add(i));
                 }
+                set_masked::<S>(pmed.add(i), S::and(comp, tcur.gt(sp(0.5))), ev.z);
+                set_masked::<S>(pt.add(i), comp, test);
+                set_masked::<S>(pncon.add(i), comp, local);
+                ws = ws.add(S::select(comp, wgt, sp(0.0)));
             }
             b.wsum[e - e_band0] = ws.hsum();
         }

@@ -20,6 +20,7 @@ pub mod bench;
 pub mod forward;
 mod forward_simd;
 pub mod interp;
+pub mod phases;
 pub mod preprocess;
 pub mod preprocess_backward;
 pub mod real;
@@ -33,6 +34,7 @@ use svgir_core::{Camera, Surfels};
 pub use backward::backward_generic;
 pub use bench::bench_table;
 pub use forward::render_generic;
+pub use phases::PhaseTimes;
 pub use real::Real;
 pub use simd::Simd;
 
@@ -238,6 +240,8 @@ pub struct ForwardStateOf<F> {
     pub(crate) n_contrib: Vec<u32>,
     pub(crate) moment1: Vec<F>,
     pub(crate) moment2: Vec<F>,
+    /// Wall time of the forward's phases.
+    pub phases: PhaseTimes,
 }
 /// [`ForwardStateOf`] in `f32`, as training uses it.
 pub type ForwardState = ForwardStateOf<f32>;
@@ -311,6 +315,8 @@ pub struct GradsOf<F: Real> {
     /// `|(g_c.x z / f_x, g_c.y z / f_y)|` with `g_c = R_c dL/dp` in camera axes and `z` the
     /// centre's depth. 0 for culled Gaussians.
     pub v_mean2d_norm: Vec<F>,
+    /// Wall time of the backward's phases.
+    pub phases: PhaseTimes,
 }
 /// [`GradsOf`] in `f32`, as training uses it.
 pub type Grads = GradsOf<f32>;

@@ -28,13 +28,13 @@ pub trait Real:
     + 'static
 {
     /// Gradient vector types (`Vec2`/`Vec3`/`Quat`/`ShCoeffs` for `f32`).
-    type V2: Copy + Send + Sync + Debug + Default;
+    type V2: Copy + Send + Sync + Debug + Default + bytemuck::Zeroable;
     /// 3-vector gradient type (`Vec3` for `f32`, `DVec3` for `f64`).
-    type V3: Copy + Send + Sync + Debug + Default;
+    type V3: Copy + Send + Sync + Debug + Default + bytemuck::Zeroable;
     /// Quaternion gradient type (`Quat` for `f32`, `DQuat` for `f64`).
-    type Q: Copy + Send + Sync + Debug;
+    type Q: Copy + Send + Sync + Debug + bytemuck::Zeroable;
     /// SH-coefficient gradient type (`ShCoeffs` for `f32`, `[[f64; 3]; 16]` for `f64`).
-    type Sh: Copy + Send + Sync + Debug;
+    type Sh: Copy + Send + Sync + Debug + bytemuck::Zeroable;
 
     /// Additive identity.
     const ZERO: Self;

@@ -149,7 +149,7 @@ fn floor_clamped(v: f32, lo: f32, hi: f32) -> usize {
 
 /// Per (splat, pixel row) constants: `l = y T_w - T_v` is the same for the whole row, so
 /// `p = k x l = x (T_w x l) - (T_u x l) = x a - b`.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, Default)]
 pub struct RowSetup<F> {
     /// `T_w x l`: the hit plane cross product is `x a - b` at pixel centre x.
     pub a: [F; 3],
