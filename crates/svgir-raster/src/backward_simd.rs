@@ -168,15 +168,10 @@ unsafe fn tile_k<S: Lanes, const DIST: bool>(
             let gc = [ld(GC), ld(GC + 1), ld(GC + 2)];
             let gn = [ld(GN), ld(GN + 1), ld(GN + 2)];
             let gd = ld(GD);
-            let mut gw = gc[0]
-                .mul(col[0])
-                .add(gc[1].mul(col[1]))
-                .add(gc[2].mul(col[2]))
-                .add(ld(GO))
-                .add(gd.mul(ev.z))
-                .add(gn[0].mul(nrm[0]))
-                .add(gn[1].mul(nrm[1]))
-                .add(gn[2].mul(nrm[2]));
+            // dL/dw as a tree of sums (a chain of eight adds was on the critical path).
+            let g_col = gc[0].mul(col[0]).add(gc[1].mul(col[1])).add(gc[2].mul(col[2]));
+            let g_nrm = gn[0].mul(nrm[0]).add(gn[1].mul(nrm[1])).add(gn[2].mul(nrm[2]));
+            let mut gw = g_col.add(g_nrm).add(ld(GO).add(gd.mul(ev.z)));
             let mut v_z = wgt.mul(gd);
             if DIST {
                 let inv_z = sp(1.0).div(ev.z);
@@ -186,9 +181,11 @@ unsafe fn tile_k<S: Lanes, const DIST: bool>(
                 gw = gw.add(gdist.mul(a.mul(mz).mul(mz).sub(sp(2.0).mul(mz).mul(m1)).add(m2)));
                 v_z = v_z.add(gdist.mul(sp(2.0)).mul(wgt).mul(mz.mul(a).sub(m1)).mul(dm_dz));
             }
+            // Upstream gradients are finite, so one masked weight serves all six sums.
+            let wgt_m = S::select(m, wgt, zero);
             for ch in 0..3 {
-                acc(&mut sm.v_col[ch], m, wgt.mul(gc[ch]));
-                acc(&mut sm.v_n[ch], m, wgt.mul(gn[ch]));
+                sm.v_col[ch] = wgt_m.mul_add(gc[ch], sm.v_col[ch]);
+                sm.v_n[ch] = wgt_m.mul_add(gn[ch], sm.v_n[ch]);
             }
             let pacc = ld(ACC);
             let v_alpha = ti.mul(gw).sub(pacc.mul(inv_one_m));
@@ -212,9 +209,11 @@ unsafe fn tile_k<S: Lanes, const DIST: bool>(
             let inv = ev.inv_pz;
             let gp = [gu.mul(inv), gv.mul(inv), zero.sub(gu.mul(ev.u).add(gv.mul(ev.v))).mul(inv)];
             for j in 0..3 {
-                acc(&mut sm.gp[j], m, gp[j]);
-                acc(&mut sm.gp_x[j], m, x.mul(gp[j]));
-                acc(&mut sm.gp_y[j], m, yv.mul(gp[j]));
+                // Masked once; x and y are finite pixel centres.
+                let gpm = S::select(m, gp[j], zero);
+                sm.gp[j] = sm.gp[j].add(gpm);
+                sm.gp_x[j] = x.mul_add(gpm, sm.gp_x[j]);
+                sm.gp_y[j] = yv.mul_add(gpm, sm.gp_y[j]);
             }
         }
         if !any {

@@ -152,6 +152,9 @@ pub(crate) trait Lanes: Copy {
     unsafe fn add(self, o: Self) -> Self;
     unsafe fn sub(self, o: Self) -> Self;
     unsafe fn mul(self, o: Self) -> Self;
+    /// `self * a + b` with one rounding (FMA): only for the backward's per-lane sums, never
+    /// where a value must match the scalar path bit for bit.
+    unsafe fn mul_add(self, a: Self, b: Self) -> Self;
     unsafe fn div(self, o: Self) -> Self;
     unsafe fn lt(self, o: Self) -> Self::M;
     unsafe fn le(self, o: Self) -> Self::M;
@@ -241,6 +244,10 @@ mod x86 {
         #[inline(always)]
         unsafe fn mul(self, o: Self) -> Self {
             F8(_mm256_mul_ps(self.0, o.0))
+        }
+        #[inline(always)]
+        unsafe fn mul_add(self, a: Self, b: Self) -> Self {
+            F8(_mm256_fmadd_ps(self.0, a.0, b.0))
         }
         #[inline(always)]
         unsafe fn div(self, o: Self) -> Self {
@@ -343,6 +350,10 @@ mod x86 {
         #[inline(always)]
         unsafe fn div(self, o: Self) -> Self {
             F16(_mm512_div_ps(self.0, o.0))
+        }
+        #[inline(always)]
+        unsafe fn mul_add(self, a: Self, b: Self) -> Self {
+            F16(_mm512_fmadd_ps(self.0, a.0, b.0))
         }
         #[inline(always)]
         unsafe fn lt(self, o: Self) -> __mmask16 {

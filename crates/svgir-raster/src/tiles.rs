@@ -114,9 +114,10 @@ pub fn bin<F: Real>(splats: &[Splat<F>], width: u32, height: u32, tile: u32) -> 
     let tiles_x = width.div_ceil(tile);
     let tiles_y = height.div_ceil(tile);
     let ntiles = (tiles_x * tiles_y) as usize;
-    let mut keys: Vec<u64> =
+    let keys: Vec<u64> =
         splats.par_iter().enumerate().filter(|(_, s)| s.visible()).map(|(i, s)| sort_key(s.depth, i as u32)).collect();
-    keys.par_sort_unstable();
+    // The keys are built in id order, so a stable sort on the depth half gives (depth, id) order.
+    let keys = radix_sort_high(keys);
 
     // Tile spans in a compact array (the fill below reads them in depth order, i.e. randomly).
     let spans: Vec<[u32; 4]> = splats
@@ -124,42 +125,116 @@ pub fn bin<F: Real>(splats: &[Splat<F>], width: u32, height: u32, tile: u32) -> 
         .with_min_len(4096)
         .map(|s| if s.visible() { tile_span(&s.rect, tile) } else { [0; 4] })
         .collect();
-    let mut counts = vec![0u32; ntiles + 1];
     let mut entry_offsets = vec![0u32; splats.len() + 1];
     for (g, r) in spans.iter().enumerate() {
-        for ty in r[2]..r[3] {
-            for tx in r[0]..r[1] {
-                counts[(ty * tiles_x + tx) as usize] += 1;
-            }
-        }
         entry_offsets[g + 1] = entry_offsets[g] + (r[1] - r[0]) * (r[3] - r[2]);
     }
+    // A parallel counting sort: the depth-sorted keys are cut into chunks; each chunk counts its
+    // entries per tile, the counts give every (chunk, tile) its first slot, and the chunks fill
+    // their slots at once. Chunks are in key order, so each tile list comes out in key order,
+    // the same lists as one sequential fill.
+    let chunk = keys.len().div_ceil(4 * rayon::current_num_threads()).max(4096);
+    let chunk_counts: Vec<Vec<u32>> = keys
+        .par_chunks(chunk)
+        .map(|ks| {
+            let mut c = vec![0u32; ntiles];
+            for &key in ks {
+                let r = spans[(key & 0xffff_ffff) as usize];
+                for ty in r[2]..r[3] {
+                    for tx in r[0]..r[1] {
+                        c[(ty * tiles_x + tx) as usize] += 1;
+                    }
+                }
+            }
+            c
+        })
+        .collect();
     let mut ranges = Vec::with_capacity(ntiles);
+    let mut cursors: Vec<Vec<u32>> = vec![vec![0; ntiles]; chunk_counts.len()];
     let mut acc = 0u32;
-    for &c in &counts[..ntiles] {
-        ranges.push([acc, acc + c]);
-        acc += c;
+    for t in 0..ntiles {
+        let start = acc;
+        for (c, counts) in chunk_counts.iter().enumerate() {
+            cursors[c][t] = acc;
+            acc += counts[t];
+        }
+        ranges.push([start, acc]);
     }
     let total = acc as usize;
-    let mut cursor: Vec<u32> = ranges.iter().map(|r| r[0]).collect();
     let mut ids = vec![0u32; total];
     let mut entries = vec![0u32; total];
-    for key in keys {
-        let g = (key & 0xffff_ffff) as usize;
-        let r = spans[g];
-        let mut e = entry_offsets[g] as usize;
-        for ty in r[2]..r[3] {
-            for tx in r[0]..r[1] {
-                let t = (ty * tiles_x + tx) as usize;
-                let pos = cursor[t];
-                cursor[t] += 1;
-                ids[pos as usize] = g as u32;
-                entries[e] = pos;
-                e += 1;
+    {
+        let (ids_p, entries_p) = (SharedSlice(ids.as_mut_ptr()), SharedSlice(entries.as_mut_ptr()));
+        keys.par_chunks(chunk).zip(cursors.par_iter_mut()).for_each(|(ks, cursor)| {
+            for &key in ks {
+                let g = (key & 0xffff_ffff) as usize;
+                let r = spans[g];
+                let mut e = entry_offsets[g] as usize;
+                for ty in r[2]..r[3] {
+                    for tx in r[0]..r[1] {
+                        let t = (ty * tiles_x + tx) as usize;
+                        let pos = cursor[t];
+                        cursor[t] += 1;
+                        // SAFETY: every (chunk, tile) owns the slots from its cursor start up
+                        // to its count, and each Gaussian owns its entry range, so no two
+                        // writes hit the same index; all indices are below `total`.
+                        unsafe {
+                            ids_p.write(pos as usize, g as u32);
+                            entries_p.write(e, pos);
+                        }
+                        e += 1;
+                    }
+                }
             }
-        }
+        });
     }
     TileBins { tile, tiles_x, tiles_y, ranges, ids, entry_offsets, entries }
+}
+
+/// Stable LSD radix sort of `keys` by their upper 32 bits (8 bits a pass; a pass whose byte is
+/// the same in every key is skipped). Ties keep their order, so keys built in id order come out
+/// sorted by the whole key. Several times faster than a comparison sort of 100k keys.
+pub fn radix_sort_high(mut keys: Vec<u64>) -> Vec<u64> {
+    let mut tmp = vec![0u64; keys.len()];
+    for pass in 0..4 {
+        let shift = 32 + 8 * pass;
+        let mut count = [0usize; 256];
+        for &k in &keys {
+            count[(k >> shift) as usize & 255] += 1;
+        }
+        if count.iter().any(|&c| c == keys.len()) {
+            continue;
+        }
+        let mut acc = 0;
+        for c in count.iter_mut() {
+            let n = *c;
+            *c = acc;
+            acc += n;
+        }
+        for &k in &keys {
+            let b = (k >> shift) as usize & 255;
+            tmp[count[b]] = k;
+            count[b] += 1;
+        }
+        std::mem::swap(&mut keys, &mut tmp);
+    }
+    keys
+}
+
+/// A pointer that parallel tasks write through at indices they own alone.
+#[derive(Clone, Copy)]
+struct SharedSlice(*mut u32);
+// SAFETY: only used for writes at disjoint indices (see `bin`).
+unsafe impl Send for SharedSlice {}
+unsafe impl Sync for SharedSlice {}
+
+impl SharedSlice {
+    /// # Safety
+    /// `i` is in bounds and no other task reads or writes index `i` meanwhile.
+    unsafe fn write(self, i: usize, v: u32) {
+        // SAFETY: the caller's contract.
+        unsafe { *self.0.add(i) = v }
+    }
 }
 
 /// Bit mask of tile columns `[lo, hi)` (`lo <= hi <= 64`), for per-row sets of live pixels.
@@ -182,6 +257,17 @@ pub(crate) fn live_span(live: u64, x0: usize, xa: usize, xb: usize) -> Option<(u
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn radix_sort_matches_the_comparison_sort() {
+        let mut rng = svgir_core::Rng::new(3);
+        // Depths with many ties (few distinct values) and ids in order, as `bin` builds them.
+        let keys: Vec<u64> = (0..20_000u32).map(|i| sort_key((rng.uniform() * 50.0).floor() * 0.37 + 0.2, i)).collect();
+        let mut want = keys.clone();
+        want.sort_unstable();
+        assert_eq!(radix_sort_high(keys), want);
+        assert!(radix_sort_high(Vec::new()).is_empty());
+    }
 
     #[test]
     fn live_span_trims_to_set_bits() {
