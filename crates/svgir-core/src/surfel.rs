@@ -197,7 +197,8 @@ mod tests {
             s.push(Vec3::splat(i as f32 * 1e30), Quat::IDENTITY, Vec2::ZERO, -3.0, ShCoeffs::default());
         }
         assert!(s.check().is_ok(), "large finite values are fine");
-        let bad: [(usize, fn(&mut Surfels, usize)); 6] = [
+        type Spoil = fn(&mut Surfels, usize);
+        let bad: [(usize, Spoil); 6] = [
             (7, |s, i| s.positions[i].y = f32::INFINITY),
             (300, |s, i| s.rotations[i] = Quat::from_xyzw(0.0, 0.0, 0.0, 0.0)),
             (301, |s, i| s.rotations[i].x = f32::NAN),

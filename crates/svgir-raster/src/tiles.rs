@@ -202,7 +202,7 @@ pub fn radix_sort_high(mut keys: Vec<u64>) -> Vec<u64> {
         for &k in &keys {
             count[(k >> shift) as usize & 255] += 1;
         }
-        if count.iter().any(|&c| c == keys.len()) {
+        if count.contains(&keys.len()) {
             continue;
         }
         let mut acc = 0;

@@ -168,6 +168,9 @@ impl Stage2 {
             }
         }
         self.move_light(b, best)?;
+        // Report the direction the light now has: setting it normalises again, which can move
+        // the last bit of an already unit vector.
+        let best = self.lights.dirs[b];
         Ok(Some(SunSearch {
             from: from.to_array(),
             to: best.to_array(),
