@@ -21,7 +21,7 @@ use crate::preprocess::Cam;
 use crate::preprocess_backward::{gaussian_backward, SplatGradSum};
 use crate::real::Real;
 use crate::splat::{eval_row, hit_from_row, intersect_backward, row_offsets, row_setup, RowEval, SplatGrad};
-use crate::tiles::{live_span, TileBins, TileRec};
+use crate::tiles::{EntryBox, TileBins, TileRec};
 use crate::{
     BackgroundOf, ColorSourceOf, ForwardStateOf, GaussianParams, GradsOf, OutputGradsOf, RasterConfig, RenderInputOf,
     RenderOutputOf,
@@ -123,21 +123,27 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     let mut sums = vec![[F::ZERO; OFF_COL + 3]; n];
     sums.par_iter_mut().enumerate().with_min_len(1024).for_each(|(g, acc)| sum_entries(g, 0, hi, &mut acc[..hi]));
     sw.lap("reduce");
-    // One parallel pass writes each output once (no zero fill of ~24 MB of fresh pages first).
-    type Row<F> = (<F as Real>::V3, (<F as Real>::Q, (<F as Real>::V2, (F, (<F as Real>::Sh, F)))));
-    let zero_sh = F::sh(&[[F::ZERO; 3]; 16]);
-    #[allow(clippy::type_complexity)]
-    let (v_positions, (v_rotations, (v_log_scales, (v_opacity_logits, (v_sh, v_mean2d_norm))))): (
-        Vec<_>,
-        (Vec<_>, (Vec<_>, (Vec<_>, (Vec<_>, Vec<_>)))),
-    ) = (0..n)
-        .into_par_iter()
+    // Zeroed by the allocator (calloc), not element by element: a serial fill of the 19 MB of SH
+    // rows cost as much as the parallel pass below.
+    let mut v_positions: Vec<F::V3> = bytemuck::zeroed_vec(n);
+    let mut v_rotations: Vec<F::Q> = bytemuck::zeroed_vec(n);
+    let mut v_log_scales: Vec<F::V2> = bytemuck::zeroed_vec(n);
+    let mut v_opacity_logits = vec![F::ZERO; n];
+    let mut v_sh: Vec<F::Sh> = bytemuck::zeroed_vec(n);
+    let mut v_mean2d_norm = vec![F::ZERO; n];
+    v_positions
+        .par_iter_mut()
+        .zip(v_rotations.par_iter_mut())
+        .zip(v_log_scales.par_iter_mut())
+        .zip(v_opacity_logits.par_iter_mut())
+        .zip(v_sh.par_iter_mut())
+        .zip(v_mean2d_norm.par_iter_mut())
+        .enumerate()
         .with_min_len(256)
-        .map(|g| -> Row<F> {
+        .for_each(|(g, (((((vp, vr), vs), vo), vsh), vm))| {
             let splat = &state.splats[g];
             if !splat.visible() {
-                let z = F::ZERO;
-                return (F::v3([z; 3]), (F::quat([z; 4]), (F::v2([z; 2]), (z, (zero_sh, z)))));
+                return;
             }
             let acc = &sums[g];
             let mut sg = SplatGradSum::<F>::default();
@@ -147,13 +153,15 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
             sg.normal.copy_from_slice(&acc[OFF_N..OFF_N + 3]);
             sg.color.copy_from_slice(&acc[OFF_COL..OFF_COL + 3]);
             let pg = gaussian_backward(input.surfels, &cam, splat, &sg, sh_mode, g);
-            let vsh = if sh_mode { F::sh(&pg.sh) } else { zero_sh };
-            (
-                F::v3(pg.position),
-                (F::quat(pg.rotation), (F::v2(pg.log_scale), (pg.opacity_logit, (vsh, pg.mean2d_norm)))),
-            )
-        })
-        .unzip();
+            *vp = F::v3(pg.position);
+            *vr = F::quat(pg.rotation);
+            *vs = F::v2(pg.log_scale);
+            *vo = pg.opacity_logit;
+            if sh_mode {
+                *vsh = F::sh(&pg.sh);
+            }
+            *vm = pg.mean2d_norm;
+        });
 
     sw.lap("gaussians");
     let feature_grads = |fv: &FeatView<F>, lo: usize| -> Vec<F> {
@@ -365,23 +373,15 @@ fn backward_tile_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
         }
         let sp = &ctx.recs[e];
         let gid = sp.id as usize;
-        let (x0, x1) = (sp.rect[0].max(tr[0]) as usize, sp.rect[1].min(tr[1]) as usize);
-        let c32 = [sp.center[0].to_f32(), sp.center[1].to_f32()];
-        let (y0, y1) = (sp.rect[2].max(tr[2]) as usize, sp.rect[3].min(tr[3]) as usize);
+        let bx = EntryBox::new(sp, &tr);
         let slot = &mut eg[(e - e_tile0) * dim..(e - e_tile0 + 1) * dim];
         let mut sg = SplatGrad::<F>::default();
         let mut v_n = [F::ZERO; 3];
         // Colour gradient of a one-vertex colour, summed here rather than in the slot.
         let mut v_col = [F::ZERO; 3];
-        for y in y0..y1 {
+        for y in bx.rows.clone() {
             // Only pixels that composited this entry.
-            let act = row_act[y - ty0];
-            if act == 0 {
-                continue;
-            }
-            let yf = F::c(y as f64) + half;
-            let (xa, xb) = sp.conic.span(c32, yf.to_f32(), x0, x1);
-            let Some((xa, xb)) = live_span(act, tx0, xa, xb) else { continue };
+            let Some((yf, xa, xb)) = bx.row_span::<F>(&sp.conic, y, row_act[y - ty0]) else { continue };
             let row = (y - ty0) * tile;
             let rs = row_setup(&sp.h, yf);
             eval_row(&sp.h, sp.center, sp.opacity, &rs, yf, xa, xb - xa, near, &offs, ev);

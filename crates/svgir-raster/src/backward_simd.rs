@@ -148,7 +148,7 @@ unsafe fn tile_k<S: Lanes, const DIST: bool>(
             v_n: [zero; 3],
             v_col: [zero; 3],
         };
-        list_groups(s, &tr, row_act, tx0, ty0, stride, S::N, groups);
+        list_groups(s, &tr, row_act, S::N, groups);
         let mut any = false;
         for gr in groups.iter() {
             let x = sp(gr.xs).add(S::iota().add(sp(gr.off)));
@@ -156,7 +156,7 @@ unsafe fn tile_k<S: Lanes, const DIST: bool>(
             let m = S::and(S::from_bits(gr.lb), ev.alpha.ne(zero));
             // Branch-free: a group without live lanes adds nothing (every update is masked).
             any |= S::bits(m) != 0;
-            let i = gr.i as usize;
+            let i = gr.ry as usize * stride + gr.c0 as usize;
             let yv = sp(gr.yf);
             let dy = sp(s.center[1] - gr.yf);
             let ld = |k: usize| S::load(arr(k).add(i));

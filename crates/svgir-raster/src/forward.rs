@@ -19,7 +19,7 @@ use crate::phases::Stopwatch;
 use crate::preprocess::{preprocess, Cam};
 use crate::real::Real;
 use crate::splat::{eval_row, row_offsets, row_setup, RowEval};
-use crate::tiles::{bin, columns_mask, gather_records, live_span, TileBins, TileRec};
+use crate::tiles::{bin, columns_mask, gather_records, EntryBox, TileBins, TileRec};
 use crate::{BackgroundOf, ColorSourceOf, ForwardStateOf, GaussianParams, RasterConfig, RenderInputOf, RenderOutputOf};
 use rayon::prelude::*;
 
@@ -358,19 +358,11 @@ fn render_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
             }
             let s = &recs[e];
             let g = s.id as usize;
-            let (x0, x1) = (s.rect[0].max(tr[0]) as usize, s.rect[1].min(tr[1]) as usize);
-            let c32 = [s.center[0].to_f32(), s.center[1].to_f32()];
-            let (y0, y1) = (s.rect[2].max(tr[2]) as usize, s.rect[3].min(tr[3]) as usize);
+            let bx = EntryBox::new(s, &tr);
             let local = (e - r0 as usize + 1) as u32;
             let mut ws = F::ZERO;
-            for y in y0..y1 {
-                let live = row_live[y - ty0];
-                if live == 0 {
-                    continue;
-                }
-                let yf = F::c(y as f64) + half;
-                let (xa, xb) = s.conic.span(c32, yf.to_f32(), x0, x1);
-                let Some((xa, xb)) = live_span(live, tx0, xa, xb) else { continue };
+            for y in bx.rows.clone() {
+                let Some((yf, xa, xb)) = bx.row_span::<F>(&s.conic, y, row_live[y - ty0]) else { continue };
                 let row = (y - ty0) * tile;
                 let rs = row_setup(&s.h, yf);
                 eval_row(&s.h, s.center, s.opacity, &rs, yf, xa, xb - xa, near, &offs, &mut ev);

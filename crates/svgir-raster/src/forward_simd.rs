@@ -19,7 +19,7 @@
 use crate::forward::{background_at, Band};
 use crate::simd::Lanes;
 use crate::splat::{row_setup, RowSetup};
-use crate::tiles::{columns_mask, live_span, TileBins, TileRec};
+use crate::tiles::{columns_mask, EntryBox, TileBins, TileRec};
 use crate::{BackgroundOf, RasterConfig};
 
 /// One lane group's evaluation; `alpha == 0` marks a skipped pixel.
@@ -90,8 +90,6 @@ pub(crate) struct Group {
     pub xs: f32,
     /// This group's first pixel, counted from the segment's first.
     pub off: f32,
-    /// Tile-local index of the first pixel, `row * stride + column`.
-    pub i: u32,
     /// Row in the tile.
     pub ry: u16,
     /// Column in the tile of the first pixel.
@@ -100,32 +98,17 @@ pub(crate) struct Group {
     pub lb: u32,
 }
 
-/// Lists in `out` the lane groups of entry `s` clipped to the tile with top-left pixel `(tx0,
-/// ty0)` and pixel rectangle `tr`, where `live[row]` marks the tile's live columns.
+/// Lists in `out` the `n`-lane groups of entry `s` clipped to the tile with pixel rectangle
+/// `tr`, where `live[row]` marks the tile's live columns.
 #[inline(always)]
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn list_groups(
-    s: &TileRec<f32>,
-    tr: &[u32; 4],
-    live: &[u64],
-    tx0: usize,
-    ty0: usize,
-    stride: usize,
-    n: usize,
-    out: &mut Vec<Group>,
-) {
+pub(crate) fn list_groups(s: &TileRec<f32>, tr: &[u32; 4], live: &[u64], n: usize, out: &mut Vec<Group>) {
     out.clear();
-    let (x0, x1) = (s.rect[0].max(tr[0]) as usize, s.rect[1].min(tr[1]) as usize);
-    let (y0, y1) = (s.rect[2].max(tr[2]) as usize, s.rect[3].min(tr[3]) as usize);
-    for y in y0..y1 {
+    let (tx0, ty0) = (tr[0] as usize, tr[2] as usize);
+    let bx = EntryBox::new(s, tr);
+    for y in bx.rows.clone() {
         let ry = y - ty0;
         let lv = live[ry];
-        if lv == 0 {
-            continue;
-        }
-        let yf = y as f32 + 0.5;
-        let (xa, xb) = s.conic.span(s.center, yf, x0, x1);
-        let Some((xa, xb)) = live_span(lv, tx0, xa, xb) else { continue };
+        let Some((yf, xa, xb)) = bx.row_span::<f32>(&s.conic, y, lv) else { continue };
         let rs = row_setup(&s.h, yf);
         let xs = (xa as f64 + 0.5) as f32;
         let mut k = xa;
@@ -134,16 +117,7 @@ pub(crate) fn list_groups(
             let lanes = (xb - k).min(n);
             let lb = (lv >> c0) as u32 & ((1u64 << lanes) - 1) as u32;
             if lb != 0 {
-                out.push(Group {
-                    rs,
-                    yf,
-                    xs,
-                    off: (k - xa) as f32,
-                    i: (ry * stride + c0) as u32,
-                    ry: ry as u16,
-                    c0: c0 as u16,
-                    lb,
-                });
+                out.push(Group { rs, yf, xs, off: (k - xa) as f32, ry: ry as u16, c0: c0 as u16, lb });
             }
             k += n;
         }
@@ -205,7 +179,7 @@ unsafe fn band<S: Lanes, const DIST: bool>(
                 break;
             }
             let s = &recs[e];
-            list_groups(s, &tr, &row_live, tx0, ty0, stride, S::N, &mut groups);
+            list_groups(s, &tr, &row_live, S::N, &mut groups);
             let local = sp((e - r0 as usize + 1) as f32);
             let col = s.color.map(sp);
             let nrm = s.normal.map(sp);
@@ -214,7 +188,7 @@ unsafe fn band<S: Lanes, const DIST: bool>(
                 let x = sp(gr.xs).add(S::iota().add(sp(gr.off)));
                 let ev = eval_lanes::<S>(s, &gr.rs, x, gr.yf, near);
                 let live = S::and(S::from_bits(gr.lb), ev.alpha.ne(sp(0.0)));
-                let i = gr.i as usize;
+                let i = gr.ry as usize * stride + gr.c0 as usize;
                 let tcur = S::load(pt.add(i));
                 let test = tcur.mul(sp(1.0).sub(ev.alpha));
                 let stop = S::and(live, test.lt(sp(t_stop)));

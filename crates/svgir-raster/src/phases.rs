@@ -10,13 +10,6 @@ pub struct PhaseTimes {
     pub ms: Vec<(&'static str, f64)>,
 }
 
-impl PhaseTimes {
-    /// Milliseconds of `phase` (0 when it did not run).
-    pub fn get(&self, phase: &str) -> f64 {
-        self.ms.iter().filter(|(n, _)| *n == phase).map(|(_, t)| t).sum()
-    }
-}
-
 /// Laps of a running call: each [`Stopwatch::lap`] closes the phase that ran since the last.
 pub(crate) struct Stopwatch {
     last: Instant,

@@ -237,6 +237,52 @@ impl SharedSlice {
     }
 }
 
+/// One tile entry's box clipped to its tile, and the per-row culling every tile kernel (scalar
+/// and SIMD, forward and backward) starts a row with.
+pub(crate) struct EntryBox {
+    /// Pixel columns `[x0, x1)` of the box inside the tile.
+    x0: usize,
+    x1: usize,
+    /// Pixel rows of the box inside the tile.
+    pub rows: std::ops::Range<usize>,
+    /// The projected centre in f32, as the row chords take it.
+    c32: [f32; 2],
+    /// The tile's first column.
+    tx0: usize,
+}
+
+impl EntryBox {
+    /// The box of entry `s` inside the tile with pixel rectangle `tr`.
+    #[inline(always)]
+    pub(crate) fn new<F: Real>(s: &TileRec<F>, tr: &[u32; 4]) -> Self {
+        Self {
+            x0: s.rect[0].max(tr[0]) as usize,
+            x1: s.rect[1].min(tr[1]) as usize,
+            rows: s.rect[2].max(tr[2]) as usize..s.rect[3].min(tr[3]) as usize,
+            c32: [s.center[0].to_f32(), s.center[1].to_f32()],
+            tx0: tr[0] as usize,
+        }
+    }
+
+    /// Row `y`'s centre and its pixels `[xa, xb)`: the box row narrowed by the row chord of
+    /// `conic`, then trimmed to the tile columns set in `live`; `None` when nothing is left.
+    #[inline(always)]
+    pub(crate) fn row_span<F: Real>(
+        &self,
+        conic: &crate::splat::RowConic,
+        y: usize,
+        live: u64,
+    ) -> Option<(F, usize, usize)> {
+        if live == 0 {
+            return None;
+        }
+        let yf = F::c(y as f64) + F::c(0.5);
+        let (xa, xb) = conic.span(self.c32, yf.to_f32(), self.x0, self.x1);
+        let (xa, xb) = live_span(live, self.tx0, xa, xb)?;
+        Some((yf, xa, xb))
+    }
+}
+
 /// Bit mask of tile columns `[lo, hi)` (`lo <= hi <= 64`), for per-row sets of live pixels.
 #[inline(always)]
 pub(crate) fn columns_mask(lo: usize, hi: usize) -> u64 {
