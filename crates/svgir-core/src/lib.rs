@@ -19,6 +19,7 @@ pub mod float;
 pub mod image;
 pub mod rng;
 pub mod sh;
+pub mod simd;
 pub mod surfel;
 
 pub use camera::{Camera, CameraError, Intrinsics};

@@ -37,6 +37,8 @@ pub mod grads;
 pub mod material;
 pub mod shade;
 pub mod shade_backward;
+#[cfg(target_arch = "x86_64")]
+mod shade_simd;
 pub(crate) mod specular;
 pub mod two_sided;
 

@@ -34,6 +34,7 @@ use crate::{expect_len, PbrError};
 use glam::Vec3;
 use rayon::prelude::*;
 use svgir_core::envmap::Taps;
+use svgir_core::simd::Simd;
 use svgir_core::EnvMap;
 use svgir_shading::float::{dot, to_f};
 use svgir_shading::{tangent_frame, Diffuse, DiffuseWeight, Float, MAX_VERTICES, MIN_ELEVATION_SIN};
@@ -68,11 +69,14 @@ pub struct ShadeParams {
     pub env_max: f32,
     /// How the diffuse lobe combines with the specular one (SPEC 4: added).
     pub diffuse: Diffuse,
+    /// Which f32 kernels run (`Simd::Auto`: the lane kernels of `shade_simd` where the CPU has
+    /// AVX2, unless `SVGIR_SIMD=scalar`); f64 always runs the generic ones.
+    pub simd: Simd,
 }
 
 impl Default for ShadeParams {
     fn default() -> Self {
-        Self { visibility: true, env_max: ENV_MAX, diffuse: Diffuse::Added }
+        Self { visibility: true, env_max: ENV_MAX, diffuse: Diffuse::Added, simd: Simd::Auto }
     }
 }
 
@@ -463,6 +467,30 @@ pub fn shade_into_cached<F: Float>(
         buf.resize(len, F::ZERO);
     }
     let table = FibTable::new(inp.mb.k);
+    if lane_kernels::<F>(inp.params.simd) {
+        #[cfg(target_arch = "x86_64")]
+        {
+            // SAFETY: `F` is `f32` (checked by `lane_kernels`), so these are the same types.
+            let (inp32, [color, direct, indirect]) = unsafe {
+                (
+                    &*(inp as *const ShadeInputs<F> as *const ShadeInputs<f32>),
+                    [&mut out.color, &mut out.direct, &mut out.indirect]
+                        .map(|v| std::slice::from_raw_parts_mut(v.as_mut_ptr() as *mut f32, v.len())),
+                )
+            };
+            let w = MIN_TASK * m * 3;
+            color
+                .par_chunks_mut(w)
+                .zip(direct.par_chunks_mut(w))
+                .zip(indirect.par_chunks_mut(w))
+                .enumerate()
+                .for_each_init(crate::shade_simd::SampleRows::default, |rows, (t, ((c, d), ind))| {
+                    // SAFETY: `lane_kernels` checked that the CPU has AVX2.
+                    unsafe { crate::shade_simd::shade_range_avx2(inp32, &table, cache, rows, t * MIN_TASK, c, d, ind) }
+                });
+            return Ok(());
+        }
+    }
     out.color
         .par_chunks_mut(m * 3)
         .zip(out.direct.par_chunks_mut(m * 3))
@@ -475,6 +503,12 @@ pub fn shade_into_cached<F: Float>(
             }
         });
     Ok(())
+}
+
+/// Whether the f32 lane kernels (`shade_simd`) run for scalar type `F` under `simd`: f32 on an
+/// x86-64 CPU with AVX2, unless the scalar path is asked for.
+pub(crate) fn lane_kernels<F: 'static>(simd: Simd) -> bool {
+    cfg!(target_arch = "x86_64") && svgir_core::simd::is_f32::<F>() && simd.resolve() != Simd::Scalar
 }
 
 /// [`shade_into`] with fresh buffers.

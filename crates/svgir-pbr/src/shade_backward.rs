@@ -132,6 +132,7 @@ pub fn shade_backward_cached<F: Float>(
     }
     let block = block_size(n);
     let table = FibTable::new(inp.mb.k);
+    let lane = crate::shade::lane_kernels::<F>(inp.params.simd);
     let partials: Vec<Option<(Vec<[F; 3]>, F)>> = grads
         .v_albedo
         .par_chunks_mut(block * m * 3)
@@ -141,6 +142,26 @@ pub fn shade_backward_cached<F: Float>(
         .map(|(bi, ((alb, rough), nrm))| {
             let i0 = bi * block;
             let mut part: Option<(Vec<[F; 3]>, F)> = None;
+            #[cfg(target_arch = "x86_64")]
+            if lane {
+                // SAFETY: `F` is `f32` (checked by `lane_kernels`), so these are the same types,
+                // and the CPU has AVX2.
+                unsafe {
+                    let f = |x: &mut [F]| std::slice::from_raw_parts_mut(x.as_mut_ptr() as *mut f32, x.len());
+                    crate::shade_simd::backward_range_avx2(
+                        &*(inp as *const ShadeInputs<F> as *const ShadeInputs<f32>),
+                        &table,
+                        cache,
+                        i0,
+                        std::slice::from_raw_parts(v_color.as_ptr() as *const f32, v_color.len()),
+                        f(alb),
+                        f(rough),
+                        f(nrm),
+                        &mut *(&mut part as *mut Option<(Vec<[F; 3]>, F)> as *mut Option<(Vec<[f32; 3]>, f32)>),
+                    );
+                }
+                return part;
+            }
             for li in 0..rough.len() / m {
                 let i = i0 + li;
                 let g = &v_color[i * m * 3..(i + 1) * m * 3];

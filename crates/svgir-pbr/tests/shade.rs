@@ -134,7 +134,7 @@ fn gradients_match_finite_differences_f64() {
         (2, Mode::Off, false, 64.0, 4, Diffuse::Added),
     ];
     for (ci, &(m, mode, visibility, env_max, lights, diffuse)) in configs.iter().enumerate() {
-        let params = ShadeParams { visibility, env_max, diffuse };
+        let params = ShadeParams { visibility, env_max, diffuse, ..ShadeParams::default() };
         let mut c = case(5, m, 8, 10 + ci as u64);
         c.lights = random_lights(&c.geom, 5, lights, ci as u64);
         let act = activate(m, &c.albedo, &c.rough, &c.offset, &c.mb.normals).unwrap();
@@ -235,7 +235,7 @@ fn matches_naive_rendering_equation_f32() {
                 Mode::Traced => Indirect::Traced { rho },
                 Mode::Given => Indirect::Given(&given),
             },
-            params: ShadeParams { visibility, env_max, diffuse },
+            params: ShadeParams { visibility, env_max, diffuse, ..ShadeParams::default() },
             lights,
         };
         let out = shade(&inp).unwrap();
@@ -384,9 +384,10 @@ fn direction_cache_is_bit_identical_and_checked() {
     let mut rng = Rng::new(2);
     let g: Vec<f32> = (0..n * m * 3).map(|_| rng.normal()).collect();
     for mode in [Mode::Off, Mode::Traced, Mode::Given] {
-        for params in
-            [ShadeParams::default(), ShadeParams { visibility: false, env_max: 1.5, diffuse: Diffuse::Layered }]
-        {
+        for params in [
+            ShadeParams::default(),
+            ShadeParams { visibility: false, env_max: 1.5, diffuse: Diffuse::Layered, ..ShadeParams::default() },
+        ] {
             let inp = ShadeInputs {
                 mb: &c.mb,
                 positions: &c.positions,

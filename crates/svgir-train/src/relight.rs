@@ -165,6 +165,7 @@ impl Relighter {
                 visibility: s2.config.visibility,
                 env_max: f32::INFINITY,
                 diffuse: s2.config.diffuse,
+                ..ShadeParams::default()
             },
             lights: light.lights.as_ref(),
             back: self.back.as_ref().map(|(mb, cache)| BackShading {

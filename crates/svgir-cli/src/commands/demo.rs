@@ -56,6 +56,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         densify_every: None,
         densify_until: None,
         opacity_reset_every: None,
+        densify_grad: None,
         weights: Vec::new(),
     })?;
     eprintln!("svgir demo: stage 2 ({iterations2} iterations)");

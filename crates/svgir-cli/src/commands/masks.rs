@@ -141,6 +141,7 @@ fn train_reconstruction(args: &MasksArgs) -> Result<PathBuf> {
         densify_every: None,
         densify_until: None,
         opacity_reset_every: None,
+        densify_grad: None,
         weights: Vec::new(),
     })?;
     Ok(work)

@@ -7,7 +7,7 @@
 
 use super::DataArgs;
 use crate::progress;
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, ensure, Context, Result};
 use clap::{Args, ValueEnum};
 use serde_json::json;
 use std::io::Write;
@@ -102,6 +102,9 @@ pub struct TrainArgs {
     /// Override the scaled schedule: reset opacities every N iterations while densifying (3DGS: 3000).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub opacity_reset_every: Option<u64>,
+    /// Override the densification threshold on the mean view-space gradient (SPEC 2: 2.5e-4; 3DGS: 2e-4).
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
+    pub densify_grad: Option<f32>,
     /// Loss weight, repeatable: l1, ssim, mask, normal_start, normal_ramp, entropy or distortion
     /// (defaults: SPEC 2; the depth-normal weight ramps from normal_start to
     /// normal_start + normal_ramp over the run).
@@ -202,6 +205,10 @@ fn make_config(args: &TrainArgs, dataset: &Dataset) -> Result<(Stage1Config, &'s
     }
     if let Some(n) = args.opacity_reset_every {
         c.densify.opacity_reset_interval = n.max(1);
+    }
+    if let Some(g) = args.densify_grad {
+        ensure!(g.is_finite() && g > 0.0, "--densify-grad must be a positive number, got {g}");
+        c.densify.grad_threshold = g;
     }
     c.use_mask = !args.no_mask && dataset.has_masks();
     // Captures come in arbitrary units: their near plane follows the cameras, whatever the profile.

@@ -66,6 +66,7 @@ pub fn export(
                 visibility: s2.config.visibility,
                 env_max: f32::INFINITY,
                 diffuse: s2.config.diffuse,
+                ..ShadeParams::default()
             },
             lights: lit.lights.as_ref(),
         };

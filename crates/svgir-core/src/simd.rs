@@ -1,0 +1,415 @@
+//! Run-time choice of the instruction set of the f32 SIMD kernels (rasteriser tiles, vertex
+//! shading).
+//!
+//! One binary runs everywhere: the release build targets baseline x86-64 (SSE2), and the
+//! explicitly vectorised kernels are compiled a second time with `#[target_feature]` and picked
+//! once per call from `is_x86_feature_detected!`. The generic scalar kernels stay the oracle and
+//! the fallback (f64, other architectures).
+//!
+//! [`Simd::Auto`] runs AVX2 where the CPU has it; `SVGIR_SIMD=scalar|avx2|avx512` (read once)
+//! overrides it, and a path the CPU lacks falls back to the best one below it.
+
+// The lane methods are `unsafe fn`s with one contract -- the CPU has the features of the path
+// that runs them (checked once by `Simd::resolve`) and every pointer stays inside its buffer --
+// so the operations inside need no block of their own.
+#![allow(unsafe_op_in_unsafe_fn)]
+
+use std::sync::OnceLock;
+
+/// Which tile kernels run for f32 renders.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Simd {
+    /// `SVGIR_SIMD` if set, else AVX2 where the CPU has it, else scalar.
+    #[default]
+    Auto,
+    /// The generic kernels (what f64 always runs).
+    Scalar,
+    /// 8-lane AVX2 kernels.
+    Avx2,
+    /// 16-lane AVX-512F kernels.
+    Avx512,
+}
+
+impl Simd {
+    /// Parses `scalar`, `avx2`, `avx512` or `auto`.
+    pub fn parse(s: &str) -> Option<Self> {
+        match s.trim().to_ascii_lowercase().as_str() {
+            "auto" | "" => Some(Self::Auto),
+            "scalar" => Some(Self::Scalar),
+            "avx2" => Some(Self::Avx2),
+            "avx512" => Some(Self::Avx512),
+            _ => None,
+        }
+    }
+
+    /// Lower-case name as [`Simd::parse`] reads it.
+    pub fn name(self) -> &'static str {
+        match self {
+            Self::Auto => "auto",
+            Self::Scalar => "scalar",
+            Self::Avx2 => "avx2",
+            Self::Avx512 => "avx512",
+        }
+    }
+
+    /// The path that actually runs: `Auto` resolved, and a path the CPU lacks lowered to the
+    /// best one below it (never `Auto`).
+    pub fn resolve(self) -> Self {
+        let want = match self {
+            // AVX2 unless asked: the 16-lane kernels measured slower on object scenes, whose
+            // splats cover rows of a handful of pixels (docs/performance.md).
+            Self::Auto => env_choice().unwrap_or(Self::Avx2),
+            s => s,
+        };
+        let best = best_available();
+        match (want, best) {
+            (Self::Auto, b) => b,
+            (Self::Scalar, _) | (_, Self::Scalar) => Self::Scalar,
+            (Self::Avx512, b) => b,
+            (Self::Avx2, _) => Self::Avx2,
+        }
+    }
+
+    /// The paths this CPU can run, scalar first.
+    pub fn available() -> Vec<Self> {
+        let mut v = vec![Self::Scalar];
+        let best = best_available();
+        if matches!(best, Self::Avx2 | Self::Avx512) {
+            v.push(Self::Avx2);
+        }
+        if best == Self::Avx512 {
+            v.push(Self::Avx512);
+        }
+        v
+    }
+}
+
+fn env_choice() -> Option<Simd> {
+    static ENV: OnceLock<Option<Simd>> = OnceLock::new();
+    *ENV.get_or_init(|| std::env::var("SVGIR_SIMD").ok().and_then(|s| Simd::parse(&s)))
+}
+
+/// The widest kernels this CPU runs.
+pub fn best_available() -> Simd {
+    static BEST: OnceLock<Simd> = OnceLock::new();
+    *BEST.get_or_init(|| {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("avx2") {
+                return Simd::Avx512;
+            }
+            if is_x86_feature_detected!("avx2") {
+                return Simd::Avx2;
+            }
+        }
+        Simd::Scalar
+    })
+}
+
+/// The CPU features relevant to the kernels, as `name+` / `name-` words (for benchmark tables).
+pub fn cpu_features() -> String {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let f = [
+            ("sse4.1", is_x86_feature_detected!("sse4.1")),
+            ("avx", is_x86_feature_detected!("avx")),
+            ("avx2", is_x86_feature_detected!("avx2")),
+            ("fma", is_x86_feature_detected!("fma")),
+            ("avx512f", is_x86_feature_detected!("avx512f")),
+        ];
+        f.iter().map(|(n, on)| format!("{n}{}", if *on { "+" } else { "-" })).collect::<Vec<_>>().join(" ")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        format!("{} (no x86 SIMD kernels; scalar path, compiler-vectorised)", std::env::consts::ARCH)
+    }
+}
+
+/// Whether the kernels' scalar type is `f32` (the SIMD kernels exist for f32 only).
+#[inline]
+pub fn is_f32<F: 'static>() -> bool {
+    std::any::TypeId::of::<F>() == std::any::TypeId::of::<f32>()
+}
+
+/// An f32 vector of `N` lanes and its lane mask. Every method is `#[inline(always)]` so that it
+/// compiles inside the `#[target_feature]` kernel that calls it.
+#[allow(clippy::missing_safety_doc)]
+#[allow(missing_docs)]
+pub trait Lanes: Copy {
+    const N: usize;
+    type M: Copy;
+    unsafe fn splat(v: f32) -> Self;
+    /// `[0, 1, 2, ...]`.
+    unsafe fn iota() -> Self;
+    unsafe fn load(p: *const f32) -> Self;
+    unsafe fn store(self, p: *mut f32);
+    unsafe fn add(self, o: Self) -> Self;
+    unsafe fn sub(self, o: Self) -> Self;
+    unsafe fn mul(self, o: Self) -> Self;
+    /// `self * a + b` with one rounding (FMA): only for the backward's per-lane sums, never
+    /// where a value must match the scalar path bit for bit.
+    unsafe fn mul_add(self, a: Self, b: Self) -> Self;
+    unsafe fn div(self, o: Self) -> Self;
+    /// Correctly rounded square root (as `f32::sqrt`).
+    unsafe fn sqrt(self) -> Self;
+    unsafe fn lt(self, o: Self) -> Self::M;
+    unsafe fn le(self, o: Self) -> Self::M;
+    unsafe fn gt(self, o: Self) -> Self::M;
+    unsafe fn ge(self, o: Self) -> Self::M;
+    /// `!=` as Rust's (true when either is NaN).
+    unsafe fn ne(self, o: Self) -> Self::M;
+    /// `m ? a : b` per lane.
+    unsafe fn select(m: Self::M, a: Self, b: Self) -> Self;
+    unsafe fn and(a: Self::M, b: Self::M) -> Self::M;
+    /// `a & !b`.
+    unsafe fn andnot(a: Self::M, b: Self::M) -> Self::M;
+    /// Lane `i` of the mask as bit `i`.
+    unsafe fn bits(m: Self::M) -> u32;
+    /// The mask with lane `i` set when bit `i` is.
+    unsafe fn from_bits(b: u32) -> Self::M;
+    /// Sum of the lanes (pairwise; not the scalar order).
+    unsafe fn hsum(self) -> f32;
+    /// `svgir_raster::real::exp_f32` per lane, same operations in the same order.
+    unsafe fn exp_fast(self) -> Self;
+    /// `f32::clamp(self, -87, 88)` for non-NaN lanes.
+    #[inline(always)]
+    unsafe fn clamp_exp(self) -> Self {
+        let lo = Self::splat(-87.0);
+        let hi = Self::splat(88.0);
+        let x = Self::select(self.lt(lo), lo, self);
+        Self::select(x.gt(hi), hi, x)
+    }
+}
+
+#[cfg(target_arch = "x86_64")]
+pub use x86::{F16, F8};
+
+#[cfg(target_arch = "x86_64")]
+mod x86 {
+    use super::Lanes;
+    use std::arch::x86_64::*;
+
+    /// The polynomial and constants of `svgir_raster::real::exp_f32`, shared by both lane types.
+    macro_rules! exp_body {
+        ($s:ident, $x:expr, $int:expr) => {{
+            let x = $x.clamp_exp();
+            let shifter = $s::splat(12_582_912.0);
+            let t = x.mul($s::splat(std::f32::consts::LOG2_E)).add(shifter);
+            let n = t.sub(shifter);
+            let r = x.sub(n.mul($s::splat(0.693_145_75))).sub(n.mul($s::splat(1.428_606_8e-6)));
+            // Horner from the innermost term: c + r * p, as the scalar nesting.
+            let mut p = $s::splat(1.0 / 720.0);
+            for c in [1.0 / 120.0, 1.0 / 24.0, 1.0 / 6.0, 0.5, 1.0, 1.0f32] {
+                p = $s::splat(c).add(r.mul(p));
+            }
+            p.mul($int(t))
+        }};
+    }
+
+    /// 8 f32 lanes (AVX2).
+    #[derive(Clone, Copy)]
+    pub struct F8(__m256);
+
+    impl Lanes for F8 {
+        const N: usize = 8;
+        type M = __m256;
+        #[inline(always)]
+        unsafe fn splat(v: f32) -> Self {
+            F8(_mm256_set1_ps(v))
+        }
+        #[inline(always)]
+        unsafe fn iota() -> Self {
+            F8(_mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0))
+        }
+        #[inline(always)]
+        unsafe fn load(p: *const f32) -> Self {
+            F8(_mm256_loadu_ps(p))
+        }
+        #[inline(always)]
+        unsafe fn store(self, p: *mut f32) {
+            _mm256_storeu_ps(p, self.0)
+        }
+        #[inline(always)]
+        unsafe fn add(self, o: Self) -> Self {
+            F8(_mm256_add_ps(self.0, o.0))
+        }
+        #[inline(always)]
+        unsafe fn sub(self, o: Self) -> Self {
+            F8(_mm256_sub_ps(self.0, o.0))
+        }
+        #[inline(always)]
+        unsafe fn mul(self, o: Self) -> Self {
+            F8(_mm256_mul_ps(self.0, o.0))
+        }
+        #[inline(always)]
+        unsafe fn mul_add(self, a: Self, b: Self) -> Self {
+            F8(_mm256_fmadd_ps(self.0, a.0, b.0))
+        }
+        #[inline(always)]
+        unsafe fn div(self, o: Self) -> Self {
+            F8(_mm256_div_ps(self.0, o.0))
+        }
+        #[inline(always)]
+        unsafe fn sqrt(self) -> Self {
+            F8(_mm256_sqrt_ps(self.0))
+        }
+        #[inline(always)]
+        unsafe fn lt(self, o: Self) -> __m256 {
+            _mm256_cmp_ps::<_CMP_LT_OQ>(self.0, o.0)
+        }
+        #[inline(always)]
+        unsafe fn le(self, o: Self) -> __m256 {
+            _mm256_cmp_ps::<_CMP_LE_OQ>(self.0, o.0)
+        }
+        #[inline(always)]
+        unsafe fn gt(self, o: Self) -> __m256 {
+            _mm256_cmp_ps::<_CMP_GT_OQ>(self.0, o.0)
+        }
+        #[inline(always)]
+        unsafe fn ge(self, o: Self) -> __m256 {
+            _mm256_cmp_ps::<_CMP_GE_OQ>(self.0, o.0)
+        }
+        #[inline(always)]
+        unsafe fn ne(self, o: Self) -> __m256 {
+            _mm256_cmp_ps::<_CMP_NEQ_UQ>(self.0, o.0)
+        }
+        #[inline(always)]
+        unsafe fn select(m: __m256, a: Self, b: Self) -> Self {
+            F8(_mm256_blendv_ps(b.0, a.0, m))
+        }
+        #[inline(always)]
+        unsafe fn and(a: __m256, b: __m256) -> __m256 {
+            _mm256_and_ps(a, b)
+        }
+        #[inline(always)]
+        unsafe fn andnot(a: __m256, b: __m256) -> __m256 {
+            _mm256_andnot_ps(b, a)
+        }
+        #[inline(always)]
+        unsafe fn bits(m: __m256) -> u32 {
+            _mm256_movemask_ps(m) as u32
+        }
+        #[inline(always)]
+        unsafe fn from_bits(b: u32) -> __m256 {
+            let sel = _mm256_setr_epi32(1, 2, 4, 8, 16, 32, 64, 128);
+            let v = _mm256_and_si256(_mm256_set1_epi32(b as i32), sel);
+            _mm256_castsi256_ps(_mm256_cmpeq_epi32(v, sel))
+        }
+        #[inline(always)]
+        unsafe fn hsum(self) -> f32 {
+            let s = _mm_add_ps(_mm256_castps256_ps128(self.0), _mm256_extractf128_ps::<1>(self.0));
+            let s = _mm_add_ps(s, _mm_movehl_ps(s, s));
+            let s = _mm_add_ss(s, _mm_shuffle_ps::<1>(s, s));
+            _mm_cvtss_f32(s)
+        }
+        #[inline(always)]
+        unsafe fn exp_fast(self) -> Self {
+            exp_body!(F8, self, |t: F8| {
+                let ni = _mm256_sub_epi32(_mm256_castps_si256(t.0), _mm256_set1_epi32(0x4B40_0000));
+                let bits = _mm256_slli_epi32::<23>(_mm256_add_epi32(ni, _mm256_set1_epi32(127)));
+                F8(_mm256_castsi256_ps(bits))
+            })
+        }
+    }
+
+    /// 16 f32 lanes (AVX-512F).
+    #[derive(Clone, Copy)]
+    pub struct F16(__m512);
+
+    impl Lanes for F16 {
+        const N: usize = 16;
+        type M = __mmask16;
+        #[inline(always)]
+        unsafe fn splat(v: f32) -> Self {
+            F16(_mm512_set1_ps(v))
+        }
+        #[inline(always)]
+        unsafe fn iota() -> Self {
+            F16(_mm512_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0, 13.0, 14.0, 15.0))
+        }
+        #[inline(always)]
+        unsafe fn load(p: *const f32) -> Self {
+            F16(_mm512_loadu_ps(p))
+        }
+        #[inline(always)]
+        unsafe fn store(self, p: *mut f32) {
+            _mm512_storeu_ps(p, self.0)
+        }
+        #[inline(always)]
+        unsafe fn add(self, o: Self) -> Self {
+            F16(_mm512_add_ps(self.0, o.0))
+        }
+        #[inline(always)]
+        unsafe fn sub(self, o: Self) -> Self {
+            F16(_mm512_sub_ps(self.0, o.0))
+        }
+        #[inline(always)]
+        unsafe fn mul(self, o: Self) -> Self {
+            F16(_mm512_mul_ps(self.0, o.0))
+        }
+        #[inline(always)]
+        unsafe fn div(self, o: Self) -> Self {
+            F16(_mm512_div_ps(self.0, o.0))
+        }
+        #[inline(always)]
+        unsafe fn sqrt(self) -> Self {
+            F16(_mm512_sqrt_ps(self.0))
+        }
+        #[inline(always)]
+        unsafe fn mul_add(self, a: Self, b: Self) -> Self {
+            F16(_mm512_fmadd_ps(self.0, a.0, b.0))
+        }
+        #[inline(always)]
+        unsafe fn lt(self, o: Self) -> __mmask16 {
+            _mm512_cmp_ps_mask::<_CMP_LT_OQ>(self.0, o.0)
+        }
+        #[inline(always)]
+        unsafe fn le(self, o: Self) -> __mmask16 {
+            _mm512_cmp_ps_mask::<_CMP_LE_OQ>(self.0, o.0)
+        }
+        #[inline(always)]
+        unsafe fn gt(self, o: Self) -> __mmask16 {
+            _mm512_cmp_ps_mask::<_CMP_GT_OQ>(self.0, o.0)
+        }
+        #[inline(always)]
+        unsafe fn ge(self, o: Self) -> __mmask16 {
+            _mm512_cmp_ps_mask::<_CMP_GE_OQ>(self.0, o.0)
+        }
+        #[inline(always)]
+        unsafe fn ne(self, o: Self) -> __mmask16 {
+            _mm512_cmp_ps_mask::<_CMP_NEQ_UQ>(self.0, o.0)
+        }
+        #[inline(always)]
+        unsafe fn select(m: __mmask16, a: Self, b: Self) -> Self {
+            F16(_mm512_mask_blend_ps(m, b.0, a.0))
+        }
+        #[inline(always)]
+        unsafe fn and(a: __mmask16, b: __mmask16) -> __mmask16 {
+            a & b
+        }
+        #[inline(always)]
+        unsafe fn andnot(a: __mmask16, b: __mmask16) -> __mmask16 {
+            a & !b
+        }
+        #[inline(always)]
+        unsafe fn bits(m: __mmask16) -> u32 {
+            m as u32
+        }
+        #[inline(always)]
+        unsafe fn from_bits(b: u32) -> __mmask16 {
+            b as __mmask16
+        }
+        #[inline(always)]
+        unsafe fn hsum(self) -> f32 {
+            _mm512_reduce_add_ps(self.0)
+        }
+        #[inline(always)]
+        unsafe fn exp_fast(self) -> Self {
+            exp_body!(F16, self, |t: F16| {
+                let ni = _mm512_sub_epi32(_mm512_castps_si512(t.0), _mm512_set1_epi32(0x4B40_0000));
+                let bits = _mm512_slli_epi32::<23>(_mm512_add_epi32(ni, _mm512_set1_epi32(127)));
+                F16(_mm512_castsi512_ps(bits))
+            })
+        }
+    }
+}

@@ -1,0 +1,555 @@
+//! f32 lane kernels of the vertex shading ([`crate::shade()`]) and its backward
+//! ([`crate::shade_backward()`]), run where the CPU has AVX2 (`svgir_core::simd`).
+//!
+//! The generic kernels loop sample by sample and, inside, vertex by vertex, skipping the
+//! directions below each vertex's horizon: an unpredictable branch around a GGX evaluation with
+//! a division. Here each Gaussian's samples are first written out as structure-of-arrays rows
+//! ([`SampleRows`]: direction, half vector, Fresnel, direct and indirect light; the scalar
+//! per-sample code of `shade.rs`, once per Gaussian), padded to a multiple of [`W`] lanes with
+//! samples that carry nothing. Then, vertex by vertex, the (vertex, direction) work runs over
+//! [`W`] samples at a time in AVX2 lanes (`svgir_core::simd::F8`) without a branch: the horizon
+//! test becomes a select. [`spec_lanes`] and [`spec_grad_lanes`] are `specular::spec` and
+//! `spec_grad` written over lanes, operation for operation in the same order and without FMA,
+//! so each lane computes the scalar value bit for bit. (Written as plain per-lane loops, the
+//! compiler left this code scalar.)
+//!
+//! What differs from the scalar oracle: the sums over directions (E, P, and in the backward the
+//! roughness and normal gradients) are summed lane-wise and then across lanes, so they differ by
+//! rounding; per-sample quantities (the light gradient `v_lin`, summed over vertices in vertex
+//! order, and hence the env-map and rho gradients) are evaluated in the scalar order. The tests
+//! (`tests/shade_simd.rs`) hold both to the generic f32 kernels and to f64.
+//!
+//! Work split: as the scalar kernels (rayon over Gaussians forward, over fixed blocks backward);
+//! one `SampleRows` scratch per rayon task. Nothing is saved for backward.
+
+// The kernels are `unsafe fn`s with one contract -- the CPU has AVX2 (checked by the caller
+// through `Simd::resolve`) -- so the operations inside need no block of their own.
+#![allow(unsafe_op_in_unsafe_fn)]
+
+use crate::direction_cache::DirectionCache;
+use crate::shade::{diffuse_weights, lobes, samples, vertices, view_dir, FibTable, Frame, Sample, ShadeInputs};
+use crate::specular::Lobe;
+use svgir_core::simd::{Lanes, F8};
+use svgir_shading::{DiffuseWeight, DOT_EPS, F0, MAX_VERTICES};
+
+/// `[e(0), e(1), e(2)]` written out: `array::map` would call the closure through code compiled
+/// without AVX, where the lane intrinsics cannot be inlined.
+macro_rules! tri {
+    ($c:ident => $e:expr) => {
+        [
+            {
+                let $c = 0;
+                $e
+            },
+            {
+                let $c = 1;
+                $e
+            },
+            {
+                let $c = 2;
+                $e
+            },
+        ]
+    };
+}
+
+/// Lanes per step of the (vertex, direction) loops: one AVX2 register of f32.
+pub(crate) const W: usize = 8;
+
+/// One Gaussian's samples as rows of lanes, padded to a multiple of [`W`].
+#[derive(Default)]
+pub(crate) struct SampleRows {
+    /// Real samples (the rest is padding: zero direction, light and Fresnel).
+    len: usize,
+    dir: [Vec<f32>; 3],
+    h: [Vec<f32>; 3],
+    fr: Vec<f32>,
+    direct: [Vec<f32>; 3],
+    ind: [Vec<f32>; 3],
+    /// Backward only: the samples themselves (visibility, clamp, taps, traced radiance) for the
+    /// env-map and rho gradients, and `dL/dLin` per sample and channel.
+    kept: Vec<Sample<f32>>,
+    v_lin: [Vec<f32>; 3],
+}
+
+impl SampleRows {
+    /// Gaussian i's samples (those `shade::samples` yields, in its order) with their half
+    /// vectors towards `wo`; `keep` also stores the samples for the backward.
+    #[inline(always)]
+    fn fill(
+        &mut self,
+        inp: &ShadeInputs<f32>,
+        table: &FibTable,
+        cache: Option<&DirectionCache>,
+        i: usize,
+        wo: [f32; 3],
+        keep: bool,
+    ) {
+        let frame = Frame::new(inp.mb, i);
+        self.len = 0;
+        self.kept.clear();
+        for v in self.rows_mut() {
+            v.clear();
+        }
+        for s in samples(inp, table, cache, &frame, i) {
+            for c in 0..3 {
+                self.dir[c].push(s.dir[c]);
+                self.direct[c].push(s.direct[c]);
+                self.ind[c].push(s.ind[c]);
+            }
+            if keep {
+                self.kept.push(s);
+            }
+            self.len += 1;
+        }
+        // Padding: a zero direction has cos = 0, so the select drops it.
+        let padded = self.len.next_multiple_of(W);
+        for v in self.rows_mut() {
+            v.resize(padded, 0.0);
+        }
+        // Half vectors and Fresnel towards `wo`, lane by lane.
+        for j in 0..padded / F8::N {
+            // SAFETY: the caller of the `_avx2` kernels checked that the CPU has AVX2.
+            unsafe { self.half_lanes::<F8>(wo, j) };
+        }
+        if keep {
+            for v in &mut self.v_lin {
+                v.clear();
+                v.resize(padded, 0.0);
+            }
+        }
+    }
+
+    /// `specular::half` for lanes `j`: the same operations, except that 2^x is
+    /// `exp_fast(x ln 2)` (relative difference ~1e-7) instead of libm's `exp2f`.
+    #[inline(always)]
+    unsafe fn half_lanes<L: Lanes>(&mut self, wo: [f32; 3], j: usize) {
+        let s = L::splat;
+        let d = tri!(c => load::<L>(&self.dir[c], j));
+        let h = tri!(c => s(wo[c]).add(d[c]));
+        let len = h[0].mul(h[0]).add(h[1].mul(h[1])).add(h[2].mul(h[2])).sqrt();
+        let floor = s(1e-12);
+        let len = L::select(len.gt(floor), len, floor);
+        let h = tri!(c => h[c].div(len));
+        let vh = cdot(dot_l(wo, &h));
+        let x = s(-5.55473).mul(vh).sub(s(6.98316)).mul(vh);
+        let fr = s(F0 as f32).add(s(1.0 - F0 as f32).mul(x.mul(s(std::f32::consts::LN_2)).exp_fast()));
+        for c in 0..3 {
+            h[c].store(self.h[c].as_mut_ptr().add(j * L::N));
+        }
+        fr.store(self.fr.as_mut_ptr().add(j * L::N));
+    }
+
+    fn rows_mut(&mut self) -> impl Iterator<Item = &mut Vec<f32>> {
+        let [a, b, c] = &mut self.dir;
+        let [d, e, f] = &mut self.h;
+        let [g, h, i] = &mut self.direct;
+        let [j, k, l] = &mut self.ind;
+        [a, b, c, d, e, f, g, h, i, j, k, l, &mut self.fr].into_iter()
+    }
+}
+
+/// Lanes `[j*W, (j+1)*W)` of a row.
+#[inline(always)]
+unsafe fn load<L: Lanes>(row: &[f32], j: usize) -> L {
+    debug_assert!((j + 1) * L::N <= row.len());
+    L::load(row.as_ptr().add(j * L::N))
+}
+
+/// `cdot` of `specular.rs` per lane: x clamped to [DOT_EPS, 1] (as `clampf`: max, then min).
+#[inline(always)]
+unsafe fn cdot<L: Lanes>(x: L) -> L {
+    let (lo, one) = (L::splat(DOT_EPS as f32), L::splat(1.0));
+    let x = L::select(x.gt(lo), x, lo);
+    L::select(x.lt(one), x, one)
+}
+
+/// Whether `cdot`'s clamp is inactive: `DOT_EPS < x < 1`.
+#[inline(always)]
+unsafe fn cdot_live<L: Lanes>(x: L) -> L::M {
+    L::and(x.gt(L::splat(DOT_EPS as f32)), x.lt(L::splat(1.0)))
+}
+
+/// `a . b` for lane vectors, in `dot`'s order.
+#[inline(always)]
+unsafe fn dot_l<L: Lanes>(a: [f32; 3], b: &[L; 3]) -> L {
+    L::splat(a[0]).mul(b[0]).add(L::splat(a[1]).mul(b[1])).add(L::splat(a[2]).mul(b[2]))
+}
+
+/// A vertex's lobe broadcast to lanes.
+struct LobeL<L> {
+    a2: L,
+    a2m1: L,
+    k: L,
+    omk: L,
+    c0: L,
+}
+
+#[inline(always)]
+unsafe fn lobe_l<L: Lanes>(lb: &Lobe<f32>) -> LobeL<L> {
+    LobeL {
+        a2: L::splat(lb.a2),
+        a2m1: L::splat(lb.a2 - 1.0),
+        k: L::splat(lb.k),
+        omk: L::splat(lb.omk),
+        c0: L::splat(lb.c0),
+    }
+}
+
+/// `specular::spec` per lane: `S = F c0 / (q^2 (n.l (1-k) + k))`, `q = (n.h)^2 (a^2-1) + 1`.
+#[inline(always)]
+unsafe fn spec_lanes<L: Lanes>(lb: &LobeL<L>, nh_raw: L, fr: L, nl_raw: L) -> L {
+    let nl = cdot(nl_raw);
+    let nh = cdot(nh_raw);
+    let q = nh.mul(nh).mul(lb.a2m1).add(L::splat(1.0));
+    fr.mul(lb.c0).div(q.mul(q).mul(nl.mul(lb.omk).add(lb.k)))
+}
+
+/// `specular::spec_grad` per lane: S, dS/dr and dS/dn.
+struct SpecGradL<L> {
+    value: L,
+    v_r: L,
+    v_n: [L; 3],
+}
+
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn spec_grad_lanes<L: Lanes>(
+    lb: &Lobe<f32>,
+    ll: &LobeL<L>,
+    h: &[L; 3],
+    fr: L,
+    v: [f32; 3],
+    l: &[L; 3],
+    nl_raw: L,
+) -> SpecGradL<L> {
+    let s = L::splat;
+    let zero = s(0.0);
+    let one = s(1.0);
+    let pi = s(std::f64::consts::PI as f32);
+    let nh_raw = dot_l(lb.n, h);
+    let (nl, nl_live) = (cdot(nl_raw), cdot_live(nl_raw));
+    let (nh, nh_live) = (cdot(nh_raw), cdot_live(nh_raw));
+    let a2 = ll.a2;
+    let q = nh.mul(nh).mul(ll.a2m1).add(one);
+    let inv_q = one.div(q);
+    let d = a2.mul(inv_q).mul(inv_q).div(pi);
+    let gl = one.div(nl.mul(ll.omk).add(ll.k));
+    let gv = s(lb.gv);
+    let fq = fr.mul(s(0.25));
+    let value = fq.mul(d).mul(gv).mul(gl);
+    let inv_piq3 = inv_q.mul(inv_q).mul(inv_q).div(pi);
+    let r = s(lb.r);
+    let dd_dr = q.sub(s(2.0).mul(a2).mul(nh).mul(nh)).mul(inv_piq3).mul(s(4.0)).mul(r).mul(r).mul(r);
+    let dk_dr = s((lb.r + 1.0) * 0.25);
+    let dgv_dk = s(-(1.0 - lb.nv) * lb.gv * lb.gv);
+    let dgl_dk = zero.sub(one.sub(nl)).mul(gl).mul(gl);
+    let v_r = fq.mul(dd_dr.mul(gv).mul(gl).add(d.mul(dgv_dk.mul(gl).add(gv.mul(dgl_dk))).mul(dk_dr)));
+    let ds_dnh = fq.mul(gv).mul(gl).mul(zero.sub(s(4.0)).mul(a2).mul(nh).mul(ll.a2m1).mul(inv_piq3));
+    let ds_dnh = L::select(nh_live, ds_dnh, zero);
+    let ds_dnv = if lb.nv_live { zero.sub(fq).mul(d).mul(gl).mul(ll.omk).mul(gv).mul(gv) } else { zero };
+    let ds_dnl = zero.sub(fq).mul(d).mul(gv).mul(ll.omk).mul(gl).mul(gl);
+    let ds_dnl = L::select(nl_live, ds_dnl, zero);
+    let v_n = tri!(i => ds_dnh.mul(h[i]).add(ds_dnv.mul(s(v[i]))).add(ds_dnl.mul(l[i])));
+    SpecGradL { value, v_r, v_n }
+}
+
+/// Everything of Gaussian i that does not depend on the direction.
+struct Gaussian {
+    vx: crate::shade::Vertices<f32>,
+    wo: [f32; 3],
+    lb: [Lobe<f32>; MAX_VERTICES],
+    dw: [DiffuseWeight<f32>; MAX_VERTICES],
+}
+
+#[inline(always)]
+fn gaussian(inp: &ShadeInputs<f32>, i: usize) -> Gaussian {
+    let m = inp.mats.m;
+    let vx = vertices(&inp.mats, i);
+    let wo = view_dir(inp, i);
+    let lb = lobes(&vx, wo, m);
+    let dw = diffuse_weights(&vx, wo, m, inp.params.diffuse);
+    Gaussian { vx, wo, lb, dw }
+}
+
+/// The forward of Gaussian i into its M x 3 slices (as `shade::shade_gaussian`).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn shade_gaussian<L: Lanes>(
+    inp: &ShadeInputs<f32>,
+    table: &FibTable,
+    cache: Option<&DirectionCache>,
+    rows: &mut SampleRows,
+    i: usize,
+    color: &mut [f32],
+    direct: &mut [f32],
+    indirect: &mut [f32],
+) {
+    let m = inp.mats.m;
+    let g = gaussian(inp, i);
+    rows.fill(inp, table, cache, i, g.wo, false);
+    let scale = (std::f64::consts::TAU / inp.mb.k as f64) as f32;
+    let inv_pi = std::f64::consts::FRAC_1_PI as f32;
+    let zero = L::splat(0.0);
+    let chunks = rows.fr.len() / L::N;
+    for mm in 0..m {
+        let lb = &g.lb[mm];
+        let ll = lobe_l::<L>(lb);
+        // E and P (see `shade.rs`), direct and indirect, per channel, lane-wise.
+        let (mut e_d, mut e_i, mut p_d, mut p_i) = ([zero; 3], [zero; 3], [zero; 3], [zero; 3]);
+        for j in 0..chunks {
+            let d = tri!(c => load::<L>(&rows.dir[c], j));
+            let h = tri!(c => load::<L>(&rows.h[c], j));
+            let cos = dot_l(lb.n, &d);
+            let sc = spec_lanes(&ll, dot_l(lb.n, &h), load(&rows.fr, j), cos).mul(cos);
+            // The horizon test of the scalar kernel, as a select.
+            let live = cos.gt(zero);
+            let (cw, sw) = (L::select(live, cos, zero), L::select(live, sc, zero));
+            for c in 0..3 {
+                let (dl, il) = (load::<L>(&rows.direct[c], j), load::<L>(&rows.ind[c], j));
+                e_d[c] = e_d[c].add(cw.mul(dl));
+                e_i[c] = e_i[c].add(cw.mul(il));
+                p_d[c] = p_d[c].add(sw.mul(dl));
+                p_i[c] = p_i[c].add(sw.mul(il));
+            }
+        }
+        for c in 0..3 {
+            let kd = g.vx.a[mm][c] * inv_pi * g.dw[mm].value;
+            let d = scale * (kd * e_d[c].hsum() + p_d[c].hsum());
+            let ind = scale * (kd * e_i[c].hsum() + p_i[c].hsum());
+            direct[mm * 3 + c] = d;
+            indirect[mm * 3 + c] = ind;
+            color[mm * 3 + c] = d + ind;
+        }
+    }
+}
+
+/// The backward of Gaussian i (as `shade_backward::backward_gaussian`).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn backward_gaussian<L: Lanes>(
+    inp: &ShadeInputs<f32>,
+    table: &FibTable,
+    cache: Option<&DirectionCache>,
+    rows: &mut SampleRows,
+    i: usize,
+    g: &[f32],
+    v_alb: &mut [f32],
+    v_rough: &mut [f32],
+    v_nrm: &mut [f32],
+    v_env: &mut [[f32; 3]],
+    v_rho: &mut f32,
+) {
+    let m = inp.mats.m;
+    let ga = gaussian(inp, i);
+    let wo = ga.wo;
+    rows.fill(inp, table, cache, i, wo, true);
+    let scale = (std::f64::consts::TAU / inp.mb.k as f64) as f32;
+    let inv_pi = std::f64::consts::FRAC_1_PI as f32;
+    let zero = L::splat(0.0);
+    let chunks = rows.fr.len() / L::N;
+    for mm in 0..m {
+        let lb = &ga.lb[mm];
+        let ll = lobe_l::<L>(lb);
+        let gm = [g[mm * 3], g[mm * 3 + 1], g[mm * 3 + 2]];
+        let a = ga.vx.a[mm];
+        let dw = ga.dw[mm];
+        // The diffuse part of f_c, a_c / pi t (scalar order).
+        let kd = tri!(c => L::splat(a[c] * inv_pi * dw.value));
+        let (mut e, mut vr, mut vn) = ([zero; 3], zero, [zero; 3]);
+        for j in 0..chunks {
+            let d = tri!(c => load::<L>(&rows.dir[c], j));
+            let h = tri!(c => load::<L>(&rows.h[c], j));
+            let cos = dot_l(lb.n, &d);
+            let live = cos.gt(zero);
+            let sg = spec_grad_lanes(lb, &ll, &h, load(&rows.fr, j), wo, &d, cos);
+            let (mut sum_gl, mut sum_glf) = (zero, zero);
+            for c in 0..3 {
+                let lin = load::<L>(&rows.direct[c], j).add(load(&rows.ind[c], j));
+                let f = kd[c].add(sg.value);
+                let gl = L::splat(gm[c]).mul(lin);
+                sum_gl = sum_gl.add(gl);
+                sum_glf = sum_glf.add(gl.mul(f));
+                let p = rows.v_lin[c].as_mut_ptr().add(j * L::N);
+                L::load(p).add(L::select(live, L::splat(gm[c]).mul(f).mul(cos), zero)).store(p);
+                e[c] = e[c].add(L::select(live, cos.mul(lin), zero));
+            }
+            vr = vr.add(L::select(live, cos.mul(sg.v_r).mul(sum_gl), zero));
+            for k in 0..3 {
+                let x = cos.mul(sg.v_n[k]).mul(sum_gl).add(d[k].mul(sum_glf));
+                vn[k] = vn[k].add(L::select(live, x, zero));
+            }
+        }
+        let e = tri!(c => e[c].hsum());
+        let q = (0..3).fold(0.0, |acc, c| acc + gm[c] * a[c] * inv_pi * e[c]);
+        for c in 0..3 {
+            v_alb[mm * 3 + c] = scale * gm[c] * e[c] * inv_pi * dw.value;
+            v_nrm[mm * 3 + c] = scale * (vn[c].hsum() + q * dw.v_mu * wo[c]);
+        }
+        v_rough[mm] = scale * (vr.hsum() + q * dw.v_r);
+    }
+    // The light gradient per sample, to the env texels and rho (scalar, in sample order).
+    for (k, s) in rows.kept.iter().enumerate() {
+        let v_lin = [rows.v_lin[0][k], rows.v_lin[1][k], rows.v_lin[2][k]];
+        if s.vis > 0.0 {
+            for c in 0..3 {
+                if s.live[c] {
+                    let gv = scale * s.vis * v_lin[c];
+                    for t in 0..4 {
+                        v_env[s.taps.index[t] as usize][c] += s.taps.weight[t] * gv;
+                    }
+                }
+            }
+        }
+        *v_rho += scale * (v_lin[0] * s.traced[0] + v_lin[1] * s.traced[1] + v_lin[2] * s.traced[2]);
+    }
+}
+
+/// Shade Gaussians `i0..i0 + color.len() / (3M)` (visible ones) into their slices.
+///
+/// # Safety
+/// The CPU has AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
+pub(crate) unsafe fn shade_range_avx2(
+    inp: &ShadeInputs<f32>,
+    table: &FibTable,
+    cache: Option<&DirectionCache>,
+    rows: &mut SampleRows,
+    i0: usize,
+    color: &mut [f32],
+    direct: &mut [f32],
+    indirect: &mut [f32],
+) {
+    let w = inp.mats.m * 3;
+    for (li, ((c, d), ind)) in color.chunks_mut(w).zip(direct.chunks_mut(w)).zip(indirect.chunks_mut(w)).enumerate() {
+        let i = i0 + li;
+        if inp.visible[i] {
+            shade_gaussian::<F8>(inp, table, cache, rows, i, c, d, ind);
+        }
+    }
+}
+
+/// The backward of one block of Gaussians starting at `i0` (see `shade_backward`): materials
+/// into the block's slices, env / rho into `part` (created on the first Gaussian with a
+/// gradient).
+///
+/// # Safety
+/// The CPU has AVX2.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+#[allow(clippy::too_many_arguments)]
+pub(crate) unsafe fn backward_range_avx2(
+    inp: &ShadeInputs<f32>,
+    table: &FibTable,
+    cache: Option<&DirectionCache>,
+    i0: usize,
+    v_color: &[f32],
+    alb: &mut [f32],
+    rough: &mut [f32],
+    nrm: &mut [f32],
+    part: &mut Option<(Vec<[f32; 3]>, f32)>,
+) {
+    let m = inp.mats.m;
+    let texels = inp.env.len();
+    let mut rows = SampleRows::default();
+    for li in 0..rough.len() / m {
+        let i = i0 + li;
+        let g = &v_color[i * m * 3..(i + 1) * m * 3];
+        if !inp.visible[i] || g.iter().all(|&x| x == 0.0) {
+            continue;
+        }
+        let (v_env, v_rho) = part.get_or_insert_with(|| (vec![[0.0; 3]; texels], 0.0));
+        backward_gaussian::<F8>(
+            inp,
+            table,
+            cache,
+            &mut rows,
+            i,
+            g,
+            &mut alb[li * m * 3..(li + 1) * m * 3],
+            &mut rough[li * m..(li + 1) * m],
+            &mut nrm[li * m * 3..(li + 1) * m * 3],
+            v_env,
+            v_rho,
+        );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::specular::{half, lobe, spec, spec_grad, HalfVec};
+    use svgir_core::Rng;
+
+    fn unit(rng: &mut Rng) -> [f32; 3] {
+        let v = [rng.normal(), rng.normal(), rng.normal()];
+        let l = (v[0] * v[0] + v[1] * v[1] + v[2] * v[2]).sqrt();
+        v.map(|x| x / l)
+    }
+
+    /// `spec_lanes` and `spec_grad_lanes` are `spec` and `spec_grad` lane by lane, bit for bit
+    /// (including back-facing and clamped directions); `half_lanes` is `half` up to the exp.
+    #[test]
+    fn lane_specular_is_the_scalar_one() {
+        if !std::is_x86_feature_detected!("avx2") {
+            eprintln!("SKIPPED: this CPU has no AVX2, so the shading lane kernels cannot run here");
+            return;
+        }
+        // SAFETY: AVX2 checked above.
+        unsafe { check_lanes() }
+    }
+
+    #[target_feature(enable = "avx2")]
+    unsafe fn check_lanes() {
+        let mut rng = Rng::new(5);
+        let mut rows = SampleRows::default();
+        for case in 0..400 {
+            let (n, v) = (unit(&mut rng), unit(&mut rng));
+            let r = rng.range(0.02, 1.0);
+            let lb = lobe(n, v, r);
+            let ls: Vec<[f32; 3]> = (0..W).map(|_| unit(&mut rng)).collect();
+            for c in 0..3 {
+                rows.dir[c] = ls.iter().map(|l| l[c]).collect();
+                rows.h[c] = vec![0.0; W];
+            }
+            rows.fr = vec![0.0; W];
+            rows.half_lanes::<F8>(v, 0);
+            let d = tri!(c => load::<F8>(&rows.dir[c], 0));
+            let h = tri!(c => load::<F8>(&rows.h[c], 0));
+            let fr = load::<F8>(&rows.fr, 0);
+            let ll = lobe_l::<F8>(&lb);
+            let nl = dot_l(n, &d);
+            let mut got = [[0f32; W]; 6];
+            spec_lanes(&ll, dot_l(n, &h), fr, nl).store(got[0].as_mut_ptr());
+            let sg = spec_grad_lanes(&lb, &ll, &h, fr, v, &d, nl);
+            sg.value.store(got[1].as_mut_ptr());
+            sg.v_r.store(got[2].as_mut_ptr());
+            for k in 0..3 {
+                sg.v_n[k].store(got[3 + k].as_mut_ptr());
+            }
+            for (j, l) in ls.iter().enumerate() {
+                let want_h = half(v, *l);
+                for c in 0..3 {
+                    assert_eq!(rows.h[c][j].to_bits(), want_h.h[c].to_bits(), "case {case} lane {j} h{c}");
+                }
+                let fr_err = (rows.fr[j] - want_h.fr).abs() / want_h.fr;
+                assert!(fr_err <= 1e-6, "case {case} lane {j}: Fresnel {} vs {}", rows.fr[j], want_h.fr);
+                // The scalar functions on the lane's own Fresnel, so the rest compares exactly.
+                let hv = HalfVec { h: want_h.h, fr: rows.fr[j] };
+                let nl = n[0] * l[0] + n[1] * l[1] + n[2] * l[2];
+                let want = spec_grad(&lb, &hv, v, *l, nl);
+                let wants = [spec(&lb, &hv, nl), want.value, want.v_r, want.v_n[0], want.v_n[1], want.v_n[2]];
+                for (q, w) in wants.iter().enumerate() {
+                    assert_eq!(
+                        got[q][j].to_bits(),
+                        w.to_bits(),
+                        "case {case} lane {j} quantity {q}: {} vs {w}",
+                        got[q][j]
+                    );
+                }
+            }
+        }
+    }
+}
