@@ -14,6 +14,7 @@ use crate::PbrError;
 use glam::Vec3;
 use std::fmt::Write;
 use std::time::Instant;
+use svgir_core::simd::Simd;
 use svgir_core::{EnvMap, Rng};
 use svgir_shading::gaussian_xi;
 use svgir_trace::pack::{f16_from_f32, unorm16};
@@ -139,9 +140,14 @@ pub fn bench_table_sizes(threads: usize, sizes: &[usize]) -> String {
     let _ = writeln!(out, "svgir-pbr: vertex shading, M = {m}, K = {k}, all visible, traced indirect, env 32x64");
     let _ = writeln!(
         out,
-        "{:>8} {:>7} {:>7} {:>10} {:>11} {:>14}",
-        "N", "threads", "cache", "fwd ms", "fwd+bwd ms", "Msample/s fwd"
+        "{:>8} {:>7} {:>7} {:>7} {:>10} {:>11} {:>14}",
+        "N", "threads", "cache", "path", "fwd ms", "fwd+bwd ms", "Msample/s fwd"
     );
+    // The scalar oracle and, where the CPU has it, the AVX2 lane kernels (`shade_simd`).
+    let mut paths = vec![Simd::Scalar];
+    if Simd::Avx2.resolve() != Simd::Scalar {
+        paths.push(Simd::Avx2);
+    }
     let mut counts = vec![1usize];
     if threads > 1 {
         counts.push(threads);
@@ -151,7 +157,7 @@ pub fn bench_table_sizes(threads: usize, sizes: &[usize]) -> String {
             Ok(p) => p,
             Err(e) => return format!("{out}error: {e}\n"),
         };
-        let (inp, v_color, mb, env) = (problem.inputs(), &problem.v_color, &problem.mb, &problem.env);
+        let (base, v_color, mb, env) = (problem.inputs(), &problem.v_color, &problem.mb, &problem.env);
         let reps = if n > 50_000 { 3 } else { 5 };
         let start = Instant::now();
         let cache = match DirectionCache::new(mb, env) {
@@ -164,7 +170,8 @@ pub fn bench_table_sizes(threads: usize, sizes: &[usize]) -> String {
                 Ok(pool) => pool,
                 Err(e) => return format!("{out}error: {e}\n"),
             };
-            for cached in [None, Some(&cache)] {
+            for (cached, &path) in [None, Some(&cache)].into_iter().flat_map(|c| paths.iter().map(move |p| (c, p))) {
+                let inp = ShadeInputs { params: ShadeParams { simd: path, ..base.params }, ..base };
                 let mut buf = ShadeOutput::new();
                 let (fwd, both) = pool.install(|| {
                     let fwd = median_ms(
@@ -184,7 +191,8 @@ pub fn bench_table_sizes(threads: usize, sizes: &[usize]) -> String {
                 });
                 let rate = (n * k * m) as f64 / (fwd * 1e-3) / 1e6;
                 let tag = if cached.is_some() { "yes" } else { "no" };
-                let _ = writeln!(out, "{n:>8} {t:>7} {tag:>7} {fwd:>10.1} {both:>11.1} {rate:>14.1}");
+                let name = path.name();
+                let _ = writeln!(out, "{n:>8} {t:>7} {tag:>7} {name:>7} {fwd:>10.1} {both:>11.1} {rate:>14.1}");
             }
         }
         let _ = writeln!(

@@ -260,7 +260,7 @@ fn backward_tile<F: Real>(ctx: &Ctx<F>, t: usize, eg: &mut [F], scr: &mut Scratc
     let ci = ctx.cf.vertices > 1;
     let ex = ctx.ef.channels > 0;
     let dist = ctx.cfg.distortion && ctx.grads.distortion.is_some();
-    if !ci && !ex && crate::simd::is_f32::<F>() {
+    if crate::simd::is_f32::<F>() {
         // SAFETY: `F` is `f32` (checked above), so these are the same types.
         let (ctx32, eg32, lanes) = unsafe {
             (&*(ctx as *const Ctx<F> as *const Ctx<f32>), &mut *(eg as *mut [F] as *mut [f32]), &mut scr.lanes)

@@ -1,6 +1,6 @@
 //! The backward tile kernel ([`crate::backward`]) vectorised across the pixels of a row, for
-//! f32 with one colour per Gaussian and no extra channels, compiled for AVX2 and AVX-512 and
-//! chosen at run time ([`crate::simd`]).
+//! f32 (one colour per Gaussian, or colours and extra channels interpolated from a surfel's
+//! vertices), compiled for AVX2 and AVX-512 and chosen at run time ([`crate::simd`]).
 //!
 //! Same work split and order as the scalar kernel: per tile, entries back to front, per entry the
 //! rows of its box narrowed by the row chord and the pixels that composited it; `N` pixels at a
@@ -17,7 +17,8 @@
 
 use crate::backward::{Ctx, OFF_C, OFF_COL, OFF_H, OFF_N, OFF_OP};
 use crate::forward::background_at;
-use crate::forward_simd::{eval_lanes, list_groups, Group};
+use crate::forward_simd::{eval_lanes, feat_weights, list_groups, FeatLanes, Group};
+use crate::interp::{normalised_coord_lanes, weight_grads_lanes, weights_lanes, MAX_VERTICES};
 use crate::simd::{Lanes, Simd};
 use crate::splat::SplatGrad;
 
@@ -54,14 +55,20 @@ unsafe fn acc<S: Lanes>(a: &mut S, m: S::M, d: S) {
 }
 
 #[inline(always)]
+unsafe fn zero_lanes<S: Lanes>() -> S {
+    S::splat(0.0)
+}
+
+#[inline(always)]
 unsafe fn hsum3<S: Lanes>(v: &[S; 3]) -> [f32; 3] {
     [v[0].hsum(), v[1].hsum(), v[2].hsum()]
 }
 
-/// One tile (see the module docs); `eg` holds its entries' gradient slots.
+/// One tile (see the module docs); `eg` holds its entries' gradient slots. `FEAT`: colours or
+/// extra channels come from the feature tables (interpolated over vertices).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-unsafe fn tile_k<S: Lanes, const DIST: bool>(
+unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool>(
     ctx: &Ctx<f32>,
     t: usize,
     eg: &mut [f32],
@@ -80,7 +87,11 @@ unsafe fn tile_k<S: Lanes, const DIST: bool>(
     let tile = bins.tile as usize;
     let stride = tile + S::N;
     let np = stride * tile;
-    buf.resize(np * ARRAYS, 0.0);
+    let (cf, ef) = (ctx.cf, ctx.ef);
+    let ce = ef.channels;
+    let ci = cf.vertices > 1;
+    let interp = ci || (ce > 0 && ef.vertices > 1);
+    buf.resize(np * (ARRAYS + ce), 0.0);
     let base = buf.as_mut_ptr();
     let arr = |k: usize| base.add(k * np);
     let g = ctx.grads;
@@ -119,8 +130,16 @@ unsafe fn tile_k<S: Lanes, const DIST: bool>(
             set(M1, st.moment1[p]);
             set(M2, st.moment2[p]);
             set(NCON, nc as f32);
+            for ch in 0..ce {
+                set(ARRAYS + ch, g.extra.map_or(0.0, |v| v[p * ce + ch]));
+            }
         }
     }
+    // Per-entry feature values (broadcast) and per-lane sums of their gradients: the colour
+    // table's `M x 3` (interpolated colours only), then the extra table's `M x ce`.
+    let (mut colv, mut extv) = (FeatLanes::<S> { v: Vec::new() }, FeatLanes::<S> { v: Vec::new() });
+    let n_col = if ci { cf.vertices * 3 } else { 0 };
+    let mut fsum = vec![zero_lanes::<S>(); n_col + ef.vertices * ce];
     by_ncon.sort_unstable_by_key(|a| std::cmp::Reverse(a.0));
     let mut next_act = 0;
     let zero = sp(0.0);
@@ -134,8 +153,17 @@ unsafe fn tile_k<S: Lanes, const DIST: bool>(
             next_act += 1;
         }
         let s = &ctx.recs[e];
-        let col = s.color.map(sp);
+        let col1 = s.color.map(sp);
         let nrm = s.normal.map(sp);
+        if FEAT {
+            if ci {
+                colv.load(cf, s.id as usize);
+            }
+            if ce > 0 {
+                extv.load(ef, s.id as usize);
+            }
+            fsum.fill(zero);
+        }
         let (h6, h7) = (sp(s.h[6]), sp(s.h[7]));
         let (o, c0v) = (sp(s.opacity), sp(s.center[0]));
         let mut sm = Sums::<S> {
@@ -168,10 +196,64 @@ unsafe fn tile_k<S: Lanes, const DIST: bool>(
             let gc = [ld(GC), ld(GC + 1), ld(GC + 2)];
             let gn = [ld(GN), ld(GN + 1), ld(GN + 2)];
             let gd = ld(GD);
+            // Interpolation weights and their derivatives at the hit (features only).
+            let (ut, dut, vt, dvt) = if FEAT && interp {
+                let (ut, dut) = normalised_coord_lanes(ev.u);
+                let (vt, dvt) = normalised_coord_lanes(ev.v);
+                (ut, dut, vt, dvt)
+            } else {
+                (zero, zero, zero, zero)
+            };
+            let (mut gut, mut gvt) = (zero, zero);
+            let wgt_m = S::select(m, wgt, zero);
+            let col = if FEAT && ci {
+                let wc = weights_lanes(cf.vertices, ut, vt);
+                let (wcu, wcv) = weight_grads_lanes(cf.vertices, ut, vt);
+                for vtx in 0..cf.vertices {
+                    let r = &colv.v[vtx * 3..vtx * 3 + 3];
+                    let dot = gc[0].mul(r[0]).add(gc[1].mul(r[1])).add(gc[2].mul(r[2]));
+                    let cw = wgt_m.mul(wc[vtx]);
+                    for ch in 0..3 {
+                        fsum[vtx * 3 + ch] = cw.mul_add(gc[ch], fsum[vtx * 3 + ch]);
+                    }
+                    gut = wcu[vtx].mul_add(dot, gut);
+                    gvt = wcv[vtx].mul_add(dot, gvt);
+                }
+                [colv.eval(cf, &wc, 0), colv.eval(cf, &wc, 1), colv.eval(cf, &wc, 2)]
+            } else {
+                col1
+            };
             // dL/dw as a tree of sums (a chain of eight adds was on the critical path).
             let g_col = gc[0].mul(col[0]).add(gc[1].mul(col[1])).add(gc[2].mul(col[2]));
             let g_nrm = gn[0].mul(nrm[0]).add(gn[1].mul(nrm[1])).add(gn[2].mul(nrm[2]));
             let mut gw = g_col.add(g_nrm).add(ld(GO).add(gd.mul(ev.z)));
+            if FEAT && ce > 0 {
+                let we = feat_weights(ef, ut, vt);
+                let (weu, wev) = if ef.vertices > 1 {
+                    weight_grads_lanes(ef.vertices, ut, vt)
+                } else {
+                    ([zero; MAX_VERTICES], [zero; MAX_VERTICES])
+                };
+                let mut g_ext = zero;
+                for ch in 0..ce {
+                    g_ext = ld(ARRAYS + ch).mul_add(extv.eval(ef, &we, ch), g_ext);
+                }
+                gw = gw.add(g_ext);
+                for vtx in 0..ef.vertices {
+                    let cw = wgt_m.mul(we[vtx]);
+                    let mut dot = zero;
+                    for ch in 0..ce {
+                        let ge = ld(ARRAYS + ch);
+                        let k = n_col + vtx * ce + ch;
+                        fsum[k] = cw.mul_add(ge, fsum[k]);
+                        dot = ge.mul_add(extv.v[vtx * ce + ch], dot);
+                    }
+                    if ef.vertices > 1 {
+                        gut = weu[vtx].mul_add(dot, gut);
+                        gvt = wev[vtx].mul_add(dot, gvt);
+                    }
+                }
+            }
             let mut v_z = wgt.mul(gd);
             if DIST {
                 let inv_z = sp(1.0).div(ev.z);
@@ -181,8 +263,7 @@ unsafe fn tile_k<S: Lanes, const DIST: bool>(
                 gw = gw.add(gdist.mul(a.mul(mz).mul(mz).sub(sp(2.0).mul(mz).mul(m1)).add(m2)));
                 v_z = v_z.add(gdist.mul(sp(2.0)).mul(wgt).mul(mz.mul(a).sub(m1)).mul(dm_dz));
             }
-            // Upstream gradients are finite, so one masked weight serves all six sums.
-            let wgt_m = S::select(m, wgt, zero);
+            // Upstream gradients are finite, so one masked weight serves all these sums.
             for ch in 0..3 {
                 sm.v_col[ch] = wgt_m.mul_add(gc[ch], sm.v_col[ch]);
                 sm.v_n[ch] = wgt_m.mul_add(gn[ch], sm.v_n[ch]);
@@ -190,9 +271,13 @@ unsafe fn tile_k<S: Lanes, const DIST: bool>(
             let pacc = ld(ACC);
             let v_alpha = ti.mul(gw).sub(pacc.mul(inv_one_m));
             S::select(m, pacc.add(gw.mul(wgt)), pacc).store(arr(ACC).add(i));
-            // The hit's backward ([`crate::splat::intersect_backward`]) with no (u, v) input.
-            let mut gu = v_z.mul(h6);
-            let mut gv = v_z.mul(h7);
+            // The hit's backward ([`crate::splat::intersect_backward`]); the (u, v) input is the
+            // interpolation's, `w d(sum_ch g_ch f_ch)/du~ du~/du`.
+            let (mut gu, mut gv) = if FEAT && interp {
+                (wgt.mul(gut).mul(dut).add(v_z.mul(h6)), wgt.mul(gvt).mul(dvt).add(v_z.mul(h7)))
+            } else {
+                (v_z.mul(h6), v_z.mul(h7))
+            };
             acc(&mut sm.h_depth[0], m, v_z.mul(ev.u));
             acc(&mut sm.h_depth[1], m, v_z.mul(ev.v));
             acc(&mut sm.h_depth[2], m, v_z);
@@ -220,10 +305,21 @@ unsafe fn tile_k<S: Lanes, const DIST: bool>(
             continue;
         }
         let slot = &mut eg[(e - e_tile0) * dim..(e - e_tile0 + 1) * dim];
-        let v_col = hsum3(&sm.v_col);
         let v_n = hsum3(&sm.v_n);
-        for ch in 0..3 {
-            slot[OFF_COL + ch] += v_col[ch];
+        if FEAT && ci {
+            for (k, f) in fsum[..n_col].iter().enumerate() {
+                slot[OFF_COL + k] += f.hsum();
+            }
+        } else {
+            let v_col = hsum3(&sm.v_col);
+            for ch in 0..3 {
+                slot[OFF_COL + ch] += v_col[ch];
+            }
+        }
+        if FEAT {
+            for (k, f) in fsum[n_col..].iter().enumerate() {
+                slot[ctx.off_ext + k] += f.hsum();
+            }
         }
         let sg = SplatGrad::from_sums(
             hsum3(&sm.h_depth),
@@ -248,7 +344,7 @@ unsafe fn tile_k<S: Lanes, const DIST: bool>(
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn tile_avx2<const DIST: bool>(
+unsafe fn tile_avx2<const DIST: bool, const FEAT: bool>(
     ctx: &Ctx<f32>,
     t: usize,
     eg: &mut [f32],
@@ -257,12 +353,12 @@ unsafe fn tile_avx2<const DIST: bool>(
     row_act: &mut [u64],
     groups: &mut Vec<Group>,
 ) {
-    tile_k::<crate::simd::F8, DIST>(ctx, t, eg, buf, by_ncon, row_act, groups)
+    tile_k::<crate::simd::F8, DIST, FEAT>(ctx, t, eg, buf, by_ncon, row_act, groups)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx2,fma")]
-unsafe fn tile_avx512<const DIST: bool>(
+unsafe fn tile_avx512<const DIST: bool, const FEAT: bool>(
     ctx: &Ctx<f32>,
     t: usize,
     eg: &mut [f32],
@@ -271,7 +367,7 @@ unsafe fn tile_avx512<const DIST: bool>(
     row_act: &mut [u64],
     groups: &mut Vec<Group>,
 ) {
-    tile_k::<crate::simd::F16, DIST>(ctx, t, eg, buf, by_ncon, row_act, groups)
+    tile_k::<crate::simd::F16, DIST, FEAT>(ctx, t, eg, buf, by_ncon, row_act, groups)
 }
 
 /// Runs tile `t` on the SIMD path `path` (already resolved); false when `path` is scalar (the
@@ -290,13 +386,23 @@ pub(crate) fn backward_tile_simd(
 ) -> bool {
     #[cfg(target_arch = "x86_64")]
     {
+        let feat = ctx.cf.vertices > 1 || ctx.ef.channels > 0;
+        macro_rules! go {
+            ($f:ident, $d:literal, $e:literal) => {
+                $f::<$d, $e>(ctx, t, eg, buf, by_ncon, row_act, groups)
+            };
+        }
         // SAFETY: `resolve` only returns a path whose features the CPU has.
         unsafe {
-            match (path, dist) {
-                (Simd::Avx2, false) => tile_avx2::<false>(ctx, t, eg, buf, by_ncon, row_act, groups),
-                (Simd::Avx2, true) => tile_avx2::<true>(ctx, t, eg, buf, by_ncon, row_act, groups),
-                (Simd::Avx512, false) => tile_avx512::<false>(ctx, t, eg, buf, by_ncon, row_act, groups),
-                (Simd::Avx512, true) => tile_avx512::<true>(ctx, t, eg, buf, by_ncon, row_act, groups),
+            match (path, dist, feat) {
+                (Simd::Avx2, false, false) => go!(tile_avx2, false, false),
+                (Simd::Avx2, true, false) => go!(tile_avx2, true, false),
+                (Simd::Avx2, false, true) => go!(tile_avx2, false, true),
+                (Simd::Avx2, true, true) => go!(tile_avx2, true, true),
+                (Simd::Avx512, false, false) => go!(tile_avx512, false, false),
+                (Simd::Avx512, true, false) => go!(tile_avx512, true, false),
+                (Simd::Avx512, false, true) => go!(tile_avx512, false, true),
+                (Simd::Avx512, true, true) => go!(tile_avx512, true, true),
                 _ => return false,
             }
         }

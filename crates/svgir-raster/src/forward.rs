@@ -270,16 +270,18 @@ fn render_band<F: Real>(
 ) {
     let ci = cf.vertices > 1;
     let ex = ef.channels > 0;
-    if !ci && !ex && crate::simd::is_f32::<F>() {
+    if crate::simd::is_f32::<F>() {
         // SAFETY: `F` is `f32` (checked above), so these are the same types.
-        let (b32, recs32, bg32) = unsafe {
+        let (b32, recs32, cf32, ef32, bg32) = unsafe {
             (
                 &mut *(b as *mut Band<F> as *mut Band<f32>),
                 &*(recs as *const [TileRec<F>] as *const [TileRec<f32>]),
+                &*(cf as *const FeatView<F> as *const FeatView<f32>),
+                &*(ef as *const FeatView<F> as *const FeatView<f32>),
                 &*(bg as *const BackgroundOf<F> as *const BackgroundOf<f32>),
             )
         };
-        if crate::forward_simd::render_band_simd(cfg.simd.resolve(), b32, bins, recs32, bg32, cfg, w, h) {
+        if crate::forward_simd::render_band_simd(cfg.simd.resolve(), b32, bins, recs32, cf32, ef32, bg32, cfg, w, h) {
             return;
         }
     }

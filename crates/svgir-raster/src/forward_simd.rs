@@ -1,6 +1,7 @@
 //! The forward tile kernel ([`crate::forward`]) vectorised across the pixels of a row, for f32
-//! with one colour per Gaussian and no extra channels (stage 1 and the SH renders), compiled for
-//! AVX2 and AVX-512 and chosen at run time ([`crate::simd`]).
+//! (one colour per Gaussian as in stage 1 and the SH renders, or colours and extra channels
+//! interpolated from a surfel's vertices as in stage 2's PBR render), compiled for AVX2 and
+//! AVX-512 and chosen at run time ([`crate::simd`]).
 //!
 //! Same work split and order as the scalar kernel: per row of tiles, per tile front to back,
 //! per Gaussian the rows of its box narrowed by the row chord and the live-pixel masks. A row
@@ -16,7 +17,8 @@
 // its tile buffer -- so the operations inside need no block of their own.
 #![allow(unsafe_op_in_unsafe_fn)]
 
-use crate::forward::{background_at, Band};
+use crate::forward::{background_at, Band, FeatView};
+use crate::interp::{normalised_coord_lanes, weights_lanes, MAX_VERTICES};
 use crate::simd::Lanes;
 use crate::splat::{row_setup, RowSetup};
 use crate::tiles::{columns_mask, EntryBox, TileBins, TileRec};
@@ -136,12 +138,58 @@ const MED: usize = 11;
 const NCON: usize = 12;
 const ARRAYS: usize = 13;
 
-/// One row of tiles, `S::N` pixels at a time (see the module docs).
+/// A feature table's values of one Gaussian, broadcast to lanes: `v[m * channels + c]`.
+pub(crate) struct FeatLanes<S> {
+    pub v: Vec<S>,
+}
+
+impl<S: Lanes> FeatLanes<S> {
+    /// Broadcast Gaussian `g`'s rows of `f`.
+    #[inline(always)]
+    pub(crate) unsafe fn load(&mut self, f: &FeatView<f32>, g: usize) {
+        let n = f.vertices * f.channels;
+        self.v.clear();
+        for &x in &f.data[g * n..(g + 1) * n] {
+            self.v.push(S::splat(x));
+        }
+    }
+
+    /// Channel `c` at vertex weights `w` (`FeatView::eval`'s operations: one vertex is copied,
+    /// several are summed from zero in vertex order).
+    #[inline(always)]
+    pub(crate) unsafe fn eval(&self, f: &FeatView<f32>, w: &[S; MAX_VERTICES], c: usize) -> S {
+        let ch = f.channels;
+        if f.vertices == 1 {
+            return self.v[c];
+        }
+        let mut out = S::splat(0.0);
+        for m in 0..f.vertices {
+            out = out.add(w[m].mul(self.v[m * ch + c]));
+        }
+        out
+    }
+}
+
+/// The vertex weights of a feature table at normalised hit coordinates (one vertex: unused).
 #[inline(always)]
-unsafe fn band<S: Lanes, const DIST: bool>(
+pub(crate) unsafe fn feat_weights<S: Lanes>(f: &FeatView<f32>, ut: S, vt: S) -> [S; MAX_VERTICES] {
+    if f.vertices > 1 {
+        weights_lanes(f.vertices, ut, vt)
+    } else {
+        [S::splat(1.0); MAX_VERTICES]
+    }
+}
+
+/// One row of tiles, `S::N` pixels at a time (see the module docs). `FEAT`: the colours or
+/// extra channels come from the feature tables `cf` / `ef` (interpolated over vertices).
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+unsafe fn band<S: Lanes, const DIST: bool, const FEAT: bool>(
     b: &mut Band<f32>,
     bins: &TileBins,
     recs: &[TileRec<f32>],
+    cf: &FeatView<f32>,
+    ef: &FeatView<f32>,
     bg: &BackgroundOf<f32>,
     cfg: &RasterConfig,
     w: u32,
@@ -157,7 +205,12 @@ unsafe fn band<S: Lanes, const DIST: bool>(
     let np = stride * tile;
     let e_band0 = bins.row_range(b.ty)[0] as usize;
     let y_band0 = (b.ty * bins.tile) as usize;
-    let mut buf = vec![0f32; np * ARRAYS];
+    let ce = ef.channels;
+    let ci = cf.vertices > 1;
+    // Normalised hit coordinates are needed when some table has several vertices.
+    let interp = ci || (ce > 0 && ef.vertices > 1);
+    let mut buf = vec![0f32; np * (ARRAYS + ce)];
+    let (mut colv, mut extv) = (FeatLanes::<S> { v: Vec::new() }, FeatLanes::<S> { v: Vec::new() });
     let mut row_live = vec![0u64; tile];
     let mut groups: Vec<Group> = Vec::with_capacity(tile * (tile / S::N + 2));
     for tx in 0..bins.tiles_x {
@@ -172,6 +225,7 @@ unsafe fn band<S: Lanes, const DIST: bool>(
         let (pt, pdep, pdst, pm1, pm2, pmed, pncon) = (a(T), a(DEP), a(DST), a(M1), a(M2), a(MED), a(NCON));
         let pcol = [a(COL), a(COL + 1), a(COL + 2)];
         let pnrm = [a(NRM), a(NRM + 1), a(NRM + 2)];
+        let pext = ARRAYS;
         let mut remaining = (tr[1] - tr[0]) as usize * (tr[3] - tr[2]) as usize;
         row_live.fill(columns_mask(0, (tr[1] - tr[0]) as usize));
         for e in r0 as usize..r1 as usize {
@@ -181,8 +235,16 @@ unsafe fn band<S: Lanes, const DIST: bool>(
             let s = &recs[e];
             list_groups(s, &tr, &row_live, S::N, &mut groups);
             let local = sp((e - r0 as usize + 1) as f32);
-            let col = s.color.map(sp);
+            let col1 = s.color.map(sp);
             let nrm = s.normal.map(sp);
+            if FEAT {
+                if ci {
+                    colv.load(cf, s.id as usize);
+                }
+                if ce > 0 {
+                    extv.load(ef, s.id as usize);
+                }
+            }
             let mut ws = sp(0.0);
             for gr in &groups {
                 let x = sp(gr.xs).add(S::iota().add(sp(gr.off)));
@@ -198,6 +260,23 @@ unsafe fn band<S: Lanes, const DIST: bool>(
                 remaining -= sb.count_ones() as usize;
                 let comp = S::andnot(live, stop);
                 let wgt = ev.alpha.mul(tcur);
+                let (ut, vt) = if FEAT && interp {
+                    (normalised_coord_lanes(ev.u).0, normalised_coord_lanes(ev.v).0)
+                } else {
+                    (sp(0.0), sp(0.0))
+                };
+                let col = if FEAT && ci {
+                    let wc = weights_lanes(cf.vertices, ut, vt);
+                    [colv.eval(cf, &wc, 0), colv.eval(cf, &wc, 1), colv.eval(cf, &wc, 2)]
+                } else {
+                    col1
+                };
+                if FEAT && ce > 0 {
+                    let we = feat_weights(ef, ut, vt);
+                    for ch in 0..ce {
+                        add_masked::<S>(a(pext + ch).add(i), comp, wgt.mul(extv.eval(ef, &we, ch)));
+                    }
+                }
                 for ch in 0..3 {
                     add_masked::<S>(pcol[ch].add(i), comp, wgt.mul(col[ch]));
                     add_masked::<S>(pnrm[ch].add(i), comp, wgt.mul(nrm[ch]));
@@ -238,6 +317,9 @@ unsafe fn band<S: Lanes, const DIST: bool>(
                 b.n_contrib[bi] = at(NCON, li) as u32;
                 b.m1[bi] = at(M1, li);
                 b.m2[bi] = at(M2, li);
+                for ch in 0..ce {
+                    b.extra[bi * ce + ch] = at(ARRAYS + ch, li);
+                }
             }
         }
     }
@@ -246,31 +328,35 @@ unsafe fn band<S: Lanes, const DIST: bool>(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn band_avx2<const DIST: bool>(
+unsafe fn band_avx2<const DIST: bool, const FEAT: bool>(
     b: &mut Band<f32>,
     bins: &TileBins,
     recs: &[TileRec<f32>],
+    cf: &FeatView<f32>,
+    ef: &FeatView<f32>,
     bg: &BackgroundOf<f32>,
     cfg: &RasterConfig,
     w: u32,
     h: u32,
 ) {
-    band::<crate::simd::F8, DIST>(b, bins, recs, bg, cfg, w, h)
+    band::<crate::simd::F8, DIST, FEAT>(b, bins, recs, cf, ef, bg, cfg, w, h)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx2,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn band_avx512<const DIST: bool>(
+unsafe fn band_avx512<const DIST: bool, const FEAT: bool>(
     b: &mut Band<f32>,
     bins: &TileBins,
     recs: &[TileRec<f32>],
+    cf: &FeatView<f32>,
+    ef: &FeatView<f32>,
     bg: &BackgroundOf<f32>,
     cfg: &RasterConfig,
     w: u32,
     h: u32,
 ) {
-    band::<crate::simd::F16, DIST>(b, bins, recs, bg, cfg, w, h)
+    band::<crate::simd::F16, DIST, FEAT>(b, bins, recs, cf, ef, bg, cfg, w, h)
 }
 
 /// Runs the row of tiles on the SIMD path `path` (already resolved); false when `path` is
@@ -281,6 +367,8 @@ pub(crate) fn render_band_simd(
     b: &mut Band<f32>,
     bins: &TileBins,
     recs: &[TileRec<f32>],
+    cf: &FeatView<f32>,
+    ef: &FeatView<f32>,
     bg: &BackgroundOf<f32>,
     cfg: &RasterConfig,
     w: u32,
@@ -289,13 +377,23 @@ pub(crate) fn render_band_simd(
     #[cfg(target_arch = "x86_64")]
     {
         use crate::simd::Simd;
+        let feat = cf.vertices > 1 || ef.channels > 0;
+        macro_rules! go {
+            ($f:ident, $d:literal, $e:literal) => {
+                $f::<$d, $e>(b, bins, recs, cf, ef, bg, cfg, w, h)
+            };
+        }
         // SAFETY: `resolve` only returns a path whose features the CPU has.
         unsafe {
-            match (path, cfg.distortion) {
-                (Simd::Avx2, false) => band_avx2::<false>(b, bins, recs, bg, cfg, w, h),
-                (Simd::Avx2, true) => band_avx2::<true>(b, bins, recs, bg, cfg, w, h),
-                (Simd::Avx512, false) => band_avx512::<false>(b, bins, recs, bg, cfg, w, h),
-                (Simd::Avx512, true) => band_avx512::<true>(b, bins, recs, bg, cfg, w, h),
+            match (path, cfg.distortion, feat) {
+                (Simd::Avx2, false, false) => go!(band_avx2, false, false),
+                (Simd::Avx2, true, false) => go!(band_avx2, true, false),
+                (Simd::Avx2, false, true) => go!(band_avx2, false, true),
+                (Simd::Avx2, true, true) => go!(band_avx2, true, true),
+                (Simd::Avx512, false, false) => go!(band_avx512, false, false),
+                (Simd::Avx512, true, false) => go!(band_avx512, true, false),
+                (Simd::Avx512, false, true) => go!(band_avx512, false, true),
+                (Simd::Avx512, true, true) => go!(band_avx512, true, true),
                 _ => return false,
             }
         }
@@ -303,7 +401,7 @@ pub(crate) fn render_band_simd(
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
-        let _ = (path, b, bins, recs, bg, cfg, w, h);
+        let _ = (path, b, bins, recs, cf, ef, bg, cfg, w, h);
         false
     }
 }

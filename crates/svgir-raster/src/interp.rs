@@ -10,7 +10,10 @@
 //!
 //! Pure per-pixel arithmetic: no allocation, nothing saved for backward (recomputed).
 
+#![allow(unsafe_op_in_unsafe_fn)]
+
 use crate::real::Real;
+use crate::simd::Lanes;
 
 /// Largest supported vertex count.
 pub const MAX_VERTICES: usize = 6;
@@ -108,6 +111,101 @@ fn lagrange<F: Real>(u: F) -> [F; 3] {
 #[inline(always)]
 fn lagrange_grad<F: Real>(u: F) -> [F; 3] {
     [F::c(4.0) * u - F::c(3.0), F::c(4.0) - F::c(8.0) * u, F::c(4.0) * u - F::ONE]
+}
+
+/// [`normalised_coord`] per lane (same operations, so the same bits): `(u~, d u~ / d u)`.
+///
+/// # Safety
+/// The CPU has the features of `S`.
+#[inline(always)]
+pub(crate) unsafe fn normalised_coord_lanes<S: Lanes>(u: S) -> (S, S) {
+    let sp = |v: f32| S::splat(v);
+    let t = sp(0.5).add(sp(0.5).mul(u));
+    let c = S::select(t.lt(sp(0.001)), sp(0.001), t);
+    let c = S::select(c.gt(sp(0.999)), sp(0.999), c);
+    // Inside the clamp: 0.5.
+    (c, S::select(S::and(t.ge(sp(0.001)), t.le(sp(0.999))), sp(0.5), sp(0.0)))
+}
+
+/// [`weights`] per lane (same operations, same bits).
+///
+/// # Safety
+/// The CPU has the features of `S`.
+#[inline(always)]
+pub(crate) unsafe fn weights_lanes<S: Lanes>(vertices: usize, u: S, v: S) -> [S; MAX_VERTICES] {
+    let one = S::splat(1.0);
+    let mut w = [S::splat(0.0); MAX_VERTICES];
+    match vertices {
+        2 => {
+            w[0] = one.sub(u);
+            w[1] = u;
+        }
+        4 => {
+            w[0] = one.sub(u).mul(one.sub(v));
+            w[1] = u.mul(one.sub(v));
+            w[2] = one.sub(u).mul(v);
+            w[3] = u.mul(v);
+        }
+        6 => {
+            let l = lagrange_lanes(u);
+            for i in 0..3 {
+                w[i] = l[i].mul(one.sub(v));
+                w[3 + i] = l[i].mul(v);
+            }
+        }
+        _ => w[0] = one,
+    }
+    w
+}
+
+/// [`weight_grads`] per lane (same operations, same bits): `(d w / d u~, d w / d v~)`.
+///
+/// # Safety
+/// The CPU has the features of `S`.
+#[inline(always)]
+pub(crate) unsafe fn weight_grads_lanes<S: Lanes>(
+    vertices: usize,
+    u: S,
+    v: S,
+) -> ([S; MAX_VERTICES], [S; MAX_VERTICES]) {
+    let (zero, one) = (S::splat(0.0), S::splat(1.0));
+    let (mut du, mut dv) = ([zero; MAX_VERTICES], [zero; MAX_VERTICES]);
+    match vertices {
+        2 => {
+            du[0] = zero.sub(one);
+            du[1] = one;
+        }
+        4 => {
+            du[0] = zero.sub(one.sub(v));
+            du[1] = one.sub(v);
+            du[2] = zero.sub(v);
+            du[3] = v;
+            dv[0] = zero.sub(one.sub(u));
+            dv[1] = zero.sub(u);
+            dv[2] = one.sub(u);
+            dv[3] = u;
+        }
+        6 => {
+            let l = lagrange_lanes(u);
+            let sp = |x: f32| S::splat(x);
+            let dl = [sp(4.0).mul(u).sub(sp(3.0)), sp(4.0).sub(sp(8.0).mul(u)), sp(4.0).mul(u).sub(one)];
+            for i in 0..3 {
+                du[i] = dl[i].mul(one.sub(v));
+                du[3 + i] = dl[i].mul(v);
+                dv[i] = zero.sub(l[i]);
+                dv[3 + i] = l[i];
+            }
+        }
+        _ => {}
+    }
+    (du, dv)
+}
+
+#[inline(always)]
+unsafe fn lagrange_lanes<S: Lanes>(u: S) -> [S; 3] {
+    let sp = |x: f32| S::splat(x);
+    let (h, one) = (sp(0.5), sp(1.0));
+    [sp(2.0).mul(u.sub(h)).mul(u.sub(one)), sp(-4.0).mul(u).mul(u.sub(one)), sp(2.0).mul(u).mul(u.sub(h))]
 }
 
 #[cfg(test)]
