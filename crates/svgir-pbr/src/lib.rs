@@ -39,7 +39,6 @@ pub mod shade;
 pub mod shade_backward;
 #[cfg(target_arch = "x86_64")]
 mod shade_simd;
-pub(crate) mod specular;
 pub mod two_sided;
 
 pub use activation::Real;

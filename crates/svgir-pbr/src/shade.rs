@@ -14,7 +14,7 @@
 //! the per-(i,k) work (direction, env taps, V, L) is done once and shared by the M vertices.
 //! Direct (`V L_env`) and indirect parts are kept apart for the visualisation buffers.
 //!
-//! The GGX specular is split (`crate::specular`): per vertex (alpha, k, g(n.v)) once per
+//! The GGX specular is split (`svgir_shading::split`): per vertex (alpha, k, g(n.v)) once per
 //! Gaussian, per (i, k) the half vector and Fresnel, leaving two dots and a division per
 //! (vertex, direction). Directions come from a per-call table of the K Fibonacci directions
 //! rotated by each Gaussian's azimuth (equal to `MicroBuffer::direction` up to f32 rounding).
@@ -29,7 +29,6 @@
 //! which is cheaper than storing N x K x 3 lights.
 
 use crate::direction_cache::DirectionCache;
-use crate::specular::{half, lobe, spec, Lobe};
 use crate::{expect_len, PbrError};
 use glam::Vec3;
 use rayon::prelude::*;
@@ -37,6 +36,7 @@ use svgir_core::envmap::Taps;
 use svgir_core::simd::Simd;
 use svgir_core::EnvMap;
 use svgir_shading::float::{dot, to_f};
+use svgir_shading::split::{half, lobe, spec, Lobe};
 use svgir_shading::{tangent_frame, Diffuse, DiffuseWeight, Float, MAX_VERTICES, MIN_ELEVATION_SIN};
 use svgir_trace::{BrightLights, MicroBuffer, VertexMaterials};
 

@@ -19,10 +19,10 @@
 use crate::direction_cache::DirectionCache;
 use crate::grads::PbrGrads;
 use crate::shade::{diffuse_weights, lobes, samples, vertices, view_dir, FibTable, Frame, ShadeInputs};
-use crate::specular::{half, spec_grad};
 use crate::{expect_len, PbrError};
 use rayon::prelude::*;
 use svgir_shading::float::dot;
+use svgir_shading::split::{half, spec_grad};
 use svgir_shading::{Float, MAX_VERTICES};
 
 /// Gaussians per reduction block: at most ~64 partial env maps, at least 256 Gaussians a block.

@@ -8,7 +8,7 @@
 //! per-sample code of `shade.rs`, once per Gaussian), padded to a multiple of [`W`] lanes with
 //! samples that carry nothing. Then, vertex by vertex, the (vertex, direction) work runs over
 //! [`W`] samples at a time in AVX2 lanes (`svgir_core::simd::F8`) without a branch: the horizon
-//! test becomes a select. [`spec_lanes`] and [`spec_grad_lanes`] are `specular::spec` and
+//! test becomes a select. [`spec_lanes`] and [`spec_grad_lanes`] are `split::spec` and
 //! `spec_grad` written over lanes, operation for operation in the same order and without FMA,
 //! so each lane computes the scalar value bit for bit. (Written as plain per-lane loops, the
 //! compiler left this code scalar.)
@@ -28,8 +28,8 @@
 
 use crate::direction_cache::DirectionCache;
 use crate::shade::{diffuse_weights, lobes, samples, vertices, view_dir, FibTable, Frame, Sample, ShadeInputs};
-use crate::specular::Lobe;
 use svgir_core::simd::{Lanes, F8};
+use svgir_shading::split::Lobe;
 use svgir_shading::{DiffuseWeight, DOT_EPS, F0, MAX_VERTICES};
 
 /// `[e(0), e(1), e(2)]` written out: `array::map` would call the closure through code compiled
@@ -120,7 +120,7 @@ impl SampleRows {
         }
     }
 
-    /// `specular::half` for lanes `j`: the same operations, except that 2^x is
+    /// `split::half` for lanes `j`: the same operations, except that 2^x is
     /// `exp_fast(x ln 2)` (relative difference ~1e-7) instead of libm's `exp2f`.
     #[inline(always)]
     unsafe fn half_lanes<L: Lanes>(&mut self, wo: [f32; 3], j: usize) {
@@ -156,7 +156,7 @@ unsafe fn load<L: Lanes>(row: &[f32], j: usize) -> L {
     L::load(row.as_ptr().add(j * L::N))
 }
 
-/// `cdot` of `specular.rs` per lane: x clamped to [DOT_EPS, 1] (as `clampf`: max, then min).
+/// `cdot` of `svgir_shading::split` per lane: x clamped to [DOT_EPS, 1] (as `clampf`: max, then min).
 #[inline(always)]
 unsafe fn cdot<L: Lanes>(x: L) -> L {
     let (lo, one) = (L::splat(DOT_EPS as f32), L::splat(1.0));
@@ -196,7 +196,7 @@ unsafe fn lobe_l<L: Lanes>(lb: &Lobe<f32>) -> LobeL<L> {
     }
 }
 
-/// `specular::spec` per lane: `S = F c0 / (q^2 (n.l (1-k) + k))`, `q = (n.h)^2 (a^2-1) + 1`.
+/// `split::spec` per lane: `S = F c0 / (q^2 (n.l (1-k) + k))`, `q = (n.h)^2 (a^2-1) + 1`.
 #[inline(always)]
 unsafe fn spec_lanes<L: Lanes>(lb: &LobeL<L>, nh_raw: L, fr: L, nl_raw: L) -> L {
     let nl = cdot(nl_raw);
@@ -205,7 +205,7 @@ unsafe fn spec_lanes<L: Lanes>(lb: &LobeL<L>, nh_raw: L, fr: L, nl_raw: L) -> L 
     fr.mul(lb.c0).div(q.mul(q).mul(nl.mul(lb.omk).add(lb.k)))
 }
 
-/// `specular::spec_grad` per lane: S, dS/dr and dS/dn.
+/// `split::spec_grad` per lane: S, dS/dr and dS/dn.
 struct SpecGradL<L> {
     value: L,
     v_r: L,
@@ -480,8 +480,8 @@ pub(crate) unsafe fn backward_range_avx2(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::specular::{half, lobe, spec, spec_grad, HalfVec};
     use svgir_core::Rng;
+    use svgir_shading::split::{half, lobe, spec, spec_grad, HalfVec};
 
     fn unit(rng: &mut Rng) -> [f32; 3] {
         let v = [rng.normal(), rng.normal(), rng.normal()];

@@ -1,5 +1,6 @@
 //! svgir-shading: the physically-based shading pieces shared by the rasteriser, the tracer and
-//! training (SPEC 3 and 4): the Cook-Torrance GGX BRDF with its gradients, the Fibonacci
+//! training (SPEC 3 and 4): the Cook-Torrance GGX BRDF with its gradients (also split per
+//! vertex and per light direction, [`split`]), the Fibonacci
 //! hemisphere directions and the Gaussian-vertex interpolation weights.
 //!
 //! Everything is generic over [`Float`] (f32 for speed, f64 so tests can check hand-written
@@ -13,6 +14,7 @@ pub mod hemisphere;
 pub mod layering;
 #[cfg(test)]
 mod quadrature;
+pub mod split;
 pub mod vertex;
 
 pub use brdf::{ggx, ggx_specular, ggx_specular_grad, SpecularGrad, DOT_EPS, F0};

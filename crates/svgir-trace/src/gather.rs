@@ -24,7 +24,8 @@ use rayon::prelude::*;
 use svgir_core::envmap::Taps;
 use svgir_core::EnvMap;
 use svgir_shading::float::{dot, to_f};
-use svgir_shading::{ggx_specular, vertex_weights, Diffuse, Float, DOT_EPS, MAX_VERTICES};
+use svgir_shading::split::{half, lobe, spec, Lobe};
+use svgir_shading::{vertex_weights, Diffuse, Float, DOT_EPS, MAX_VERTICES};
 
 /// Per-vertex materials of all Gaussians, structure of arrays: `albedo[(i*M + m)*3 + c]`,
 /// `roughness[i*M + m]`, `normals[(i*M + m)*3 + c]` (unit shading normals, already activated).
@@ -186,12 +187,16 @@ pub(crate) fn shade_pair<F: Float>(
         let kd = inv_pi * diffuse.weight(dot(n, v), r).value;
         (n, r, [mats.albedo[b] * kd, mats.albedo[b + 1] * kd, mats.albedo[b + 2] * kd])
     });
+    // The specular lobe split per vertex and per direction (`svgir_shading::split`).
+    let lobes: [Lobe<F>; MAX_VERTICES] = std::array::from_fn(|mm| lobe(vx[mm].0, v, vx[mm].1));
     for (l, light) in esc.dirs.iter().zip(&esc.light) {
         let mut f_cos = [F::ZERO; 3];
-        for (mm, &(n, r, diffuse_part)) in vx.iter().enumerate().take(m) {
-            let s = ggx_specular(n, v, *l, r);
+        let hv = half(v, *l);
+        for (mm, &(n, _, diffuse_part)) in vx.iter().enumerate().take(m) {
+            let nl = dot(n, *l);
+            let s = spec(&lobes[mm], &hv, nl);
             let f = diffuse_part.map(|d| d + s);
-            let cw = dot(n, *l).maxf(eps) * w[mm];
+            let cw = nl.maxf(eps) * w[mm];
             for c in 0..3 {
                 f_cos[c] += f[c] * cw;
             }

@@ -23,7 +23,8 @@ use crate::TraceError;
 use rayon::prelude::*;
 use svgir_core::EnvMap;
 use svgir_shading::float::{dot, to_f};
-use svgir_shading::{ggx_specular_grad, vertex_weights, Diffuse, DiffuseWeight, Float, DOT_EPS, MAX_VERTICES};
+use svgir_shading::split::{half, lobe, spec_grad, Lobe};
+use svgir_shading::{vertex_weights, Diffuse, DiffuseWeight, Float, DOT_EPS, MAX_VERTICES};
 
 /// Gradients, laid out like [`VertexMaterials`] and `EnvMap::data`.
 #[derive(Clone, Debug, PartialEq)]
@@ -86,14 +87,20 @@ pub(crate) fn backward_pair<F: Float>(
         diffuse.weight(dot(n, v), r)
     });
     let mut q = [F::ZERO; MAX_VERTICES];
+    // The specular lobe split per vertex and per direction (`svgir_shading::split`).
+    let lobes: [Lobe<F>; MAX_VERTICES] = std::array::from_fn(|mm| {
+        let (n, _, r) = vertex(mm.min(m - 1));
+        lobe(n, v, r)
+    });
     for s in 0..esc.dirs.len() {
         let l = esc.dirs[s];
         let light = esc.light[s];
         let mut v_light = [F::ZERO; 3];
+        let hv = half(v, l);
         for mm in 0..m {
-            let (n, a, r) = vertex(mm);
-            let sg = ggx_specular_grad(n, v, l, r);
+            let (n, a, _) = vertex(mm);
             let ndl = dot(n, l);
+            let sg = spec_grad(&lobes[mm], &hv, v, l, ndl);
             let cos = ndl.maxf(eps);
             let gw = cscale * w[mm];
             let kd = inv_pi * dw[mm].value;
@@ -108,10 +115,10 @@ pub(crate) fn backward_pair<F: Float>(
                 sum_glf += gl * f;
                 v_light[c] += g[c] * gw * f * cos;
             }
-            rough[mm] += sum_gl * cos * sg.v_roughness;
+            rough[mm] += sum_gl * cos * sg.v_r;
             let cos_live = ndl > eps;
             for i in 0..3 {
-                let mut d = sum_gl * cos * sg.v_normal[i];
+                let mut d = sum_gl * cos * sg.v_n[i];
                 if cos_live {
                     d += sum_glf * l[i];
                 }

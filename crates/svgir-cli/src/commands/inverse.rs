@@ -426,6 +426,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         .context("opening metrics.jsonl")?;
     let pb = progress::bar(s2.config.iterations, "stage 2");
     pb.set_position(s2.iteration);
+    let first_iteration = s2.iteration;
     let start = std::time::Instant::now();
     while !s2.is_done() {
         let st = s2.step(&dataset)?;
@@ -455,6 +456,20 @@ pub fn run(args: InverseArgs) -> Result<()> {
         }
     }
     pb.finish();
+    {
+        // The iteration's phases, and the wall time per iteration including the light updates
+        // and sun searches that run between iterations.
+        let (t, its) = (&s2.times, s2.iteration.max(1) as f64);
+        eprintln!(
+            "stage 2: {:.1} ms per iteration (forward {:.1}, loss {:.1}, backward {:.1}, Adam {:.1}); {:.1} ms of wall time per iteration in this session",
+            1e3 * (t.forward + t.loss + t.backward + t.optimizer) / its,
+            1e3 * t.forward / its,
+            1e3 * t.loss / its,
+            1e3 * t.backward / its,
+            1e3 * t.optimizer / its,
+            1e3 * start.elapsed().as_secs_f64() / (s2.iteration - first_iteration).max(1) as f64,
+        );
+    }
     checkpoint::save_stage2(&s2, &ckpt)?;
     if args.oracle_materials {
         let st = svgir_train::oracle_materials::apply(&mut s2, &dataset)?;

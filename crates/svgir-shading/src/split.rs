@@ -1,27 +1,31 @@
 //! The GGX specular term S of SPEC 4 (formula and clamps exactly as
-//! `svgir_shading::ggx_specular` / `ggx_specular_grad`), split by what it depends on so the
-//! shading loop does each part once: per vertex ([`Lobe`]: alpha^2, k, g(n.v), all fixed by
+//! [`crate::ggx_specular`] / [`crate::ggx_specular_grad`]), split by what it depends on so a
+//! shading loop over many light directions does each part once: per vertex ([`Lobe`]: alpha^2, k, g(n.v), all fixed by
 //! (n_m, w_o, r_m)) and per (Gaussian, direction) ([`HalfVec`]: half vector and Fresnel, shared
 //! by the M vertices because they share w_o and w_k). What remains per (vertex, direction) is two
 //! dot products and one division: `S = F a^2 g(n.v) / (4 pi q^2 (n.l (1-k) + k))` with
 //! `q = (n.h)^2 (a^2 - 1) + 1`. The tests compare against the shading crate's functions in f64.
 
+use crate::float::dot;
+use crate::{Float, DOT_EPS, F0};
 use std::f64::consts::PI;
-use svgir_shading::float::dot;
-use svgir_shading::{Float, DOT_EPS, F0};
 
 /// The (n, v, r)-dependent part of S for one vertex.
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct Lobe<F> {
+pub struct Lobe<F> {
+    /// Unit shading normal.
     pub n: [F; 3],
+    /// Roughness.
     pub r: F,
     /// alpha^2 = r^4.
     pub a2: F,
+    /// The Schlick-GGX k = (r + 1)^2 / 8.
     pub k: F,
     /// 1 - k.
     pub omk: F,
-    /// Clamped n.v and whether the clamp is inactive.
+    /// Clamped n.v.
     pub nv: F,
+    /// Whether the n.v clamp is inactive.
     pub nv_live: bool,
     /// `1 / (n.v (1-k) + k)`.
     pub gv: F,
@@ -35,8 +39,9 @@ fn cdot<F: Float>(x: F) -> (F, bool) {
     (x.clampf(lo, F::ONE), x > lo && x < F::ONE)
 }
 
+/// The lobe of a vertex with unit normal `n`, seen from unit `v`, roughness `r`.
 #[inline]
-pub(crate) fn lobe<F: Float>(n: [F; 3], v: [F; 3], r: F) -> Lobe<F> {
+pub fn lobe<F: Float>(n: [F; 3], v: [F; 3], r: F) -> Lobe<F> {
     let (nv, nv_live) = cdot(dot(n, v));
     let a = r * r;
     let a2 = a * a;
@@ -48,14 +53,16 @@ pub(crate) fn lobe<F: Float>(n: [F; 3], v: [F; 3], r: F) -> Lobe<F> {
 
 /// The (v, l)-dependent part of S.
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct HalfVec<F> {
+pub struct HalfVec<F> {
+    /// Unit half vector of v and l.
     pub h: [F; 3],
     /// Fresnel (Schlick, spherical-Gaussian form, SPEC 4).
     pub fr: F,
 }
 
+/// The half vector of unit `v` and `l` and its Fresnel term.
 #[inline]
-pub(crate) fn half<F: Float>(v: [F; 3], l: [F; 3]) -> HalfVec<F> {
+pub fn half<F: Float>(v: [F; 3], l: [F; 3]) -> HalfVec<F> {
     let h = [v[0] + l[0], v[1] + l[1], v[2] + l[2]];
     let len = dot(h, h).sqrt().maxf(F::from_f64(1e-12));
     let h = [h[0] / len, h[1] / len, h[2] / len];
@@ -67,7 +74,7 @@ pub(crate) fn half<F: Float>(v: [F; 3], l: [F; 3]) -> HalfVec<F> {
 
 /// S for one vertex and light direction; `nl` is the unclamped n.l.
 #[inline]
-pub(crate) fn spec<F: Float>(lb: &Lobe<F>, hv: &HalfVec<F>, nl: F) -> F {
+pub fn spec<F: Float>(lb: &Lobe<F>, hv: &HalfVec<F>, nl: F) -> F {
     let (nl, _) = cdot(nl);
     let (nh, _) = cdot(dot(lb.n, hv.h));
     let q = nh * nh * (lb.a2 - F::ONE) + F::ONE;
@@ -76,14 +83,19 @@ pub(crate) fn spec<F: Float>(lb: &Lobe<F>, hv: &HalfVec<F>, nl: F) -> F {
 
 /// S, dS/dr and dS/dn (unit normal as passed; zero through active clamps).
 #[derive(Clone, Copy, Debug)]
-pub(crate) struct SpecGrad<F> {
+pub struct SpecGrad<F> {
+    /// S.
     pub value: F,
+    /// dS/dr.
     pub v_r: F,
+    /// dS/dn.
     pub v_n: [F; 3],
 }
 
+/// S and its gradients for one vertex and light direction `l`; `nl` is the unclamped n.l.
+
 #[inline]
-pub(crate) fn spec_grad<F: Float>(lb: &Lobe<F>, hv: &HalfVec<F>, v: [F; 3], l: [F; 3], nl: F) -> SpecGrad<F> {
+pub fn spec_grad<F: Float>(lb: &Lobe<F>, hv: &HalfVec<F>, v: [F; 3], l: [F; 3], nl: F) -> SpecGrad<F> {
     let (nl, nl_live) = cdot(nl);
     let (nh, nh_live) = cdot(dot(lb.n, hv.h));
     let pi = F::from_f64(PI);
@@ -114,8 +126,8 @@ pub(crate) fn spec_grad<F: Float>(lb: &Lobe<F>, hv: &HalfVec<F>, v: [F; 3], l: [
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::{ggx_specular, ggx_specular_grad};
     use svgir_core::Rng;
-    use svgir_shading::{ggx_specular, ggx_specular_grad};
 
     fn unit(rng: &mut Rng) -> [f64; 3] {
         let v = [rng.normal() as f64, rng.normal() as f64, rng.normal() as f64];
