@@ -93,7 +93,6 @@ pub struct SpecGrad<F> {
 }
 
 /// S and its gradients for one vertex and light direction `l`; `nl` is the unclamped n.l.
-
 #[inline]
 pub fn spec_grad<F: Float>(lb: &Lobe<F>, hv: &HalfVec<F>, v: [F; 3], l: [F; 3], nl: F) -> SpecGrad<F> {
     let (nl, nl_live) = cdot(nl);
