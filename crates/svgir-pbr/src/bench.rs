@@ -5,7 +5,6 @@
 //! `cached` rows use a [`DirectionCache`] (built once, its build time reported separately), as
 //! stage 2 does.
 
-use crate::direction_cache::DirectionCache;
 use crate::env::{EnvLight, ENV_HEIGHT};
 use crate::material::{ActivatedMaterials, SvgMaterials};
 use crate::shade::{shade_into_cached, Indirect, ShadeInputs, ShadeOutput, ShadeParams};
@@ -18,6 +17,7 @@ use svgir_core::simd::Simd;
 use svgir_core::{EnvMap, Rng};
 use svgir_shading::gaussian_xi;
 use svgir_trace::pack::{f16_from_f32, unorm16};
+use svgir_trace::DirectionCache;
 use svgir_trace::{MicroBuffer, NO_HIT};
 
 /// A random micro-buffer of `n` Gaussians x `k` directions with a plausible mix of samples:

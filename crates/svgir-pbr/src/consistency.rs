@@ -20,6 +20,7 @@ use crate::{expect_len, PbrError};
 use glam::Vec3;
 use rayon::prelude::*;
 use svgir_core::EnvMap;
+use svgir_shading::hemisphere::{FibTable, HemiFrame};
 use svgir_shading::Float;
 use svgir_trace::{gather_pairs, gather_pairs_backward, GatherParams, MicroBuffer, VertexMaterials};
 
@@ -59,14 +60,22 @@ pub struct Consistency {
 
 /// `k_j` for Gaussian j seen along the unit view ray `view` (camera -> p_j), if any.
 pub fn mirror_pick(mb: &MicroBuffer, j: usize, view: Vec3) -> Option<u32> {
+    mirror_pick_with(mb, &FibTable::new(mb.k), j, view)
+}
+
+/// [`mirror_pick`] with the micro-buffer's Fibonacci table built once by the caller. The
+/// directions are the table rotated into j's frame (`MicroBuffer::direction` up to f32
+/// rounding, without a sine, cosine and remainder each), as the vertex shading uses them.
+fn mirror_pick_with(mb: &MicroBuffer, table: &FibTable, j: usize, view: Vec3) -> Option<u32> {
     let n = mb.normals[j];
     let r = view - 2.0 * n.dot(view) * n;
+    let frame = HemiFrame::new(n, mb.xi[j]);
     let mut best: Option<(u32, f32)> = None;
     for k in 0..mb.k {
         if mb.hit(j, k).is_none() {
             continue;
         }
-        let score = mb.direction(j, k).dot(r) * (1.0 - mb.visibility(j, k));
+        let score = frame.dir(table, k).dot(r) * (1.0 - mb.visibility(j, k));
         if score > 0.0 && best.is_none_or(|(_, b)| score > b) {
             best = Some((k as u32, score));
         }
@@ -77,6 +86,7 @@ pub fn mirror_pick(mb: &MicroBuffer, j: usize, view: Vec3) -> Option<u32> {
 /// The (j, k_j) pairs of all visible Gaussians that have one, in increasing j.
 pub fn select_pairs(mb: &MicroBuffer, positions: &[Vec3], camera_center: Vec3, visible: &[bool]) -> Vec<(u32, u32)> {
     let n = mb.len().min(positions.len()).min(visible.len());
+    let table = FibTable::new(mb.k);
     (0..n)
         .into_par_iter()
         .with_min_len(256)
@@ -85,7 +95,7 @@ pub fn select_pairs(mb: &MicroBuffer, positions: &[Vec3], camera_center: Vec3, v
                 return None;
             }
             let view = (positions[j] - camera_center).normalize_or_zero();
-            mirror_pick(mb, j, view).map(|k| (j as u32, k))
+            mirror_pick_with(mb, &table, j, view).map(|k| (j as u32, k))
         })
         .collect()
 }

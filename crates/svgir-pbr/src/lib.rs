@@ -7,8 +7,9 @@
 //!   equation with visibility and indirect light from the micro-buffers (SPEC 4, 5) and its
 //!   gradients.
 //! - [`two_sided`]: shading each Gaussian on the side its camera sees (our option).
-//! - [`direction_cache`]: the frozen micro-buffer directions' env-map lookups, computed once
-//!   per stage 2 (`shade_into_cached` / `shade_backward_cached`; bit-identical, ~8 B / sample).
+//! - [`DirectionCache`] (from `svgir_trace`): the frozen micro-buffer directions' env-map
+//!   lookups, computed once per stage 2 (`shade_into_cached` / `shade_backward_cached`;
+//!   bit-identical, ~8 B / sample).
 //! - [`consistency`]: the radiance consistency loss (SPEC 6, Eqn 14/16; 9.3, 9.6).
 //! - [`grads`]: the gradient bundle shared by shading and consistency.
 //! - [`activation`]: sigmoid / softplus, generic so the f64 instantiation is the test oracle.
@@ -30,7 +31,6 @@
 pub mod activation;
 pub mod bench;
 pub mod consistency;
-pub mod direction_cache;
 pub mod env;
 pub mod env_colour;
 pub mod grads;
@@ -46,13 +46,13 @@ pub use consistency::{
     l1_loss, mirror_pick, radiance_consistency, radiance_consistency_backward, select_pairs, Consistency,
     ConsistencyInputs,
 };
-pub use direction_cache::DirectionCache;
 pub use env::{env_radiance, env_radiance_backward, EnvActivation, EnvLight, ENV_HEIGHT};
 pub use env_colour::ColourProjector;
 pub use grads::PbrGrads;
 pub use material::{activate, activate_backward, ActivatedMaterials, MaterialGrads, SvgMaterials};
 pub use shade::{shade, shade_into, shade_into_cached, Indirect, ShadeInputs, ShadeOutput, ShadeParams, ENV_MAX};
 pub use shade_backward::{shade_backward, shade_backward_cached};
+pub use svgir_trace::DirectionCache;
 pub use two_sided::{faces, negated, shade_sides_backward, shade_sides_into, split_by_side, Side};
 
 /// Everything the stage-2 shading can reject: bad parameters, mismatched array sizes, tracer errors.

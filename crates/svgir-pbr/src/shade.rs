@@ -28,7 +28,6 @@
 //! Nothing is saved for backward: [`crate::shade_backward()`] recomputes the per-(i,k) samples,
 //! which is cheaper than storing N x K x 3 lights.
 
-use crate::direction_cache::DirectionCache;
 use crate::{expect_len, PbrError};
 use glam::Vec3;
 use rayon::prelude::*;
@@ -36,8 +35,10 @@ use svgir_core::envmap::Taps;
 use svgir_core::simd::Simd;
 use svgir_core::EnvMap;
 use svgir_shading::float::{dot, to_f};
+pub(crate) use svgir_shading::hemisphere::{FibTable, HemiFrame as Frame};
 use svgir_shading::split::{half, lobe, spec, Lobe};
-use svgir_shading::{tangent_frame, Diffuse, DiffuseWeight, Float, MAX_VERTICES, MIN_ELEVATION_SIN};
+use svgir_shading::{Diffuse, DiffuseWeight, Float, MAX_VERTICES};
+use svgir_trace::DirectionCache;
 use svgir_trace::{BrightLights, MicroBuffer, VertexMaterials};
 
 /// Upper clamp of the environment radiance in the rendering equation (SPEC 4).
@@ -158,55 +159,6 @@ impl<F: Float> ShadeInputs<'_, F> {
             return Err(PbrError::InvalidParameter(format!("env_max = {}", self.params.env_max)));
         }
         Ok(())
-    }
-}
-
-/// The K Fibonacci directions of SPEC 4 in the local frame *without* the per-Gaussian azimuth:
-/// `z_k`, `sqrt(1 - z_k^2)` and the cosine / sine of `g_k = k pi (3 - sqrt5) mod 2pi`. Rotating
-/// by `xi_i` per Gaussian ([`Frame::dir`]) reproduces `MicroBuffer::direction` up to f32 rounding
-/// (~1e-7) without a sine, cosine and f64 remainder per sample.
-pub(crate) struct FibTable {
-    z: Vec<f32>,
-    r: Vec<f32>,
-    c: Vec<f32>,
-    s: Vec<f32>,
-}
-
-impl FibTable {
-    pub fn new(count: usize) -> Self {
-        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
-        let z: Vec<f32> =
-            (0..count).map(|k| (1.0 - 2.0 * k as f32 / (2 * count - 1) as f32).max(MIN_ELEVATION_SIN)).collect();
-        let r = z.iter().map(|z| (1.0 - z * z).max(0.0).sqrt()).collect();
-        let g: Vec<f64> = (0..count).map(|k| (k as f64 * golden).rem_euclid(std::f64::consts::TAU)).collect();
-        Self { z, r, c: g.iter().map(|g| g.cos() as f32).collect(), s: g.iter().map(|g| g.sin() as f32).collect() }
-    }
-}
-
-/// Gaussian i's hemisphere frame (the micro-buffer's geometric normal and azimuth offset).
-pub(crate) struct Frame {
-    b1: Vec3,
-    b2: Vec3,
-    n: Vec3,
-    cx: f32,
-    sx: f32,
-}
-
-impl Frame {
-    #[inline]
-    pub fn new(mb: &MicroBuffer, i: usize) -> Self {
-        let n = mb.normals[i];
-        let (b1, b2) = tangent_frame(n);
-        let (sx, cx) = mb.xi[i].sin_cos();
-        Self { b1, b2, n, cx, sx }
-    }
-
-    /// Direction k: `b1 r cos(g_k + xi) + b2 r sin(g_k + xi) + n z`.
-    #[inline]
-    pub fn dir(&self, t: &FibTable, k: usize) -> Vec3 {
-        let c = t.c[k] * self.cx - t.s[k] * self.sx;
-        let s = t.s[k] * self.cx + t.c[k] * self.sx;
-        self.b1 * (t.r[k] * c) + self.b2 * (t.r[k] * s) + self.n * t.z[k]
     }
 }
 
@@ -409,7 +361,7 @@ fn shade_gaussian<F: Float>(
     let wo = view_dir(inp, i);
     let lb = lobes(&vx, wo, m);
     let dw = diffuse_weights(&vx, wo, m, inp.params.diffuse);
-    let frame = Frame::new(inp.mb, i);
+    let frame = Frame::new(inp.mb.normals[i], inp.mb.xi[i]);
     let z = [[F::ZERO; 3]; MAX_VERTICES];
     // E: sum cos L; P: sum S cos L; split into direct (d) and indirect (i) light.
     let (mut e_d, mut e_i, mut p_d, mut p_i) = (z, z, z, z);

@@ -16,7 +16,6 @@
 //! partial, and the partials are added in block order. The block size depends only on N, so the
 //! result is bit-identical for any thread count.
 
-use crate::direction_cache::DirectionCache;
 use crate::grads::PbrGrads;
 use crate::shade::{diffuse_weights, lobes, samples, vertices, view_dir, FibTable, Frame, ShadeInputs};
 use crate::{expect_len, PbrError};
@@ -24,6 +23,7 @@ use rayon::prelude::*;
 use svgir_shading::float::dot;
 use svgir_shading::split::{half, spec_grad};
 use svgir_shading::{Float, MAX_VERTICES};
+use svgir_trace::DirectionCache;
 
 /// Gaussians per reduction block: at most ~64 partial env maps, at least 256 Gaussians a block.
 fn block_size(n: usize) -> usize {
@@ -48,7 +48,7 @@ fn backward_gaussian<F: Float>(
     let wo = view_dir(inp, i);
     let lb = lobes(&vx, wo, m);
     let dw = diffuse_weights(&vx, wo, m, inp.params.diffuse);
-    let frame = Frame::new(inp.mb, i);
+    let frame = Frame::new(inp.mb.normals[i], inp.mb.xi[i]);
     let scale = F::from_f64(std::f64::consts::TAU / inp.mb.k as f64);
     let inv_pi = F::from_f64(std::f64::consts::FRAC_1_PI);
     let mut gm = [[F::ZERO; 3]; MAX_VERTICES];

@@ -26,11 +26,11 @@
 // through `Simd::resolve`) -- so the operations inside need no block of their own.
 #![allow(unsafe_op_in_unsafe_fn)]
 
-use crate::direction_cache::DirectionCache;
 use crate::shade::{diffuse_weights, lobes, samples, vertices, view_dir, FibTable, Frame, Sample, ShadeInputs};
 use svgir_core::simd::{Lanes, F8};
 use svgir_shading::split::Lobe;
 use svgir_shading::{DiffuseWeight, DOT_EPS, F0, MAX_VERTICES};
+use svgir_trace::DirectionCache;
 
 /// `[e(0), e(1), e(2)]` written out: `array::map` would call the closure through code compiled
 /// without AVX, where the lane intrinsics cannot be inlined.
@@ -85,7 +85,7 @@ impl SampleRows {
         wo: [f32; 3],
         keep: bool,
     ) {
-        let frame = Frame::new(inp.mb, i);
+        let frame = Frame::new(inp.mb.normals[i], inp.mb.xi[i]);
         self.len = 0;
         self.kept.clear();
         for v in self.rows_mut() {

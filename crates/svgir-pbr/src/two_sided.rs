@@ -16,13 +16,13 @@
 //! Gaussians through `visible`, so the outputs add; so do the gradients, the back's normal
 //! gradient negated. Nothing is saved for backward.
 
-use crate::direction_cache::DirectionCache;
 use crate::grads::PbrGrads;
 use crate::shade::{shade_into_cached, ShadeInputs, ShadeOutput};
 use crate::shade_backward::shade_backward_cached;
 use crate::PbrError;
 use glam::Vec3;
 use svgir_shading::Float;
+use svgir_trace::DirectionCache;
 
 /// One side's shading: its inputs and the direction cache of its micro-buffers.
 #[derive(Clone, Copy, Debug)]

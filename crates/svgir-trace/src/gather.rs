@@ -18,12 +18,14 @@
 //! All maths is generic over `Float` so the tests check the gradients in f64.
 
 use crate::bright::BrightLights;
+use crate::direction_cache::DirectionCache;
 use crate::microbuffer::{MicroBuffer, NO_HIT};
 use crate::TraceError;
 use rayon::prelude::*;
 use svgir_core::envmap::Taps;
 use svgir_core::EnvMap;
 use svgir_shading::float::{dot, to_f};
+use svgir_shading::hemisphere::{FibTable, HemiFrame};
 use svgir_shading::split::{half, lobe, spec, Lobe};
 use svgir_shading::{vertex_weights, Diffuse, Float, DOT_EPS, MAX_VERTICES};
 
@@ -71,11 +73,16 @@ pub struct GatherParams<'a> {
     pub lights: Option<&'a BrightLights>,
     /// How the hit Gaussian's diffuse lobe combines with its specular one.
     pub diffuse: Diffuse,
+    /// The env-map lookups of the micro-buffer's directions, computed once ([`DirectionCache`]):
+    /// the same taps without an `acos` and `atan2` per escaping direction. Must be built from
+    /// the gathered micro-buffer and a map of this size (checked); ignored by the two-sided
+    /// gathers, whose sides have micro-buffers of their own.
+    pub cache: Option<&'a DirectionCache>,
 }
 
 impl Default for GatherParams<'_> {
     fn default() -> Self {
-        Self { env_max: 64.0, lights: None, diffuse: Diffuse::Added }
+        Self { env_max: 64.0, lights: None, diffuse: Diffuse::Added, cache: None }
     }
 }
 
@@ -87,11 +94,12 @@ pub(crate) struct LightIn<'a, F> {
     pub env_max: F,
     pub lights: Option<&'a BrightLights>,
     pub diffuse: Diffuse,
+    pub cache: Option<&'a DirectionCache>,
 }
 
 impl<'a> LightIn<'a, f32> {
     pub fn new(env: &'a EnvMap, p: &GatherParams<'a>) -> Self {
-        Self { geom: env, env: &env.data, env_max: p.env_max, lights: p.lights, diffuse: p.diffuse }
+        Self { geom: env, env: &env.data, env_max: p.env_max, lights: p.lights, diffuse: p.diffuse, cache: p.cache }
     }
 }
 
@@ -103,11 +111,20 @@ pub(crate) struct Escapes<F> {
     pub light: Vec<[F; 3]>,
     pub live: Vec<[bool; 3]>,
     pub taps: Vec<Taps>,
+    /// The micro-buffer's Fibonacci table (built on the first fill).
+    table: FibTable,
 }
 
 impl<F: Float> Escapes<F> {
     pub fn new() -> Self {
-        Self { h: NO_HIT, dirs: Vec::new(), light: Vec::new(), live: Vec::new(), taps: Vec::new() }
+        Self {
+            h: NO_HIT,
+            dirs: Vec::new(),
+            light: Vec::new(),
+            live: Vec::new(),
+            taps: Vec::new(),
+            table: FibTable::new(0),
+        }
     }
 
     pub fn fill(&mut self, mb: &MicroBuffer, light: &LightIn<F>, h: u32) {
@@ -120,12 +137,21 @@ impl<F: Float> Escapes<F> {
         self.live.clear();
         self.taps.clear();
         let hu = h as usize;
+        if self.table.len() != mb.k {
+            self.table = FibTable::new(mb.k);
+        }
+        // The directions by rotating the Fibonacci table (`MicroBuffer::direction` up to f32
+        // rounding, without a sine, cosine and remainder each), as the vertex shading does.
+        let frame = HemiFrame::new(mb.normals[hu], mb.xi[hu]);
         for s in 0..mb.k {
             if mb.first_hit[hu * mb.k + s] != NO_HIT {
                 continue;
             }
-            let d = mb.direction(hu, s);
-            let mut taps = light.geom.taps(d);
+            let d = frame.dir(&self.table, s);
+            let mut taps = match light.cache {
+                Some(c) => c.taps(hu * mb.k + s),
+                None => light.geom.taps(d),
+            };
             if let Some(b) = light.lights {
                 b.mask_taps(&mut taps);
             }
@@ -226,8 +252,12 @@ pub(crate) fn check(mb: &MicroBuffer, mats: &VertexMaterials<impl Sized>, env: &
     Ok(())
 }
 
-/// `Err` unless `p.lights` (if any) index `env`'s grid and cover every Gaussian of `mb`.
+/// `Err` unless `p.lights` (if any) index `env`'s grid and cover every Gaussian of `mb`, and
+/// `p.cache` (if any) was built from `mb` and a map of `env`'s size.
 pub(crate) fn check_lights(mb: &MicroBuffer, env: &EnvMap, p: &GatherParams) -> Result<(), TraceError> {
+    if let Some(c) = p.cache {
+        c.check(mb, env)?;
+    }
     match p.lights {
         Some(l) => l.check(mb.len(), env.width, env.height),
         None => Ok(()),
@@ -330,7 +360,7 @@ fn gather_grouped(
 ) -> Result<Vec<[f32; 3]>, TraceError> {
     for side in sides {
         check(side.mb, &side.mats, env)?;
-        check_lights(side.mb, env, &GatherParams { lights: side.lights, ..*p })?;
+        check_lights(side.mb, env, &GatherParams { lights: side.lights, cache: None, ..*p })?;
         if (rays.len(), rays.k) != (side.mb.len(), side.mb.k) {
             return Err(TraceError::InvalidParameter(format!(
                 "rays for {} Gaussians x {} directions, hits for {} x {}",
@@ -342,7 +372,7 @@ fn gather_grouped(
         }
     }
     let lights: Vec<LightIn<f32>> =
-        sides.iter().map(|side| LightIn::new(env, &GatherParams { lights: side.lights, ..*p })).collect();
+        sides.iter().map(|side| LightIn::new(env, &GatherParams { lights: side.lights, cache: None, ..*p })).collect();
     let n = rays.len();
     let by_hit = PairsByHit::new(rays, sides.len(), side_of)?;
     // One task per (side, hit Gaussian h): its escape list is built once and shades every ray

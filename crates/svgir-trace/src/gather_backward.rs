@@ -348,7 +348,7 @@ mod tests {
     }
 
     fn light_in<'a>(c: &'a Case, env: &'a [[f64; 3]], env_max: f64) -> LightIn<'a, f64> {
-        LightIn { geom: &c.env, env, env_max, lights: c.lights.as_ref(), diffuse: c.diffuse }
+        LightIn { geom: &c.env, env, env_max, lights: c.lights.as_ref(), diffuse: c.diffuse, cache: None }
     }
 
     fn mats64(c: &Case, m: usize) -> VertexMaterials<'_, f64> {
@@ -537,10 +537,14 @@ mod tests {
                     let w =
                         [(1.0 - uv[0]) * (1.0 - uv[1]), uv[0] * (1.0 - uv[1]), (1.0 - uv[0]) * uv[1], uv[0] * uv[1]];
                     // (direction, radiance, weight): escaped samples, then directional lights.
+                    // h's direction s as the gather computes it (`MicroBuffer::direction` up to
+                    // f32 rounding, which near the map's poles moves a lookup by ~1e-4).
+                    let frame = svgir_shading::hemisphere::HemiFrame::new(c.mb.normals[h], c.mb.xi[h]);
+                    let table = svgir_shading::hemisphere::FibTable::new(kk);
                     let mut incoming: Vec<(Vec3, [f32; 3], f32)> = (0..kk)
                         .filter(|&s| c.mb.hit(h, s).is_none())
                         .map(|s| {
-                            let l = c.mb.direction(h, s);
+                            let l = frame.dir(&table, s);
                             (l, sampled.lookup(l).map(|x| x.clamp(0.0, 64.0)), std::f32::consts::TAU / kk as f32)
                         })
                         .collect();

@@ -17,6 +17,7 @@ pub mod bench;
 pub mod bounce;
 pub mod bright;
 pub mod bvh;
+pub mod direction_cache;
 pub mod gather;
 pub mod gather_backward;
 pub mod hit;
@@ -29,6 +30,7 @@ pub mod traverse;
 pub use bounce::add_bounces;
 pub use bright::{brightest_texels, concentrate_lobe, BrightLights};
 pub use bvh::{Bvh, Node};
+pub use direction_cache::DirectionCache;
 pub use gather::{
     gather_all, gather_from, gather_one, gather_pairs, gather_two_sided, GatherParams, HitSide, VertexMaterials,
 };

@@ -437,6 +437,7 @@ impl Stage2 {
             params: GatherParams {
                 lights: self.active_lights(),
                 diffuse: self.config.diffuse,
+                cache: Some(&self.dir_cache),
                 ..GatherParams::default()
             },
         };

@@ -14,12 +14,14 @@
 //! azimuths; the shading entry points reject a cache built for other inputs (a stale cache would
 //! silently shade with the wrong light). Work split: rayon over Gaussians.
 
-use crate::shade::{FibTable, Frame, MIN_TASK};
-use crate::PbrError;
+use crate::{MicroBuffer, TraceError};
 use rayon::prelude::*;
+use svgir_shading::hemisphere::{FibTable, HemiFrame};
+
+/// Gaussians per rayon task.
+const MIN_TASK: usize = 64;
 use svgir_core::envmap::{grid_coords, Taps};
 use svgir_core::EnvMap;
-use svgir_trace::MicroBuffer;
 
 /// Precomputed env-map coordinates of every (Gaussian, direction) of one micro-buffer.
 #[derive(Clone, Debug, PartialEq)]
@@ -51,20 +53,22 @@ impl DirectionCache {
     pub const BYTES_PER_SAMPLE: usize = 8;
 
     /// The cache of `mb`'s directions looked up in maps of `env`'s size.
-    pub fn new(mb: &MicroBuffer, env: &EnvMap) -> Result<Self, PbrError> {
+    pub fn new(mb: &MicroBuffer, env: &EnvMap) -> Result<Self, TraceError> {
         let (n, k) = (mb.len(), mb.k);
         if k == 0 {
-            return Err(PbrError::InvalidParameter("micro-buffer has K = 0".into()));
+            return Err(TraceError::InvalidParameter("micro-buffer has K = 0".into()));
         }
         if env.width < 2 || env.height < 2 {
-            return Err(PbrError::InvalidParameter(format!("environment {}x{}", env.width, env.height)));
+            return Err(TraceError::InvalidParameter(format!("environment {}x{}", env.width, env.height)));
         }
-        crate::expect_len("micro-buffer azimuths", mb.xi.len(), n)?;
+        if mb.xi.len() != n {
+            return Err(TraceError::SizeMismatch { what: "micro-buffer azimuths", got: mb.xi.len(), want: n });
+        }
         let (width, height) = (env.width, env.height);
         let table = FibTable::new(k);
         let mut coords = vec![[0.0f32; 2]; n * k];
         coords.par_chunks_mut(k).enumerate().with_min_len(MIN_TASK).for_each(|(i, row)| {
-            let frame = Frame::new(mb, i);
+            let frame = HemiFrame::new(mb.normals[i], mb.xi[i]);
             for (kk, c) in row.iter_mut().enumerate() {
                 *c = grid_coords(width, height, frame.dir(&table, kk));
             }
@@ -79,13 +83,13 @@ impl DirectionCache {
 
     /// `Ok` iff the cache was built from this micro-buffer (same N, K, normals and azimuths) and
     /// a map of this size. O(N).
-    pub fn check(&self, mb: &MicroBuffer, env: &EnvMap) -> Result<(), PbrError> {
+    pub fn check(&self, mb: &MicroBuffer, env: &EnvMap) -> Result<(), TraceError> {
         if self.n != mb.len()
             || self.k != mb.k
             || (self.width, self.height) != (env.width, env.height)
             || self.fingerprint != fingerprint(mb)
         {
-            return Err(PbrError::InvalidParameter(format!(
+            return Err(TraceError::InvalidParameter(format!(
                 "direction cache built for N = {}, K = {}, env {}x{} does not match these inputs \
                  (N = {}, K = {}, env {}x{}, or other directions)",
                 self.n,
@@ -103,7 +107,7 @@ impl DirectionCache {
 
     /// The bilinear taps of sample `s = i * K + k`, equal to `EnvMap::taps` of its direction.
     #[inline]
-    pub(crate) fn taps(&self, s: usize) -> Taps {
+    pub fn taps(&self, s: usize) -> Taps {
         let [fx, fy] = self.coords[s];
         Taps::at(fx, fy, self.width, self.height)
     }
@@ -112,9 +116,16 @@ impl DirectionCache {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bench::synthetic_microbuffer;
+    use crate::scenes::object_scene;
+    use crate::{Bvh, TraceParams};
     use glam::Vec3;
     use svgir_core::Rng;
+
+    /// A traced micro-buffer of a small random object.
+    fn synthetic_microbuffer(n: usize, k: usize, seed: u64) -> MicroBuffer {
+        let surfels = object_scene(n, seed);
+        MicroBuffer::trace(&Bvh::build(&surfels), &surfels, k, seed, &TraceParams::default()).unwrap()
+    }
 
     fn same(a: &Taps, b: &Taps) -> bool {
         a.index == b.index && a.weight.map(f32::to_bits) == b.weight.map(f32::to_bits)
@@ -125,10 +136,10 @@ mod tests {
         let env = EnvMap::constant(64, 32, [1.0; 3]);
         let mb = synthetic_microbuffer(50, 37, 3);
         let cache = DirectionCache::new(&mb, &env).unwrap();
-        assert_eq!(cache.memory_bytes(), 50 * 37 * 8);
+        assert_eq!(cache.memory_bytes(), mb.len() * 37 * 8);
         let table = FibTable::new(mb.k);
         for i in 0..mb.len() {
-            let frame = Frame::new(&mb, i);
+            let frame = HemiFrame::new(mb.normals[i], mb.xi[i]);
             for k in 0..mb.k {
                 let d = frame.dir(&table, k);
                 assert!(same(&cache.taps(i * mb.k + k), &env.taps(d)), "sample ({i}, {k}) d = {d}");
@@ -166,5 +177,42 @@ mod tests {
         moved.xi[3] += 0.1;
         assert!(cache.check(&moved, &env).is_err());
         assert!(DirectionCache::new(&mb, &EnvMap::constant(1, 1, [1.0; 3])).is_err());
+    }
+
+    /// The one-bounce gather and its backward give the same bits with the cache as without, and
+    /// refuse a cache built for another micro-buffer.
+    #[test]
+    fn cached_gather_is_bit_identical_and_checked() {
+        use crate::{gather_pairs, gather_pairs_backward, GatherParams, VertexMaterials};
+        let (n, m, k) = (200, 4, 16);
+        let mb = synthetic_microbuffer(n, k, 5);
+        let mut rng = Rng::new(6);
+        let mut env = EnvMap::constant(16, 8, [0.0; 3]);
+        for t in env.data.iter_mut() {
+            *t = [rng.range(0.1, 3.0), rng.range(0.1, 3.0), rng.range(0.1, 3.0)];
+        }
+        let albedo: Vec<f32> = (0..mb.len() * m * 3).map(|_| rng.range(0.05, 0.9)).collect();
+        let roughness: Vec<f32> = (0..mb.len() * m).map(|_| rng.range(0.1, 0.9)).collect();
+        let normals: Vec<f32> =
+            mb.normals.iter().flat_map(|a| std::iter::repeat_n(a.to_array(), m)).flatten().collect();
+        let mats = VertexMaterials { m, albedo: &albedo, roughness: &roughness, normals: &normals };
+        let pairs: Vec<(u32, u32)> = (0..mb.len() as u32)
+            .flat_map(|j| (0..k as u32).map(move |s| (j, s)))
+            .filter(|&(j, s)| mb.hit(j as usize, s as usize).is_some())
+            .collect();
+        assert!(pairs.len() > 50, "too few hits: {}", pairs.len());
+        let cache = DirectionCache::new(&mb, &env).unwrap();
+        let plain = GatherParams::default();
+        let cached = GatherParams { cache: Some(&cache), ..plain };
+        let a = gather_pairs(&mb, &mats, &env, &plain, &pairs).unwrap();
+        let b = gather_pairs(&mb, &mats, &env, &cached, &pairs).unwrap();
+        assert_eq!(a, b);
+        assert!(a.iter().any(|x| x[0] > 0.0));
+        let v: Vec<[f32; 3]> = (0..pairs.len()).map(|_| [rng.normal(), rng.normal(), rng.normal()]).collect();
+        let ga = gather_pairs_backward(&mb, &mats, &env, &plain, &pairs, &v).unwrap();
+        let gb = gather_pairs_backward(&mb, &mats, &env, &cached, &pairs, &v).unwrap();
+        assert_eq!(ga, gb);
+        let other = DirectionCache::new(&synthetic_microbuffer(n, k, 7), &env).unwrap();
+        assert!(gather_pairs(&mb, &mats, &env, &GatherParams { cache: Some(&other), ..plain }, &pairs).is_err());
     }
 }
