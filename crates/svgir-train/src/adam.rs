@@ -5,7 +5,11 @@
 //! A group's rows have `stride` floats; `lr_scale[c]` scales the learning rate of component `c`
 //! of every row (SH: DC at full rate, the rest at 1/20, SPEC 2).
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+
+/// Rows per rayon task of an update (large enough to amortise the split).
+const ROWS_PER_TASK: usize = 4096;
 
 /// Adam state of one parameter array: hyper-parameters, step count and both moments.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -72,15 +76,28 @@ impl AdamGroup {
         let bc2_sqrt = bc2.sqrt() as f32;
         let (b1, b2, eps, stride) = (self.beta1, self.beta2, self.eps, self.stride);
         let lr_scale = &self.lr_scale;
-        for (i, ((p, g), (m, v))) in
-            params.iter_mut().zip(grad).zip(self.m.iter_mut().zip(self.v.iter_mut())).enumerate()
-        {
-            *m = b1 * *m + (1.0 - b1) * g;
-            *v = b2 * *v + (1.0 - b2) * g * g;
-            // Same order of operations as torch.optim.Adam (non-fused).
-            let denom = v.sqrt() / bc2_sqrt + eps;
-            *p -= step_size * lr_scale[i % stride] * *m / denom;
-        }
+        // Every float is updated on its own, so the rows are split over threads in blocks (no
+        // effect on the result) and each row's components meet their `lr_scale` by position.
+        let block = ROWS_PER_TASK * stride;
+        params
+            .par_chunks_mut(block)
+            .zip(grad.par_chunks(block))
+            .zip(self.m.par_chunks_mut(block).zip(self.v.par_chunks_mut(block)))
+            .for_each(|((p, g), (m, v))| {
+                for ((p, g), (m, v)) in p
+                    .chunks_exact_mut(stride)
+                    .zip(g.chunks_exact(stride))
+                    .zip(m.chunks_exact_mut(stride).zip(v.chunks_exact_mut(stride)))
+                {
+                    for c in 0..stride {
+                        m[c] = b1 * m[c] + (1.0 - b1) * g[c];
+                        v[c] = b2 * v[c] + (1.0 - b2) * g[c] * g[c];
+                        // Same order of operations as torch.optim.Adam (non-fused).
+                        let denom = v[c].sqrt() / bc2_sqrt + eps;
+                        p[c] -= step_size * lr_scale[c] * m[c] / denom;
+                    }
+                }
+            });
     }
 
     /// Keep rows where `keep[row]`.
