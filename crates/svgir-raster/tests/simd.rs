@@ -12,9 +12,8 @@ use common::P64;
 use svgir_core::Surfels;
 use svgir_raster::bench::{bench_camera, random_scene};
 use svgir_raster::{
-    backward, backward_generic, render, render_generic, Background, BackgroundOf, ColorSource, ColorSourceOf,
-    FeaturesOf, Grads, GradsOf, OutputGrads, OutputGradsOf, RasterConfig, RenderInput, RenderInputOf, RenderOutput,
-    Simd,
+    backward, backward_generic, render, render_generic, Background, BackgroundOf, ColorSourceOf, FeaturesOf, Grads,
+    GradsOf, OutputGrads, OutputGradsOf, RasterConfig, RenderInput, RenderInputOf, RenderOutput, Simd,
 };
 
 fn close(what: &str, a: &[f32], b: &[f32]) {
@@ -107,10 +106,98 @@ fn scene(seed: u64, n: usize) -> Surfels {
     s
 }
 
+/// Stage 2's feature tables: colours from `cm` vertices (1: the SH colour), `ce` extra channels
+/// from `me` vertices.
+#[derive(Clone, Copy)]
+struct Feat {
+    cm: usize,
+    me: usize,
+    ce: usize,
+}
+
+/// Colours from `cm` vertices of `data`, or the SH colour when `cm` is 1.
+fn colors<T>(data: &[T], cm: usize) -> ColorSourceOf<'_, T> {
+    if cm > 1 {
+        ColorSourceOf::Features(FeaturesOf { data, vertices: cm, channels: 3 })
+    } else {
+        ColorSourceOf::Sh
+    }
+}
+
+/// One scene rendered and differentiated on the scalar path, in f64, and on every SIMD path of
+/// this CPU: images bit-identical, gradients as close to f64 as the scalar f32 ones. Returns the
+/// number of SIMD paths checked.
+fn check_scene(seed: u64, n: usize, res: u32, tile: u32, dist: bool, feat: Option<Feat>) -> usize {
+    let paths: Vec<Simd> = Simd::available().into_iter().filter(|&p| p != Simd::Scalar).collect();
+    let surfels = scene(seed, n);
+    let camera = bench_camera(res, res);
+    let npx = (res * res) as usize;
+    let Feat { cm, me, ce } = feat.unwrap_or(Feat { cm: 1, me: 1, ce: 0 });
+    let mut rng = svgir_core::Rng::new(seed);
+    let colf: Vec<f32> = (0..n * cm * 3).map(|_| rng.uniform()).collect();
+    let extf: Vec<f32> = (0..n * me * ce).map(|_| rng.normal()).collect();
+    let g3: Vec<f32> = (0..npx * 3).map(|i| ((i * 7919 % 1000) as f32 - 500.0) * 1e-5).collect();
+    let g1: Vec<f32> = (0..npx).map(|i| ((i * 104_729 % 1000) as f32 - 300.0) * 1e-5).collect();
+    let ge: Vec<f32> = (0..npx * ce).map(|i| ((i * 6151 % 1000) as f32 - 450.0) * 1e-5).collect();
+    let grads = OutputGrads {
+        color: Some(&g3),
+        alpha: Some(&g1),
+        depth: Some(&g1),
+        normal: Some(&g3),
+        distortion: dist.then_some(&g1[..]),
+        extra: (ce > 0).then_some(&ge[..]),
+    };
+    let input = RenderInput {
+        surfels: &surfels,
+        camera: &camera,
+        colors: colors(&colf, cm),
+        extra: (ce > 0).then_some(FeaturesOf { data: &extf, vertices: me, channels: ce }),
+        background: Background::Color([0.3, 0.6, 0.1]),
+    };
+    let cfg = RasterConfig { tile, distortion: dist, simd: Simd::Scalar, ..Default::default() };
+    let (out0, st0) = render(&input, &cfg);
+    let g0 = backward(&input, &cfg, &st0, &out0, &grads);
+    let p64 = P64::from_surfels(&surfels);
+    let f = |v: &[f32]| v.iter().map(|&x| f64::from(x)).collect::<Vec<f64>>();
+    let (a3, a1, ae, c64, e64) = (f(&g3), f(&g1), f(&ge), f(&colf), f(&extf));
+    let input64 = RenderInputOf {
+        surfels: &p64,
+        camera: &camera,
+        colors: colors(&c64, cm),
+        extra: (ce > 0).then_some(FeaturesOf { data: &e64[..], vertices: me, channels: ce }),
+        background: BackgroundOf::Color([0.3, 0.6, 0.1]),
+    };
+    let grads64 = OutputGradsOf {
+        color: Some(&a3[..]),
+        alpha: Some(&a1[..]),
+        depth: Some(&a1[..]),
+        normal: Some(&a3[..]),
+        distortion: dist.then_some(&a1[..]),
+        extra: (ce > 0).then_some(&ae[..]),
+    };
+    let (out64, st64) = render_generic(&input64, &cfg);
+    let g64 = backward_generic(&input64, &cfg, &st64, &out64, &grads64);
+    assert!(out0.alpha.iter().any(|&a| a > 0.99), "seed {seed}: nothing saturates");
+    if ce > 0 {
+        assert!(g0.v_extra.iter().any(|&x| x != 0.0), "seed {seed}: no extra-feature gradient");
+    }
+    for &path in &paths {
+        let what = format!("seed {seed} {}", path.name());
+        let cfg = RasterConfig { simd: path, ..cfg };
+        let (out, st) = render(&input, &cfg);
+        same_images(&what, &out, &out0);
+        assert_eq!(out.extra, out0.extra, "{what}: extra");
+        assert_eq!(st.num_tile_entries(), st0.num_tile_entries());
+        let g = backward(&input, &cfg, &st, &out, &grads);
+        same_grads(&what, &g, &g0, &g64);
+    }
+    paths.len()
+}
+
+/// Stage 1 and the SH renders: one colour per Gaussian, over sizes, tile sizes and densities.
 #[test]
 fn simd_paths_match_scalar() {
-    let paths: Vec<Simd> = Simd::available().into_iter().filter(|&p| p != Simd::Scalar).collect();
-    eprintln!("SIMD paths on this CPU: {paths:?}");
+    eprintln!("SIMD paths on this CPU: {:?}", Simd::available());
     let mut checked = 0;
     for (seed, n, res, tile, dist) in [
         (1u64, 3000usize, 64u32, 16u32, true),
@@ -118,60 +205,7 @@ fn simd_paths_match_scalar() {
         (3, 2000, 50, 7, true),
         (4, 4000, 80, 32, true),
     ] {
-        let surfels = scene(seed, n);
-        let camera = bench_camera(res, res);
-        let npx = (res * res) as usize;
-        let g3: Vec<f32> = (0..npx * 3).map(|i| ((i * 7919 % 1000) as f32 - 500.0) * 1e-5).collect();
-        let g1: Vec<f32> = (0..npx).map(|i| ((i * 104_729 % 1000) as f32 - 300.0) * 1e-5).collect();
-        let grads = OutputGrads {
-            color: Some(&g3),
-            alpha: Some(&g1),
-            depth: Some(&g1),
-            normal: Some(&g3),
-            distortion: dist.then_some(&g1[..]),
-            extra: None,
-        };
-        let input = RenderInput {
-            surfels: &surfels,
-            camera: &camera,
-            colors: ColorSource::Sh,
-            extra: None,
-            background: Background::Color([0.3, 0.6, 0.1]),
-        };
-        let cfg = RasterConfig { tile, distortion: dist, simd: Simd::Scalar, ..Default::default() };
-        let (out0, st0) = render(&input, &cfg);
-        let g0 = backward(&input, &cfg, &st0, &out0, &grads);
-        let p64 = P64::from_surfels(&surfels);
-        let f = |v: &[f32]| v.iter().map(|&x| f64::from(x)).collect::<Vec<f64>>();
-        let (a3, a1) = (f(&g3), f(&g1));
-        let input64 = RenderInputOf {
-            surfels: &p64,
-            camera: &camera,
-            colors: ColorSourceOf::Sh,
-            extra: None,
-            background: BackgroundOf::Color([0.3, 0.6, 0.1]),
-        };
-        let grads64 = OutputGradsOf {
-            color: Some(&a3[..]),
-            alpha: Some(&a1[..]),
-            depth: Some(&a1[..]),
-            normal: Some(&a3[..]),
-            distortion: dist.then_some(&a1[..]),
-            extra: None,
-        };
-        let (out64, st64) = render_generic(&input64, &cfg);
-        let g64 = backward_generic(&input64, &cfg, &st64, &out64, &grads64);
-        assert!(out0.alpha.iter().any(|&a| a > 0.99), "seed {seed}: nothing saturates");
-        for &path in &paths {
-            let what = format!("seed {seed} {}", path.name());
-            let cfg = RasterConfig { simd: path, ..cfg };
-            let (out, st) = render(&input, &cfg);
-            same_images(&what, &out, &out0);
-            assert_eq!(st.num_tile_entries(), st0.num_tile_entries());
-            let g = backward(&input, &cfg, &st, &out, &grads);
-            same_grads(&what, &g, &g0, &g64);
-            checked += 1;
-        }
+        checked += check_scene(seed, n, res, tile, dist, None);
     }
     if svgir_raster::simd::best_available() != Simd::Scalar {
         assert!(checked > 0);
@@ -179,11 +213,9 @@ fn simd_paths_match_scalar() {
 }
 
 /// Stage 2's PBR render: colours interpolated from M vertices and extra channels (with M or one
-/// vertex), every output with a gradient. Images bit-identical, gradients (including the
-/// per-vertex feature gradients) as close to f64 as the scalar path.
+/// vertex), every output with a gradient, including the per-vertex feature gradients.
 #[test]
 fn simd_feature_paths_match_scalar() {
-    let paths: Vec<Simd> = Simd::available().into_iter().filter(|&p| p != Simd::Scalar).collect();
     let mut checked = 0;
     for (seed, n, res, cm, me, ce, dist) in [
         (11u64, 3000usize, 64u32, 4usize, 4usize, 7usize, false),
@@ -191,75 +223,7 @@ fn simd_feature_paths_match_scalar() {
         (13, 2000, 48, 6, 6, 2, true),
         (14, 2000, 48, 1, 4, 5, false),
     ] {
-        let surfels = scene(seed, n);
-        let camera = bench_camera(res, res);
-        let npx = (res * res) as usize;
-        let mut rng = svgir_core::Rng::new(seed);
-        let colf: Vec<f32> = (0..n * cm * 3).map(|_| rng.uniform()).collect();
-        let extf: Vec<f32> = (0..n * me * ce).map(|_| rng.normal()).collect();
-        let g3: Vec<f32> = (0..npx * 3).map(|i| ((i * 7919 % 1000) as f32 - 500.0) * 1e-5).collect();
-        let g1: Vec<f32> = (0..npx).map(|i| ((i * 104_729 % 1000) as f32 - 300.0) * 1e-5).collect();
-        let ge: Vec<f32> = (0..npx * ce).map(|i| ((i * 6151 % 1000) as f32 - 450.0) * 1e-5).collect();
-        let grads = OutputGrads {
-            color: Some(&g3),
-            alpha: Some(&g1),
-            depth: Some(&g1),
-            normal: Some(&g3),
-            distortion: dist.then_some(&g1[..]),
-            extra: Some(&ge),
-        };
-        let colors = |data| {
-            if cm > 1 {
-                ColorSourceOf::Features(FeaturesOf { data, vertices: cm, channels: 3 })
-            } else {
-                ColorSourceOf::Sh
-            }
-        };
-        let input = RenderInput {
-            surfels: &surfels,
-            camera: &camera,
-            colors: colors(&colf[..]),
-            extra: Some(FeaturesOf { data: &extf, vertices: me, channels: ce }),
-            background: Background::Color([0.3, 0.6, 0.1]),
-        };
-        let cfg = RasterConfig { distortion: dist, simd: Simd::Scalar, ..Default::default() };
-        let (out0, st0) = render(&input, &cfg);
-        let g0 = backward(&input, &cfg, &st0, &out0, &grads);
-        let p64 = P64::from_surfels(&surfels);
-        let f = |v: &[f32]| v.iter().map(|&x| f64::from(x)).collect::<Vec<f64>>();
-        let (a3, a1, ae, c64, e64) = (f(&g3), f(&g1), f(&ge), f(&colf), f(&extf));
-        let input64 = RenderInputOf {
-            surfels: &p64,
-            camera: &camera,
-            colors: if cm > 1 {
-                ColorSourceOf::Features(FeaturesOf { data: &c64[..], vertices: cm, channels: 3 })
-            } else {
-                ColorSourceOf::Sh
-            },
-            extra: Some(FeaturesOf { data: &e64[..], vertices: me, channels: ce }),
-            background: BackgroundOf::Color([0.3, 0.6, 0.1]),
-        };
-        let grads64 = OutputGradsOf {
-            color: Some(&a3[..]),
-            alpha: Some(&a1[..]),
-            depth: Some(&a1[..]),
-            normal: Some(&a3[..]),
-            distortion: dist.then_some(&a1[..]),
-            extra: Some(&ae[..]),
-        };
-        let (out64, st64) = render_generic(&input64, &cfg);
-        let g64 = backward_generic(&input64, &cfg, &st64, &out64, &grads64);
-        assert!(g0.v_extra.iter().any(|&x| x != 0.0), "seed {seed}: no extra-feature gradient");
-        for &path in &paths {
-            let what = format!("features seed {seed} {}", path.name());
-            let cfg = RasterConfig { simd: path, ..cfg };
-            let (out, st) = render(&input, &cfg);
-            same_images(&what, &out, &out0);
-            assert_eq!(out.extra, out0.extra, "{what}: extra");
-            let g = backward(&input, &cfg, &st, &out, &grads);
-            same_grads(&what, &g, &g0, &g64);
-            checked += 1;
-        }
+        checked += check_scene(seed, n, res, 16, dist, Some(Feat { cm, me, ce }));
     }
     if svgir_raster::simd::best_available() != Simd::Scalar {
         assert!(checked > 0);

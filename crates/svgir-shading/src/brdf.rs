@@ -121,11 +121,12 @@ pub fn ggx_specular_grad<F: Float>(n: [F; 3], v: [F; 3], l: [F; 3], r: F) -> Spe
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use svgir_core::Rng;
 
-    fn unit(rng: &mut Rng) -> [f64; 3] {
+    /// A random unit vector (shared by the shading crate's tests).
+    pub(crate) fn unit(rng: &mut Rng) -> [f64; 3] {
         let v = [rng.normal() as f64, rng.normal() as f64, rng.normal() as f64];
         let l = dot(v, v).sqrt();
         v.map(|x| x / l)

@@ -125,14 +125,9 @@ pub fn spec_grad<F: Float>(lb: &Lobe<F>, hv: &HalfVec<F>, v: [F; 3], l: [F; 3], 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::brdf::tests::unit;
     use crate::{ggx_specular, ggx_specular_grad};
     use svgir_core::Rng;
-
-    fn unit(rng: &mut Rng) -> [f64; 3] {
-        let v = [rng.normal() as f64, rng.normal() as f64, rng.normal() as f64];
-        let l = dot(v, v).sqrt();
-        v.map(|x| x / l)
-    }
 
     #[test]
     fn split_form_equals_the_shading_crate() {
