@@ -132,6 +132,7 @@ pub fn shade_backward_cached<F: Float>(
     }
     let block = block_size(n);
     let table = FibTable::new(inp.mb.k);
+    #[cfg(target_arch = "x86_64")]
     let lane = crate::shade::lane_kernels::<F>(inp.params.simd);
     let partials: Vec<Option<(Vec<[F; 3]>, F)>> = grads
         .v_albedo
