@@ -346,6 +346,25 @@ pub(crate) fn diffuse_weights<F: Float>(
     })
 }
 
+/// Everything of Gaussian i that does not depend on the light direction: its vertices, the
+/// view direction, the per-vertex specular lobes and diffuse weights.
+pub(crate) struct Gaussian<F> {
+    pub vx: Vertices<F>,
+    pub wo: [F; 3],
+    pub lb: [Lobe<F>; MAX_VERTICES],
+    pub dw: [DiffuseWeight<F>; MAX_VERTICES],
+}
+
+#[inline]
+pub(crate) fn gaussian<F: Float>(inp: &ShadeInputs<F>, i: usize) -> Gaussian<F> {
+    let m = inp.mats.m;
+    let vx = vertices(&inp.mats, i);
+    let wo = view_dir(inp, i);
+    let lb = lobes(&vx, wo, m);
+    let dw = diffuse_weights(&vx, wo, m, inp.params.diffuse);
+    Gaussian { vx, wo, lb, dw }
+}
+
 /// Shade Gaussian i into its M x 3 slices of colour / direct / indirect.
 fn shade_gaussian<F: Float>(
     inp: &ShadeInputs<F>,
@@ -357,10 +376,7 @@ fn shade_gaussian<F: Float>(
     indirect: &mut [F],
 ) {
     let m = inp.mats.m;
-    let vx = vertices(&inp.mats, i);
-    let wo = view_dir(inp, i);
-    let lb = lobes(&vx, wo, m);
-    let dw = diffuse_weights(&vx, wo, m, inp.params.diffuse);
+    let Gaussian { vx, wo, lb, dw } = gaussian(inp, i);
     let frame = Frame::new(inp.mb.normals[i], inp.mb.xi[i]);
     let z = [[F::ZERO; 3]; MAX_VERTICES];
     // E: sum cos L; P: sum S cos L; split into direct (d) and indirect (i) light.
@@ -419,42 +435,59 @@ pub fn shade_into_cached<F: Float>(
         buf.resize(len, F::ZERO);
     }
     let table = FibTable::new(inp.mb.k);
-    if lane_kernels::<F>(inp.params.simd) {
-        #[cfg(target_arch = "x86_64")]
-        {
-            // SAFETY: `F` is `f32` (checked by `lane_kernels`), so these are the same types.
-            let (inp32, [color, direct, indirect]) = unsafe {
-                (
-                    &*(inp as *const ShadeInputs<F> as *const ShadeInputs<f32>),
-                    [&mut out.color, &mut out.direct, &mut out.indirect]
-                        .map(|v| std::slice::from_raw_parts_mut(v.as_mut_ptr() as *mut f32, v.len())),
-                )
-            };
-            let w = MIN_TASK * m * 3;
-            color
-                .par_chunks_mut(w)
-                .zip(direct.par_chunks_mut(w))
-                .zip(indirect.par_chunks_mut(w))
-                .enumerate()
-                .for_each_init(crate::shade_simd::SampleRows::default, |rows, (t, ((c, d), ind))| {
-                    // SAFETY: `lane_kernels` checked that the CPU has AVX2.
-                    unsafe { crate::shade_simd::shade_range_avx2(inp32, &table, cache, rows, t * MIN_TASK, c, d, ind) }
-                });
-            return Ok(());
-        }
-    }
+    #[cfg(target_arch = "x86_64")]
+    let lane = lane_kernels::<F>(inp.params.simd);
     out.color
         .par_chunks_mut(m * 3)
         .zip(out.direct.par_chunks_mut(m * 3))
         .zip(out.indirect.par_chunks_mut(m * 3))
         .enumerate()
         .with_min_len(MIN_TASK)
-        .for_each(|(i, ((c, d), ind))| {
-            if inp.visible[i] {
-                shade_gaussian(inp, &table, cache, i, c, d, ind);
+        .for_each_init(LaneScratch::default, |rows, (i, ((c, d), ind))| {
+            if !inp.visible[i] {
+                return;
             }
+            #[cfg(target_arch = "x86_64")]
+            if lane {
+                // SAFETY: `lane_kernels` checked that `F` is `f32` and that the CPU has AVX2.
+                unsafe {
+                    let (c, d, ind) = (as_f32_mut(c), as_f32_mut(d), as_f32_mut(ind));
+                    crate::shade_simd::shade_gaussian_avx2(as_f32_inputs(inp), &table, cache, rows, i, c, d, ind);
+                }
+                return;
+            }
+            let _ = &rows;
+            shade_gaussian(inp, &table, cache, i, c, d, ind);
         });
     Ok(())
+}
+
+/// Per-task scratch of the lane kernels (none where there are none).
+#[cfg(target_arch = "x86_64")]
+pub(crate) type LaneScratch = crate::shade_simd::SampleRows;
+/// Per-task scratch of the lane kernels (none where there are none).
+#[cfg(not(target_arch = "x86_64"))]
+pub(crate) type LaneScratch = ();
+
+/// `inp` as f32 inputs.
+///
+/// # Safety
+/// `F` is `f32` (as [`lane_kernels`] checks).
+#[cfg(target_arch = "x86_64")]
+pub(crate) unsafe fn as_f32_inputs<'a, F>(inp: &'a ShadeInputs<'a, F>) -> &'a ShadeInputs<'a, f32> {
+    // SAFETY: the caller's contract.
+    unsafe { &*(inp as *const ShadeInputs<F> as *const ShadeInputs<f32>) }
+}
+
+/// `x` as a slice of `U`.
+///
+/// # Safety
+/// `T` and `U` are the same type (`F` and `f32`, or `[F; 3]` and `[f32; 3]`, where `F` is
+/// `f32` as [`lane_kernels`] checks).
+#[cfg(target_arch = "x86_64")]
+pub(crate) unsafe fn as_f32_mut<T, U>(x: &mut [T]) -> &mut [U] {
+    // SAFETY: the caller's contract.
+    unsafe { std::slice::from_raw_parts_mut(x.as_mut_ptr() as *mut U, x.len()) }
 }
 
 /// Whether the f32 lane kernels (`shade_simd`) run for scalar type `F` under `simd`: f32 on an

@@ -17,7 +17,9 @@
 //! result is bit-identical for any thread count.
 
 use crate::grads::PbrGrads;
-use crate::shade::{diffuse_weights, lobes, samples, vertices, view_dir, FibTable, Frame, ShadeInputs};
+#[cfg(target_arch = "x86_64")]
+use crate::shade::{as_f32_inputs, as_f32_mut, lane_kernels};
+use crate::shade::{gaussian, samples, FibTable, Frame, Gaussian, LaneScratch, ShadeInputs};
 use crate::{expect_len, PbrError};
 use rayon::prelude::*;
 use svgir_shading::float::dot;
@@ -44,10 +46,7 @@ fn backward_gaussian<F: Float>(
     v_rho: &mut F,
 ) {
     let m = inp.mats.m;
-    let vx = vertices(&inp.mats, i);
-    let wo = view_dir(inp, i);
-    let lb = lobes(&vx, wo, m);
-    let dw = diffuse_weights(&vx, wo, m, inp.params.diffuse);
+    let Gaussian { vx, wo, lb, dw } = gaussian(inp, i);
     let frame = Frame::new(inp.mb.normals[i], inp.mb.xi[i]);
     let scale = F::from_f64(std::f64::consts::TAU / inp.mb.k as f64);
     let inv_pi = F::from_f64(std::f64::consts::FRAC_1_PI);
@@ -133,7 +132,7 @@ pub fn shade_backward_cached<F: Float>(
     let block = block_size(n);
     let table = FibTable::new(inp.mb.k);
     #[cfg(target_arch = "x86_64")]
-    let lane = crate::shade::lane_kernels::<F>(inp.params.simd);
+    let lane = lane_kernels::<F>(inp.params.simd);
     let partials: Vec<Option<(Vec<[F; 3]>, F)>> = grads
         .v_albedo
         .par_chunks_mut(block * m * 3)
@@ -143,26 +142,7 @@ pub fn shade_backward_cached<F: Float>(
         .map(|(bi, ((alb, rough), nrm))| {
             let i0 = bi * block;
             let mut part: Option<(Vec<[F; 3]>, F)> = None;
-            #[cfg(target_arch = "x86_64")]
-            if lane {
-                // SAFETY: `F` is `f32` (checked by `lane_kernels`), so these are the same types,
-                // and the CPU has AVX2.
-                unsafe {
-                    let f = |x: &mut [F]| std::slice::from_raw_parts_mut(x.as_mut_ptr() as *mut f32, x.len());
-                    crate::shade_simd::backward_range_avx2(
-                        &*(inp as *const ShadeInputs<F> as *const ShadeInputs<f32>),
-                        &table,
-                        cache,
-                        i0,
-                        std::slice::from_raw_parts(v_color.as_ptr() as *const f32, v_color.len()),
-                        f(alb),
-                        f(rough),
-                        f(nrm),
-                        &mut *(&mut part as *mut Option<(Vec<[F; 3]>, F)> as *mut Option<(Vec<[f32; 3]>, f32)>),
-                    );
-                }
-                return part;
-            }
+            let mut rows = LaneScratch::default();
             for li in 0..rough.len() / m {
                 let i = i0 + li;
                 let g = &v_color[i * m * 3..(i + 1) * m * 3];
@@ -171,18 +151,35 @@ pub fn shade_backward_cached<F: Float>(
                     continue;
                 }
                 let (v_env, v_rho) = part.get_or_insert_with(|| (vec![[F::ZERO; 3]; texels], F::ZERO));
-                backward_gaussian(
-                    inp,
-                    &table,
-                    cache,
-                    i,
-                    g,
+                let (alb, rough, nrm) = (
                     &mut alb[li * m * 3..(li + 1) * m * 3],
                     &mut rough[li * m..(li + 1) * m],
                     &mut nrm[li * m * 3..(li + 1) * m * 3],
-                    v_env,
-                    v_rho,
                 );
+                #[cfg(target_arch = "x86_64")]
+                if lane {
+                    // SAFETY: `lane_kernels` checked that `F` is `f32` and that the CPU has AVX2.
+                    unsafe {
+                        let g = std::slice::from_raw_parts(g.as_ptr() as *const f32, g.len());
+                        let v_rho = &mut *(v_rho as *mut F as *mut f32);
+                        crate::shade_simd::backward_gaussian_avx2(
+                            as_f32_inputs(inp),
+                            &table,
+                            cache,
+                            &mut rows,
+                            i,
+                            g,
+                            as_f32_mut(alb),
+                            as_f32_mut(rough),
+                            as_f32_mut(nrm),
+                            as_f32_mut(v_env),
+                            v_rho,
+                        );
+                    }
+                    continue;
+                }
+                let _ = &mut rows;
+                backward_gaussian(inp, &table, cache, i, g, alb, rough, nrm, v_env, v_rho);
             }
             part
         })

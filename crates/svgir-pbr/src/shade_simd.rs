@@ -26,10 +26,10 @@
 // through `Simd::resolve`) -- so the operations inside need no block of their own.
 #![allow(unsafe_op_in_unsafe_fn)]
 
-use crate::shade::{diffuse_weights, lobes, samples, vertices, view_dir, FibTable, Frame, Sample, ShadeInputs};
+use crate::shade::{gaussian, samples, FibTable, Frame, Sample, ShadeInputs};
 use svgir_core::simd::{Lanes, F8};
 use svgir_shading::split::Lobe;
-use svgir_shading::{DiffuseWeight, DOT_EPS, F0, MAX_VERTICES};
+use svgir_shading::{DOT_EPS, F0};
 use svgir_trace::DirectionCache;
 
 /// `[e(0), e(1), e(2)]` written out: `array::map` would call the closure through code compiled
@@ -56,11 +56,10 @@ macro_rules! tri {
 /// Lanes per step of the (vertex, direction) loops: one AVX2 register of f32.
 pub(crate) const W: usize = 8;
 
-/// One Gaussian's samples as rows of lanes, padded to a multiple of [`W`].
+/// One Gaussian's samples as rows of lanes, padded to a multiple of [`W`] with zero direction,
+/// light and Fresnel.
 #[derive(Default)]
 pub(crate) struct SampleRows {
-    /// Real samples (the rest is padding: zero direction, light and Fresnel).
-    len: usize,
     dir: [Vec<f32>; 3],
     h: [Vec<f32>; 3],
     fr: Vec<f32>,
@@ -86,11 +85,11 @@ impl SampleRows {
         keep: bool,
     ) {
         let frame = Frame::new(inp.mb.normals[i], inp.mb.xi[i]);
-        self.len = 0;
         self.kept.clear();
         for v in self.rows_mut() {
             v.clear();
         }
+        let mut n = 0usize;
         for s in samples(inp, table, cache, &frame, i) {
             for c in 0..3 {
                 self.dir[c].push(s.dir[c]);
@@ -100,10 +99,10 @@ impl SampleRows {
             if keep {
                 self.kept.push(s);
             }
-            self.len += 1;
+            n += 1;
         }
         // Padding: a zero direction has cos = 0, so the select drops it.
-        let padded = self.len.next_multiple_of(W);
+        let padded = n.next_multiple_of(W);
         for v in self.rows_mut() {
             v.resize(padded, 0.0);
         }
@@ -254,24 +253,6 @@ unsafe fn spec_grad_lanes<L: Lanes>(
     SpecGradL { value, v_r, v_n }
 }
 
-/// Everything of Gaussian i that does not depend on the direction.
-struct Gaussian {
-    vx: crate::shade::Vertices<f32>,
-    wo: [f32; 3],
-    lb: [Lobe<f32>; MAX_VERTICES],
-    dw: [DiffuseWeight<f32>; MAX_VERTICES],
-}
-
-#[inline(always)]
-fn gaussian(inp: &ShadeInputs<f32>, i: usize) -> Gaussian {
-    let m = inp.mats.m;
-    let vx = vertices(&inp.mats, i);
-    let wo = view_dir(inp, i);
-    let lb = lobes(&vx, wo, m);
-    let dw = diffuse_weights(&vx, wo, m, inp.params.diffuse);
-    Gaussian { vx, wo, lb, dw }
-}
-
 /// The forward of Gaussian i into its M x 3 slices (as `shade::shade_gaussian`).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
@@ -405,76 +386,45 @@ unsafe fn backward_gaussian<L: Lanes>(
     }
 }
 
-/// Shade Gaussians `i0..i0 + color.len() / (3M)` (visible ones) into their slices.
+/// [`shade_gaussian`] compiled for AVX2.
 ///
 /// # Safety
 /// The CPU has AVX2.
-#[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[allow(clippy::too_many_arguments)]
-pub(crate) unsafe fn shade_range_avx2(
+pub(crate) unsafe fn shade_gaussian_avx2(
     inp: &ShadeInputs<f32>,
     table: &FibTable,
     cache: Option<&DirectionCache>,
     rows: &mut SampleRows,
-    i0: usize,
+    i: usize,
     color: &mut [f32],
     direct: &mut [f32],
     indirect: &mut [f32],
 ) {
-    let w = inp.mats.m * 3;
-    for (li, ((c, d), ind)) in color.chunks_mut(w).zip(direct.chunks_mut(w)).zip(indirect.chunks_mut(w)).enumerate() {
-        let i = i0 + li;
-        if inp.visible[i] {
-            shade_gaussian::<F8>(inp, table, cache, rows, i, c, d, ind);
-        }
-    }
+    shade_gaussian::<F8>(inp, table, cache, rows, i, color, direct, indirect)
 }
 
-/// The backward of one block of Gaussians starting at `i0` (see `shade_backward`): materials
-/// into the block's slices, env / rho into `part` (created on the first Gaussian with a
-/// gradient).
+/// [`backward_gaussian`] compiled for AVX2.
 ///
 /// # Safety
 /// The CPU has AVX2.
-#[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
 #[allow(clippy::too_many_arguments)]
-pub(crate) unsafe fn backward_range_avx2(
+pub(crate) unsafe fn backward_gaussian_avx2(
     inp: &ShadeInputs<f32>,
     table: &FibTable,
     cache: Option<&DirectionCache>,
-    i0: usize,
-    v_color: &[f32],
-    alb: &mut [f32],
-    rough: &mut [f32],
-    nrm: &mut [f32],
-    part: &mut Option<(Vec<[f32; 3]>, f32)>,
+    rows: &mut SampleRows,
+    i: usize,
+    g: &[f32],
+    v_alb: &mut [f32],
+    v_rough: &mut [f32],
+    v_nrm: &mut [f32],
+    v_env: &mut [[f32; 3]],
+    v_rho: &mut f32,
 ) {
-    let m = inp.mats.m;
-    let texels = inp.env.len();
-    let mut rows = SampleRows::default();
-    for li in 0..rough.len() / m {
-        let i = i0 + li;
-        let g = &v_color[i * m * 3..(i + 1) * m * 3];
-        if !inp.visible[i] || g.iter().all(|&x| x == 0.0) {
-            continue;
-        }
-        let (v_env, v_rho) = part.get_or_insert_with(|| (vec![[0.0; 3]; texels], 0.0));
-        backward_gaussian::<F8>(
-            inp,
-            table,
-            cache,
-            &mut rows,
-            i,
-            g,
-            &mut alb[li * m * 3..(li + 1) * m * 3],
-            &mut rough[li * m..(li + 1) * m],
-            &mut nrm[li * m * 3..(li + 1) * m * 3],
-            v_env,
-            v_rho,
-        );
-    }
+    backward_gaussian::<F8>(inp, table, cache, rows, i, g, v_alb, v_rough, v_nrm, v_env, v_rho)
 }
 
 #[cfg(test)]
