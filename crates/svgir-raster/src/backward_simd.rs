@@ -55,11 +55,6 @@ unsafe fn acc<S: Lanes>(a: &mut S, m: S::M, d: S) {
 }
 
 #[inline(always)]
-unsafe fn zero_lanes<S: Lanes>() -> S {
-    S::splat(0.0)
-}
-
-#[inline(always)]
 unsafe fn hsum3<S: Lanes>(v: &[S; 3]) -> [f32; 3] {
     [v[0].hsum(), v[1].hsum(), v[2].hsum()]
 }
@@ -138,11 +133,11 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool>(
     // Per-entry feature values (broadcast) and per-lane sums of their gradients: the colour
     // table's `M x 3` (interpolated colours only), then the extra table's `M x ce`.
     let (mut colv, mut extv) = (FeatLanes::<S> { v: Vec::new() }, FeatLanes::<S> { v: Vec::new() });
+    let zero = sp(0.0);
     let n_col = if ci { cf.vertices * 3 } else { 0 };
-    let mut fsum = vec![zero_lanes::<S>(); n_col + ef.vertices * ce];
+    let mut fsum = vec![zero; n_col + ef.vertices * ce];
     by_ncon.sort_unstable_by_key(|a| std::cmp::Reverse(a.0));
     let mut next_act = 0;
-    let zero = sp(0.0);
     for e in (r0 as usize..r0 as usize + max_n as usize).rev() {
         let local = (e - r0 as usize) as u32;
         while let Some(&(nc, rc)) = by_ncon.get(next_act) {
@@ -265,7 +260,10 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool>(
             }
             // Upstream gradients are finite, so one masked weight serves all these sums.
             for ch in 0..3 {
-                sm.v_col[ch] = wgt_m.mul_add(gc[ch], sm.v_col[ch]);
+                if !(FEAT && ci) {
+                    // One colour per Gaussian (interpolated colours are summed per vertex above).
+                    sm.v_col[ch] = wgt_m.mul_add(gc[ch], sm.v_col[ch]);
+                }
                 sm.v_n[ch] = wgt_m.mul_add(gn[ch], sm.v_n[ch]);
             }
             let pacc = ld(ACC);
