@@ -26,7 +26,7 @@ pub enum Simd {
     Scalar,
     /// 8-lane AVX2 kernels.
     Avx2,
-    /// 16-lane AVX-512F kernels.
+    /// 8-lane kernels on AVX-512F + VL: mask registers and 32 vector registers.
     Avx512,
 }
 
@@ -56,8 +56,9 @@ impl Simd {
     /// best one below it (never `Auto`).
     pub fn resolve(self) -> Self {
         let want = match self {
-            // AVX2 unless asked: the 16-lane kernels measured slower on object scenes, whose
-            // splats cover rows of a handful of pixels (docs/performance.md).
+            // AVX2 unless asked: the AVX-512 kernels (8 lanes with mask registers, since 16
+            // lanes idled on splat rows of a handful of pixels) are not measured to be faster
+            // (docs/performance.md).
             Self::Auto => env_choice().unwrap_or(Self::Avx2),
             s => s,
         };
@@ -95,7 +96,10 @@ pub fn best_available() -> Simd {
     *BEST.get_or_init(|| {
         #[cfg(target_arch = "x86_64")]
         {
-            if is_x86_feature_detected!("avx512f") && is_x86_feature_detected!("avx2") {
+            if is_x86_feature_detected!("avx512f")
+                && is_x86_feature_detected!("avx512vl")
+                && is_x86_feature_detected!("avx2")
+            {
                 return Simd::Avx512;
             }
             if is_x86_feature_detected!("avx2") {
@@ -116,6 +120,7 @@ pub fn cpu_features() -> String {
             ("avx2", is_x86_feature_detected!("avx2")),
             ("fma", is_x86_feature_detected!("fma")),
             ("avx512f", is_x86_feature_detected!("avx512f")),
+            ("avx512vl", is_x86_feature_detected!("avx512vl")),
         ];
         f.iter().map(|(n, on)| format!("{n}{}", if *on { "+" } else { "-" })).collect::<Vec<_>>().join(" ")
     }
@@ -143,6 +148,24 @@ pub trait Lanes: Copy {
     unsafe fn iota() -> Self;
     unsafe fn load(p: *const f32) -> Self;
     unsafe fn store(self, p: *mut f32);
+    /// Lanes `0..N/2` set to `lo`, the others to `hi`.
+    unsafe fn halves(lo: f32, hi: f32) -> Self;
+    /// `[0, 1, .., N/2 - 1, 0, 1, .., N/2 - 1]`.
+    unsafe fn iota2() -> Self;
+    /// `N/2` lanes from `lo`, then `N/2` from `hi`.
+    unsafe fn load2(lo: *const f32, hi: *const f32) -> Self;
+    /// Lanes `0..N/2` to `lo`, the others to `hi` (the two ranges must not overlap).
+    unsafe fn store2(self, lo: *mut f32, hi: *mut f32);
+    /// Stores the lanes of `m` to `p`, leaving the others as they are.
+    #[inline(always)]
+    unsafe fn store_where(self, m: Self::M, p: *mut f32) {
+        Self::select(m, self, Self::load(p)).store(p)
+    }
+    /// [`Lanes::store2`] of the lanes of `m`, leaving the others as they are.
+    #[inline(always)]
+    unsafe fn store2_where(self, m: Self::M, lo: *mut f32, hi: *mut f32) {
+        Self::select(m, self, Self::load2(lo, hi)).store2(lo, hi)
+    }
     unsafe fn add(self, o: Self) -> Self;
     unsafe fn sub(self, o: Self) -> Self;
     unsafe fn mul(self, o: Self) -> Self;
@@ -182,7 +205,7 @@ pub trait Lanes: Copy {
 }
 
 #[cfg(target_arch = "x86_64")]
-pub use x86::{F16, F8};
+pub use x86::{F8k, F8};
 
 #[cfg(target_arch = "x86_64")]
 mod x86 {
@@ -206,53 +229,91 @@ mod x86 {
         }};
     }
 
-    /// 8 f32 lanes (AVX2).
+    /// The methods of an 8-lane type over `__m256` that do not involve masks.
+    macro_rules! lanes8 {
+        ($t:ident) => {
+            const N: usize = 8;
+            #[inline(always)]
+            unsafe fn splat(v: f32) -> Self {
+                $t(_mm256_set1_ps(v))
+            }
+            #[inline(always)]
+            unsafe fn iota() -> Self {
+                $t(_mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0))
+            }
+            #[inline(always)]
+            unsafe fn load(p: *const f32) -> Self {
+                $t(_mm256_loadu_ps(p))
+            }
+            #[inline(always)]
+            unsafe fn store(self, p: *mut f32) {
+                _mm256_storeu_ps(p, self.0)
+            }
+            #[inline(always)]
+            unsafe fn halves(lo: f32, hi: f32) -> Self {
+                $t(_mm256_set_m128(_mm_set1_ps(hi), _mm_set1_ps(lo)))
+            }
+            #[inline(always)]
+            unsafe fn iota2() -> Self {
+                $t(_mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 0.0, 1.0, 2.0, 3.0))
+            }
+            #[inline(always)]
+            unsafe fn load2(lo: *const f32, hi: *const f32) -> Self {
+                $t(_mm256_loadu2_m128(hi, lo))
+            }
+            #[inline(always)]
+            unsafe fn store2(self, lo: *mut f32, hi: *mut f32) {
+                _mm256_storeu2_m128(hi, lo, self.0)
+            }
+            #[inline(always)]
+            unsafe fn add(self, o: Self) -> Self {
+                $t(_mm256_add_ps(self.0, o.0))
+            }
+            #[inline(always)]
+            unsafe fn sub(self, o: Self) -> Self {
+                $t(_mm256_sub_ps(self.0, o.0))
+            }
+            #[inline(always)]
+            unsafe fn mul(self, o: Self) -> Self {
+                $t(_mm256_mul_ps(self.0, o.0))
+            }
+            #[inline(always)]
+            unsafe fn mul_add(self, a: Self, b: Self) -> Self {
+                $t(_mm256_fmadd_ps(self.0, a.0, b.0))
+            }
+            #[inline(always)]
+            unsafe fn div(self, o: Self) -> Self {
+                $t(_mm256_div_ps(self.0, o.0))
+            }
+            #[inline(always)]
+            unsafe fn sqrt(self) -> Self {
+                $t(_mm256_sqrt_ps(self.0))
+            }
+            #[inline(always)]
+            unsafe fn hsum(self) -> f32 {
+                let s = _mm_add_ps(_mm256_castps256_ps128(self.0), _mm256_extractf128_ps::<1>(self.0));
+                let s = _mm_add_ps(s, _mm_movehl_ps(s, s));
+                let s = _mm_add_ss(s, _mm_shuffle_ps::<1>(s, s));
+                _mm_cvtss_f32(s)
+            }
+            #[inline(always)]
+            unsafe fn exp_fast(self) -> Self {
+                exp_body!($t, self, |t: $t| {
+                    let ni = _mm256_sub_epi32(_mm256_castps_si256(t.0), _mm256_set1_epi32(0x4B40_0000));
+                    let bits = _mm256_slli_epi32::<23>(_mm256_add_epi32(ni, _mm256_set1_epi32(127)));
+                    $t(_mm256_castsi256_ps(bits))
+                })
+            }
+        };
+    }
+
+    /// 8 f32 lanes with vector masks (AVX2).
     #[derive(Clone, Copy)]
     pub struct F8(__m256);
 
     impl Lanes for F8 {
-        const N: usize = 8;
         type M = __m256;
-        #[inline(always)]
-        unsafe fn splat(v: f32) -> Self {
-            F8(_mm256_set1_ps(v))
-        }
-        #[inline(always)]
-        unsafe fn iota() -> Self {
-            F8(_mm256_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0))
-        }
-        #[inline(always)]
-        unsafe fn load(p: *const f32) -> Self {
-            F8(_mm256_loadu_ps(p))
-        }
-        #[inline(always)]
-        unsafe fn store(self, p: *mut f32) {
-            _mm256_storeu_ps(p, self.0)
-        }
-        #[inline(always)]
-        unsafe fn add(self, o: Self) -> Self {
-            F8(_mm256_add_ps(self.0, o.0))
-        }
-        #[inline(always)]
-        unsafe fn sub(self, o: Self) -> Self {
-            F8(_mm256_sub_ps(self.0, o.0))
-        }
-        #[inline(always)]
-        unsafe fn mul(self, o: Self) -> Self {
-            F8(_mm256_mul_ps(self.0, o.0))
-        }
-        #[inline(always)]
-        unsafe fn mul_add(self, a: Self, b: Self) -> Self {
-            F8(_mm256_fmadd_ps(self.0, a.0, b.0))
-        }
-        #[inline(always)]
-        unsafe fn div(self, o: Self) -> Self {
-            F8(_mm256_div_ps(self.0, o.0))
-        }
-        #[inline(always)]
-        unsafe fn sqrt(self) -> Self {
-            F8(_mm256_sqrt_ps(self.0))
-        }
+        lanes8!(F8);
         #[inline(always)]
         unsafe fn lt(self, o: Self) -> __m256 {
             _mm256_cmp_ps::<_CMP_LT_OQ>(self.0, o.0)
@@ -295,121 +356,64 @@ mod x86 {
             let v = _mm256_and_si256(_mm256_set1_epi32(b as i32), sel);
             _mm256_castsi256_ps(_mm256_cmpeq_epi32(v, sel))
         }
-        #[inline(always)]
-        unsafe fn hsum(self) -> f32 {
-            let s = _mm_add_ps(_mm256_castps256_ps128(self.0), _mm256_extractf128_ps::<1>(self.0));
-            let s = _mm_add_ps(s, _mm_movehl_ps(s, s));
-            let s = _mm_add_ss(s, _mm_shuffle_ps::<1>(s, s));
-            _mm_cvtss_f32(s)
-        }
-        #[inline(always)]
-        unsafe fn exp_fast(self) -> Self {
-            exp_body!(F8, self, |t: F8| {
-                let ni = _mm256_sub_epi32(_mm256_castps_si256(t.0), _mm256_set1_epi32(0x4B40_0000));
-                let bits = _mm256_slli_epi32::<23>(_mm256_add_epi32(ni, _mm256_set1_epi32(127)));
-                F8(_mm256_castsi256_ps(bits))
-            })
-        }
     }
 
-    /// 16 f32 lanes (AVX-512F).
+    /// 8 f32 lanes with mask registers (AVX-512F + VL): compares write `k` registers, selects
+    /// and masked stores take them directly, and the kernels get 32 vector registers.
     #[derive(Clone, Copy)]
-    pub struct F16(__m512);
+    pub struct F8k(__m256);
 
-    impl Lanes for F16 {
-        const N: usize = 16;
-        type M = __mmask16;
+    impl Lanes for F8k {
+        type M = __mmask8;
+        lanes8!(F8k);
         #[inline(always)]
-        unsafe fn splat(v: f32) -> Self {
-            F16(_mm512_set1_ps(v))
+        unsafe fn lt(self, o: Self) -> __mmask8 {
+            _mm256_cmp_ps_mask::<_CMP_LT_OQ>(self.0, o.0)
         }
         #[inline(always)]
-        unsafe fn iota() -> Self {
-            F16(_mm512_setr_ps(0.0, 1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0, 8.0, 9.0, 10.0, 11.0, 12.0, 13.0, 14.0, 15.0))
+        unsafe fn le(self, o: Self) -> __mmask8 {
+            _mm256_cmp_ps_mask::<_CMP_LE_OQ>(self.0, o.0)
         }
         #[inline(always)]
-        unsafe fn load(p: *const f32) -> Self {
-            F16(_mm512_loadu_ps(p))
+        unsafe fn gt(self, o: Self) -> __mmask8 {
+            _mm256_cmp_ps_mask::<_CMP_GT_OQ>(self.0, o.0)
         }
         #[inline(always)]
-        unsafe fn store(self, p: *mut f32) {
-            _mm512_storeu_ps(p, self.0)
+        unsafe fn ge(self, o: Self) -> __mmask8 {
+            _mm256_cmp_ps_mask::<_CMP_GE_OQ>(self.0, o.0)
         }
         #[inline(always)]
-        unsafe fn add(self, o: Self) -> Self {
-            F16(_mm512_add_ps(self.0, o.0))
+        unsafe fn ne(self, o: Self) -> __mmask8 {
+            _mm256_cmp_ps_mask::<_CMP_NEQ_UQ>(self.0, o.0)
         }
         #[inline(always)]
-        unsafe fn sub(self, o: Self) -> Self {
-            F16(_mm512_sub_ps(self.0, o.0))
+        unsafe fn select(m: __mmask8, a: Self, b: Self) -> Self {
+            F8k(_mm256_mask_blend_ps(m, b.0, a.0))
         }
         #[inline(always)]
-        unsafe fn mul(self, o: Self) -> Self {
-            F16(_mm512_mul_ps(self.0, o.0))
-        }
-        #[inline(always)]
-        unsafe fn div(self, o: Self) -> Self {
-            F16(_mm512_div_ps(self.0, o.0))
-        }
-        #[inline(always)]
-        unsafe fn sqrt(self) -> Self {
-            F16(_mm512_sqrt_ps(self.0))
-        }
-        #[inline(always)]
-        unsafe fn mul_add(self, a: Self, b: Self) -> Self {
-            F16(_mm512_fmadd_ps(self.0, a.0, b.0))
-        }
-        #[inline(always)]
-        unsafe fn lt(self, o: Self) -> __mmask16 {
-            _mm512_cmp_ps_mask::<_CMP_LT_OQ>(self.0, o.0)
-        }
-        #[inline(always)]
-        unsafe fn le(self, o: Self) -> __mmask16 {
-            _mm512_cmp_ps_mask::<_CMP_LE_OQ>(self.0, o.0)
-        }
-        #[inline(always)]
-        unsafe fn gt(self, o: Self) -> __mmask16 {
-            _mm512_cmp_ps_mask::<_CMP_GT_OQ>(self.0, o.0)
-        }
-        #[inline(always)]
-        unsafe fn ge(self, o: Self) -> __mmask16 {
-            _mm512_cmp_ps_mask::<_CMP_GE_OQ>(self.0, o.0)
-        }
-        #[inline(always)]
-        unsafe fn ne(self, o: Self) -> __mmask16 {
-            _mm512_cmp_ps_mask::<_CMP_NEQ_UQ>(self.0, o.0)
-        }
-        #[inline(always)]
-        unsafe fn select(m: __mmask16, a: Self, b: Self) -> Self {
-            F16(_mm512_mask_blend_ps(m, b.0, a.0))
-        }
-        #[inline(always)]
-        unsafe fn and(a: __mmask16, b: __mmask16) -> __mmask16 {
+        unsafe fn and(a: __mmask8, b: __mmask8) -> __mmask8 {
             a & b
         }
         #[inline(always)]
-        unsafe fn andnot(a: __mmask16, b: __mmask16) -> __mmask16 {
+        unsafe fn andnot(a: __mmask8, b: __mmask8) -> __mmask8 {
             a & !b
         }
         #[inline(always)]
-        unsafe fn bits(m: __mmask16) -> u32 {
+        unsafe fn bits(m: __mmask8) -> u32 {
             m as u32
         }
         #[inline(always)]
-        unsafe fn from_bits(b: u32) -> __mmask16 {
-            b as __mmask16
+        unsafe fn from_bits(b: u32) -> __mmask8 {
+            b as __mmask8
         }
         #[inline(always)]
-        unsafe fn hsum(self) -> f32 {
-            _mm512_reduce_add_ps(self.0)
+        unsafe fn store_where(self, m: __mmask8, p: *mut f32) {
+            _mm256_mask_storeu_ps(p, m, self.0)
         }
         #[inline(always)]
-        unsafe fn exp_fast(self) -> Self {
-            exp_body!(F16, self, |t: F16| {
-                let ni = _mm512_sub_epi32(_mm512_castps_si512(t.0), _mm512_set1_epi32(0x4B40_0000));
-                let bits = _mm512_slli_epi32::<23>(_mm512_add_epi32(ni, _mm512_set1_epi32(127)));
-                F16(_mm512_castsi512_ps(bits))
-            })
+        unsafe fn store2_where(self, m: __mmask8, lo: *mut f32, hi: *mut f32) {
+            _mm_mask_storeu_ps(lo, m & 0xF, _mm256_castps256_ps128(self.0));
+            _mm_mask_storeu_ps(hi, m >> 4, _mm256_extractf128_ps::<1>(self.0));
         }
     }
 }

@@ -235,7 +235,7 @@ struct Scratch<F> {
     /// The SIMD kernel's per-pixel arrays ([`crate::backward_simd`]).
     lanes: Vec<f32>,
     /// The SIMD kernel's lane groups of the current entry.
-    groups: Vec<crate::forward_simd::Group>,
+    groups: crate::forward_simd::Groups,
 }
 
 impl<F: Real> Scratch<F> {
@@ -249,7 +249,7 @@ impl<F: Real> Scratch<F> {
             by_ncon: Vec::with_capacity(tp),
             row_act: vec![0; tile],
             lanes: Vec::new(),
-            groups: Vec::new(),
+            groups: crate::forward_simd::Groups::new(tile),
         }
     }
 }

@@ -17,10 +17,12 @@
 
 use crate::backward::{Ctx, OFF_C, OFF_COL, OFF_H, OFF_N, OFF_OP};
 use crate::forward::background_at;
-use crate::forward_simd::{eval_lanes, feat_weights, list_groups, FeatLanes, Group};
+use crate::forward::FeatView;
+use crate::forward_simd::{eval_lanes, feat_weights, FeatLanes, Group, Groups};
 use crate::interp::{normalised_coord_lanes, weight_grads_lanes, weights_lanes, MAX_VERTICES};
 use crate::simd::{Lanes, Simd};
 use crate::splat::SplatGrad;
+use crate::tiles::TileRec;
 
 // Per-pixel arrays of the tile, `stride * tile` each.
 const T: usize = 0;
@@ -37,6 +39,7 @@ const NCON: usize = 14;
 const ARRAYS: usize = 15;
 
 /// Per-lane sums of one entry.
+#[derive(Clone, Copy)]
 struct Sums<S: Lanes> {
     h_depth: [S; 3],
     center: [S; 2],
@@ -54,9 +57,191 @@ unsafe fn acc<S: Lanes>(a: &mut S, m: S::M, d: S) {
     *a = a.add(S::select(m, d, S::splat(0.0)));
 }
 
+impl<S: Lanes> Sums<S> {
+    #[inline(always)]
+    unsafe fn zero() -> Self {
+        let z = S::splat(0.0);
+        Self {
+            h_depth: [z; 3],
+            center: [z; 2],
+            opacity: z,
+            gp: [z; 3],
+            gp_x: [z; 3],
+            gp_y: [z; 3],
+            v_n: [z; 3],
+            v_col: [z; 3],
+        }
+    }
+}
+
 #[inline(always)]
 unsafe fn hsum3<S: Lanes>(v: &[S; 3]) -> [f32; 3] {
     [v[0].hsum(), v[1].hsum(), v[2].hsum()]
+}
+
+/// What the backward of one entry's groups reads: the tile arrays and the entry's values.
+struct Entry<'a, S: Lanes> {
+    /// The tile's per-pixel arrays, `np` floats each (see the constants above).
+    base: *mut f32,
+    np: usize,
+    s: &'a TileRec<f32>,
+    near: f32,
+    m_scale: f32,
+    /// Interpolated colour gradients in the feature sums (`M x 3`, or 0 for one colour).
+    n_col: usize,
+    /// Per-Gaussian colour and normal, broadcast.
+    col1: [S; 3],
+    nrm: [S; 3],
+    cf: &'a FeatView<'a, f32>,
+    ef: &'a FeatView<'a, f32>,
+    colv: &'a FeatLanes<S>,
+    extv: &'a FeatLanes<S>,
+}
+
+impl<S: Lanes> Entry<'_, S> {
+    /// Runs group `gr` back to front through the tile arrays, adding its per-lane gradient sums
+    /// to `sm` and the feature sums to `fsum`; false when no lane of it composited the entry
+    /// (then it changed nothing: every update is masked, so the loop needs no branch).
+    #[inline(always)]
+    unsafe fn group<const DIST: bool, const FEAT: bool, const PACKED: bool>(
+        &self,
+        gr: &Group,
+        sm: &mut Sums<S>,
+        fsum: &mut [S],
+    ) -> bool {
+        let sp = |v: f32| S::splat(v);
+        let zero = sp(0.0);
+        let (s, near, m_scale, n_col) = (self.s, self.near, self.m_scale, self.n_col);
+        let (cf, ef, colv, extv, col1, nrm) = (self.cf, self.ef, self.colv, self.extv, self.col1, self.nrm);
+        let (ce, ci) = (ef.channels, cf.vertices > 1);
+        let interp = ci || (ce > 0 && ef.vertices > 1);
+        let arr = |k: usize| self.base.add(k * self.np);
+        let (h6, h7) = (sp(s.h[6]), sp(s.h[7]));
+        let (o, c0v) = (sp(s.opacity), sp(s.center[0]));
+        let x = gr.x::<S, PACKED>();
+        let rows = gr.rows::<S, PACKED>();
+        let ev = eval_lanes::<S>(s, &rows, x, near);
+        let m = S::and(S::from_bits(gr.lb), ev.alpha.ne(zero));
+        let yv = rows.y;
+        let dy = sp(s.center[1]).sub(yv);
+        let ld = |k: usize| gr.load::<S, PACKED>(arr(k));
+        let inv_one_m = sp(1.0).div(sp(1.0).sub(ev.alpha));
+        let tcur = ld(T);
+        let ti = tcur.mul(inv_one_m);
+        gr.store::<S, PACKED>(arr(T), S::select(m, ti, tcur));
+        let wgt = ev.alpha.mul(ti);
+        let gc = [ld(GC), ld(GC + 1), ld(GC + 2)];
+        let gn = [ld(GN), ld(GN + 1), ld(GN + 2)];
+        let gd = ld(GD);
+        // Interpolation weights and their derivatives at the hit (features only).
+        let (ut, dut, vt, dvt) = if FEAT && interp {
+            let (ut, dut) = normalised_coord_lanes(ev.u);
+            let (vt, dvt) = normalised_coord_lanes(ev.v);
+            (ut, dut, vt, dvt)
+        } else {
+            (zero, zero, zero, zero)
+        };
+        let (mut gut, mut gvt) = (zero, zero);
+        let wgt_m = S::select(m, wgt, zero);
+        let col = if FEAT && ci {
+            let wc = weights_lanes(cf.vertices, ut, vt);
+            let (wcu, wcv) = weight_grads_lanes(cf.vertices, ut, vt);
+            for vtx in 0..cf.vertices {
+                let r = &colv.v[vtx * 3..vtx * 3 + 3];
+                let dot = gc[0].mul(r[0]).add(gc[1].mul(r[1])).add(gc[2].mul(r[2]));
+                let cw = wgt_m.mul(wc[vtx]);
+                for ch in 0..3 {
+                    fsum[vtx * 3 + ch] = cw.mul_add(gc[ch], fsum[vtx * 3 + ch]);
+                }
+                gut = wcu[vtx].mul_add(dot, gut);
+                gvt = wcv[vtx].mul_add(dot, gvt);
+            }
+            [colv.eval(cf, &wc, 0), colv.eval(cf, &wc, 1), colv.eval(cf, &wc, 2)]
+        } else {
+            col1
+        };
+        // dL/dw as a tree of sums (a chain of eight adds was on the critical path).
+        let g_col = gc[0].mul(col[0]).add(gc[1].mul(col[1])).add(gc[2].mul(col[2]));
+        let g_nrm = gn[0].mul(nrm[0]).add(gn[1].mul(nrm[1])).add(gn[2].mul(nrm[2]));
+        let mut gw = g_col.add(g_nrm).add(ld(GO).add(gd.mul(ev.z)));
+        if FEAT && ce > 0 {
+            let we = feat_weights(ef, ut, vt);
+            let (weu, wev) = if ef.vertices > 1 {
+                weight_grads_lanes(ef.vertices, ut, vt)
+            } else {
+                ([zero; MAX_VERTICES], [zero; MAX_VERTICES])
+            };
+            let mut g_ext = zero;
+            for ch in 0..ce {
+                g_ext = ld(ARRAYS + ch).mul_add(extv.eval(ef, &we, ch), g_ext);
+            }
+            gw = gw.add(g_ext);
+            for vtx in 0..ef.vertices {
+                let cw = wgt_m.mul(we[vtx]);
+                let mut dot = zero;
+                for ch in 0..ce {
+                    let ge = ld(ARRAYS + ch);
+                    let k = n_col + vtx * ce + ch;
+                    fsum[k] = cw.mul_add(ge, fsum[k]);
+                    dot = ge.mul_add(extv.v[vtx * ce + ch], dot);
+                }
+                if ef.vertices > 1 {
+                    gut = weu[vtx].mul_add(dot, gut);
+                    gvt = wev[vtx].mul_add(dot, gvt);
+                }
+            }
+        }
+        let mut v_z = wgt.mul(gd);
+        if DIST {
+            let inv_z = sp(1.0).div(ev.z);
+            let mz = sp(m_scale).mul(sp(1.0).sub(sp(near).mul(inv_z)));
+            let dm_dz = sp(m_scale).mul(sp(near)).mul(inv_z).mul(inv_z);
+            let (a, m1, m2, gdist) = (ld(A), ld(M1), ld(M2), ld(GDIST));
+            gw = gw.add(gdist.mul(a.mul(mz).mul(mz).sub(sp(2.0).mul(mz).mul(m1)).add(m2)));
+            v_z = v_z.add(gdist.mul(sp(2.0)).mul(wgt).mul(mz.mul(a).sub(m1)).mul(dm_dz));
+        }
+        // Upstream gradients are finite, so one masked weight serves all these sums.
+        for ch in 0..3 {
+            if !(FEAT && ci) {
+                // One colour per Gaussian (interpolated colours are summed per vertex above).
+                sm.v_col[ch] = wgt_m.mul_add(gc[ch], sm.v_col[ch]);
+            }
+            sm.v_n[ch] = wgt_m.mul_add(gn[ch], sm.v_n[ch]);
+        }
+        let pacc = ld(ACC);
+        let v_alpha = ti.mul(gw).sub(pacc.mul(inv_one_m));
+        gr.store::<S, PACKED>(arr(ACC), S::select(m, pacc.add(gw.mul(wgt)), pacc));
+        // The hit's backward ([`crate::splat::intersect_backward`]); the (u, v) input is the
+        // interpolation's, `w d(sum_ch g_ch f_ch)/du~ du~/du`.
+        let (mut gu, mut gv) = if FEAT && interp {
+            (wgt.mul(gut).mul(dut).add(v_z.mul(h6)), wgt.mul(gvt).mul(dvt).add(v_z.mul(h7)))
+        } else {
+            (v_z.mul(h6), v_z.mul(h7))
+        };
+        acc(&mut sm.h_depth[0], m, v_z.mul(ev.u));
+        acc(&mut sm.h_depth[1], m, v_z.mul(ev.v));
+        acc(&mut sm.h_depth[2], m, v_z);
+        let free = S::andnot(m, o.mul(ev.g).gt(sp(0.99)));
+        acc(&mut sm.opacity, free, v_alpha.mul(ev.g));
+        let v_rho = sp(-0.5).mul(v_alpha).mul(o).mul(ev.g);
+        let on3d = S::and(free, ev.use3d);
+        gu = S::select(on3d, gu.add(sp(2.0).mul(v_rho).mul(ev.u)), gu);
+        gv = S::select(on3d, gv.add(sp(2.0).mul(v_rho).mul(ev.v)), gv);
+        let on2d = S::andnot(free, ev.use3d);
+        let v4 = sp(4.0).mul(v_rho);
+        acc(&mut sm.center[0], on2d, v4.mul(c0v.sub(x)));
+        acc(&mut sm.center[1], on2d, v4.mul(dy));
+        let inv = ev.inv_pz;
+        let gp = [gu.mul(inv), gv.mul(inv), zero.sub(gu.mul(ev.u).add(gv.mul(ev.v))).mul(inv)];
+        for j in 0..3 {
+            // Masked once; x and y are finite pixel centres.
+            let gpm = S::select(m, gp[j], zero);
+            sm.gp[j] = sm.gp[j].add(gpm);
+            sm.gp_x[j] = x.mul_add(gpm, sm.gp_x[j]);
+            sm.gp_y[j] = yv.mul_add(gpm, sm.gp_y[j]);
+        }
+        S::bits(m) != 0
+    }
 }
 
 /// One tile (see the module docs); `eg` holds its entries' gradient slots. `FEAT`: colours or
@@ -70,7 +255,7 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool>(
     buf: &mut Vec<f32>,
     by_ncon: &mut Vec<(u32, u32)>,
     row_act: &mut [u64],
-    groups: &mut Vec<Group>,
+    groups: &mut Groups,
 ) {
     let sp = |v: f32| S::splat(v);
     let bins = ctx.bins;
@@ -85,7 +270,6 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool>(
     let (cf, ef) = (ctx.cf, ctx.ef);
     let ce = ef.channels;
     let ci = cf.vertices > 1;
-    let interp = ci || (ce > 0 && ef.vertices > 1);
     buf.resize(np * (ARRAYS + ce), 0.0);
     let base = buf.as_mut_ptr();
     let arr = |k: usize| base.add(k * np);
@@ -148,8 +332,6 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool>(
             next_act += 1;
         }
         let s = &ctx.recs[e];
-        let col1 = s.color.map(sp);
-        let nrm = s.normal.map(sp);
         if FEAT {
             if ci {
                 colv.load(cf, s.id as usize);
@@ -159,145 +341,28 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool>(
             }
             fsum.fill(zero);
         }
-        let (h6, h7) = (sp(s.h[6]), sp(s.h[7]));
-        let (o, c0v) = (sp(s.opacity), sp(s.center[0]));
-        let mut sm = Sums::<S> {
-            h_depth: [zero; 3],
-            center: [zero; 2],
-            opacity: zero,
-            gp: [zero; 3],
-            gp_x: [zero; 3],
-            gp_y: [zero; 3],
-            v_n: [zero; 3],
-            v_col: [zero; 3],
+        let k = Entry {
+            base,
+            np,
+            s,
+            near,
+            m_scale,
+            n_col,
+            col1: s.color.map(sp),
+            nrm: s.normal.map(sp),
+            cf,
+            ef,
+            colv: &colv,
+            extv: &extv,
         };
-        list_groups(s, &tr, row_act, S::N, groups);
+        let mut sm = Sums::<S>::zero();
+        groups.list::<S>(s, &tr, row_act, stride);
         let mut any = false;
-        for gr in groups.iter() {
-            let x = sp(gr.xs).add(S::iota().add(sp(gr.off)));
-            let ev = eval_lanes::<S>(s, &gr.rs, x, gr.yf, near);
-            let m = S::and(S::from_bits(gr.lb), ev.alpha.ne(zero));
-            // Branch-free: a group without live lanes adds nothing (every update is masked).
-            any |= S::bits(m) != 0;
-            let i = gr.ry as usize * stride + gr.c0 as usize;
-            let yv = sp(gr.yf);
-            let dy = sp(s.center[1] - gr.yf);
-            let ld = |k: usize| S::load(arr(k).add(i));
-            let inv_one_m = sp(1.0).div(sp(1.0).sub(ev.alpha));
-            let tcur = ld(T);
-            let ti = tcur.mul(inv_one_m);
-            S::select(m, ti, tcur).store(arr(T).add(i));
-            let wgt = ev.alpha.mul(ti);
-            let gc = [ld(GC), ld(GC + 1), ld(GC + 2)];
-            let gn = [ld(GN), ld(GN + 1), ld(GN + 2)];
-            let gd = ld(GD);
-            // Interpolation weights and their derivatives at the hit (features only).
-            let (ut, dut, vt, dvt) = if FEAT && interp {
-                let (ut, dut) = normalised_coord_lanes(ev.u);
-                let (vt, dvt) = normalised_coord_lanes(ev.v);
-                (ut, dut, vt, dvt)
-            } else {
-                (zero, zero, zero, zero)
-            };
-            let (mut gut, mut gvt) = (zero, zero);
-            let wgt_m = S::select(m, wgt, zero);
-            let col = if FEAT && ci {
-                let wc = weights_lanes(cf.vertices, ut, vt);
-                let (wcu, wcv) = weight_grads_lanes(cf.vertices, ut, vt);
-                for vtx in 0..cf.vertices {
-                    let r = &colv.v[vtx * 3..vtx * 3 + 3];
-                    let dot = gc[0].mul(r[0]).add(gc[1].mul(r[1])).add(gc[2].mul(r[2]));
-                    let cw = wgt_m.mul(wc[vtx]);
-                    for ch in 0..3 {
-                        fsum[vtx * 3 + ch] = cw.mul_add(gc[ch], fsum[vtx * 3 + ch]);
-                    }
-                    gut = wcu[vtx].mul_add(dot, gut);
-                    gvt = wcv[vtx].mul_add(dot, gvt);
-                }
-                [colv.eval(cf, &wc, 0), colv.eval(cf, &wc, 1), colv.eval(cf, &wc, 2)]
-            } else {
-                col1
-            };
-            // dL/dw as a tree of sums (a chain of eight adds was on the critical path).
-            let g_col = gc[0].mul(col[0]).add(gc[1].mul(col[1])).add(gc[2].mul(col[2]));
-            let g_nrm = gn[0].mul(nrm[0]).add(gn[1].mul(nrm[1])).add(gn[2].mul(nrm[2]));
-            let mut gw = g_col.add(g_nrm).add(ld(GO).add(gd.mul(ev.z)));
-            if FEAT && ce > 0 {
-                let we = feat_weights(ef, ut, vt);
-                let (weu, wev) = if ef.vertices > 1 {
-                    weight_grads_lanes(ef.vertices, ut, vt)
-                } else {
-                    ([zero; MAX_VERTICES], [zero; MAX_VERTICES])
-                };
-                let mut g_ext = zero;
-                for ch in 0..ce {
-                    g_ext = ld(ARRAYS + ch).mul_add(extv.eval(ef, &we, ch), g_ext);
-                }
-                gw = gw.add(g_ext);
-                for vtx in 0..ef.vertices {
-                    let cw = wgt_m.mul(we[vtx]);
-                    let mut dot = zero;
-                    for ch in 0..ce {
-                        let ge = ld(ARRAYS + ch);
-                        let k = n_col + vtx * ce + ch;
-                        fsum[k] = cw.mul_add(ge, fsum[k]);
-                        dot = ge.mul_add(extv.v[vtx * ce + ch], dot);
-                    }
-                    if ef.vertices > 1 {
-                        gut = weu[vtx].mul_add(dot, gut);
-                        gvt = wev[vtx].mul_add(dot, gvt);
-                    }
-                }
-            }
-            let mut v_z = wgt.mul(gd);
-            if DIST {
-                let inv_z = sp(1.0).div(ev.z);
-                let mz = sp(m_scale).mul(sp(1.0).sub(sp(near).mul(inv_z)));
-                let dm_dz = sp(m_scale).mul(sp(near)).mul(inv_z).mul(inv_z);
-                let (a, m1, m2, gdist) = (ld(A), ld(M1), ld(M2), ld(GDIST));
-                gw = gw.add(gdist.mul(a.mul(mz).mul(mz).sub(sp(2.0).mul(mz).mul(m1)).add(m2)));
-                v_z = v_z.add(gdist.mul(sp(2.0)).mul(wgt).mul(mz.mul(a).sub(m1)).mul(dm_dz));
-            }
-            // Upstream gradients are finite, so one masked weight serves all these sums.
-            for ch in 0..3 {
-                if !(FEAT && ci) {
-                    // One colour per Gaussian (interpolated colours are summed per vertex above).
-                    sm.v_col[ch] = wgt_m.mul_add(gc[ch], sm.v_col[ch]);
-                }
-                sm.v_n[ch] = wgt_m.mul_add(gn[ch], sm.v_n[ch]);
-            }
-            let pacc = ld(ACC);
-            let v_alpha = ti.mul(gw).sub(pacc.mul(inv_one_m));
-            S::select(m, pacc.add(gw.mul(wgt)), pacc).store(arr(ACC).add(i));
-            // The hit's backward ([`crate::splat::intersect_backward`]); the (u, v) input is the
-            // interpolation's, `w d(sum_ch g_ch f_ch)/du~ du~/du`.
-            let (mut gu, mut gv) = if FEAT && interp {
-                (wgt.mul(gut).mul(dut).add(v_z.mul(h6)), wgt.mul(gvt).mul(dvt).add(v_z.mul(h7)))
-            } else {
-                (v_z.mul(h6), v_z.mul(h7))
-            };
-            acc(&mut sm.h_depth[0], m, v_z.mul(ev.u));
-            acc(&mut sm.h_depth[1], m, v_z.mul(ev.v));
-            acc(&mut sm.h_depth[2], m, v_z);
-            let free = S::andnot(m, o.mul(ev.g).gt(sp(0.99)));
-            acc(&mut sm.opacity, free, v_alpha.mul(ev.g));
-            let v_rho = sp(-0.5).mul(v_alpha).mul(o).mul(ev.g);
-            let on3d = S::and(free, ev.use3d);
-            gu = S::select(on3d, gu.add(sp(2.0).mul(v_rho).mul(ev.u)), gu);
-            gv = S::select(on3d, gv.add(sp(2.0).mul(v_rho).mul(ev.v)), gv);
-            let on2d = S::andnot(free, ev.use3d);
-            let v4 = sp(4.0).mul(v_rho);
-            acc(&mut sm.center[0], on2d, v4.mul(c0v.sub(x)));
-            acc(&mut sm.center[1], on2d, v4.mul(dy));
-            let inv = ev.inv_pz;
-            let gp = [gu.mul(inv), gv.mul(inv), zero.sub(gu.mul(ev.u).add(gv.mul(ev.v))).mul(inv)];
-            for j in 0..3 {
-                // Masked once; x and y are finite pixel centres.
-                let gpm = S::select(m, gp[j], zero);
-                sm.gp[j] = sm.gp[j].add(gpm);
-                sm.gp_x[j] = x.mul_add(gpm, sm.gp_x[j]);
-                sm.gp_y[j] = yv.mul_add(gpm, sm.gp_y[j]);
-            }
+        for gr in &groups.wide {
+            any |= k.group::<DIST, FEAT, false>(gr, &mut sm, &mut fsum);
+        }
+        for gr in &groups.packed {
+            any |= k.group::<DIST, FEAT, true>(gr, &mut sm, &mut fsum);
         }
         if !any {
             continue;
@@ -349,13 +414,13 @@ unsafe fn tile_avx2<const DIST: bool, const FEAT: bool>(
     buf: &mut Vec<f32>,
     by_ncon: &mut Vec<(u32, u32)>,
     row_act: &mut [u64],
-    groups: &mut Vec<Group>,
+    groups: &mut Groups,
 ) {
     tile_k::<crate::simd::F8, DIST, FEAT>(ctx, t, eg, buf, by_ncon, row_act, groups)
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx2,fma")]
+#[target_feature(enable = "avx512f,avx512vl,avx2,fma")]
 unsafe fn tile_avx512<const DIST: bool, const FEAT: bool>(
     ctx: &Ctx<f32>,
     t: usize,
@@ -363,9 +428,9 @@ unsafe fn tile_avx512<const DIST: bool, const FEAT: bool>(
     buf: &mut Vec<f32>,
     by_ncon: &mut Vec<(u32, u32)>,
     row_act: &mut [u64],
-    groups: &mut Vec<Group>,
+    groups: &mut Groups,
 ) {
-    tile_k::<crate::simd::F16, DIST, FEAT>(ctx, t, eg, buf, by_ncon, row_act, groups)
+    tile_k::<crate::simd::F8k, DIST, FEAT>(ctx, t, eg, buf, by_ncon, row_act, groups)
 }
 
 /// Runs tile `t` on the SIMD path `path` (already resolved); false when `path` is scalar (the
@@ -380,7 +445,7 @@ pub(crate) fn backward_tile_simd(
     buf: &mut Vec<f32>,
     by_ncon: &mut Vec<(u32, u32)>,
     row_act: &mut [u64],
-    groups: &mut Vec<Group>,
+    groups: &mut Groups,
 ) -> bool {
     #[cfg(target_arch = "x86_64")]
     {

@@ -5,7 +5,8 @@
 //!
 //! Same work split and order as the scalar kernel: per row of tiles, per tile front to back,
 //! per Gaussian the rows of its box narrowed by the row chord and the live-pixel masks. A row
-//! segment is processed `N` pixels at a time: the ray-splat evaluation ([`eval_lanes`], the
+//! segment is processed `N` pixels at a time, and two segments of at most `N/2` pixels on
+//! different rows share one lane group ([`Group`]): the ray-splat evaluation ([`eval_lanes`], the
 //! arithmetic of [`crate::splat::eval_row`] lane by lane) and the compositing, with the per-pixel
 //! accumulators of the tile kept as one array per quantity so that `N` neighbouring pixels are
 //! one load. Skipped, finished and outside pixels are masked, never branched on. Every per-pixel
@@ -37,21 +38,29 @@ pub(crate) struct Eval<S: Lanes> {
     pub use3d: S::M,
 }
 
-/// [`crate::splat::eval_row`]'s per-pixel arithmetic at pixel centres `x` of the row with centre
-/// `y` set up by `rs` (same operations, same order, so the same bits).
+/// The per-row inputs of a lane group, per lane: the hit-plane setup ([`RowSetup`]) and the
+/// row centre y of the row each lane lies on.
+pub(crate) struct RowLanes<S> {
+    pub a: [S; 3],
+    pub b: [S; 3],
+    pub y: S,
+}
+
+/// [`crate::splat::eval_row`]'s per-pixel arithmetic at pixel centres `x` on the rows `r` (same
+/// operations, same order, so the same bits).
 #[inline(always)]
-pub(crate) unsafe fn eval_lanes<S: Lanes>(rec: &TileRec<f32>, rs: &RowSetup<f32>, x: S, y: f32, near: f32) -> Eval<S> {
+pub(crate) unsafe fn eval_lanes<S: Lanes>(rec: &TileRec<f32>, r: &RowLanes<S>, x: S, near: f32) -> Eval<S> {
     let sp = |v: f32| S::splat(v);
-    let px = x.mul(sp(rs.a[0])).sub(sp(rs.b[0]));
-    let py = x.mul(sp(rs.a[1])).sub(sp(rs.b[1]));
-    let pz = x.mul(sp(rs.a[2])).sub(sp(rs.b[2]));
+    let px = x.mul(r.a[0]).sub(r.b[0]);
+    let py = x.mul(r.a[1]).sub(r.b[1]);
+    let pz = x.mul(r.a[2]).sub(r.b[2]);
     let inv_pz = sp(1.0).div(pz);
     let u = px.mul(inv_pz);
     let v = py.mul(inv_pz);
     let rho3 = u.mul(u).add(v.mul(v));
     let dx = sp(rec.center[0]).sub(x);
-    let dy = rec.center[1] - y;
-    let rho2 = sp(2.0).mul(dx.mul(dx).add(sp(dy * dy)));
+    let dy = sp(rec.center[1]).sub(r.y);
+    let rho2 = sp(2.0).mul(dx.mul(dx).add(dy.mul(dy)));
     let use3d = rho3.le(rho2);
     let rho = S::select(use3d, rho3, rho2);
     let z = u.mul(sp(rec.h[6])).add(v.mul(sp(rec.h[7]))).add(sp(rec.h[8]));
@@ -63,65 +72,243 @@ pub(crate) unsafe fn eval_lanes<S: Lanes>(rec: &TileRec<f32>, rs: &RowSetup<f32>
     Eval { alpha: S::select(valid, alpha, sp(0.0)), u, v, z, g, inv_pz, use3d }
 }
 
-/// `*p += d` on the lanes of `m`.
-#[inline(always)]
-pub(crate) unsafe fn add_masked<S: Lanes>(p: *mut f32, m: S::M, d: S) {
-    let v = S::load(p);
-    S::select(m, v.add(d), v).store(p);
-}
-
-/// `*p = d` on the lanes of `m`.
-#[inline(always)]
-pub(crate) unsafe fn set_masked<S: Lanes>(p: *mut f32, m: S::M, d: S) {
-    let v = S::load(p);
-    S::select(m, d, v).store(p);
-}
-
-/// One lane group of a (tile, Gaussian) entry: up to `S::N` pixels of one row of the Gaussian's
-/// box, narrowed by the row chord and the live pixels. An entry's groups are listed first (the
-/// branchy scalar part: chords, live masks) and then run through a branch-free lane loop, so the
-/// out-of-order core overlaps the long dependency chains of neighbouring groups instead of
-/// stalling on a mispredicted branch between them.
+/// One lane group of a (tile, Gaussian) entry: pixels of the Gaussian's box, narrowed by the
+/// row chords and the live pixels, in one of two shapes. A *wide* group is up to `N` consecutive
+/// pixels of one row. A *packed* group is two halves of up to `N/2` consecutive pixels each, on
+/// two different rows: most splats of a trained scene cover row segments of one to four pixels,
+/// and packing two of them fills the lanes that a wide group would leave idle (a trained lego
+/// scene fills 39% of its lanes with wide groups alone; docs/performance.md).
+///
+/// An entry's groups are listed first (the branchy scalar part: chords, live masks) and then run
+/// through a branch-free lane loop, so the out-of-order core overlaps the long dependency chains
+/// of neighbouring groups instead of stalling on a mispredicted branch between them.
 #[derive(Clone, Copy, Default)]
 pub(crate) struct Group {
-    /// The row's hit-plane setup.
-    pub rs: RowSetup<f32>,
-    /// Row centre y.
-    pub yf: f32,
-    /// Centre x of the row segment's first pixel.
-    pub xs: f32,
-    /// This group's first pixel, counted from the segment's first.
-    pub off: f32,
-    /// Row in the tile.
-    pub ry: u16,
-    /// Column in the tile of the first pixel.
-    pub c0: u16,
+    /// Each half's row setup (a wide group uses the first).
+    pub rs: [RowSetup<f32>; 2],
+    /// Each half's row centre y.
+    pub yf: [f32; 2],
+    /// Centre x of each half's first pixel.
+    pub x0: [f32; 2],
+    /// Index of each half's first pixel in the tile arrays (`row * stride + column`).
+    pub at: [u32; 2],
+    /// Each half's row in the tile.
+    pub ry: [u16; 2],
+    /// Each half's first column in the tile.
+    pub c0: [u16; 2],
     /// Live lanes.
     pub lb: u32,
 }
 
-/// Lists in `out` the `n`-lane groups of entry `s` clipped to the tile with pixel rectangle
-/// `tr`, where `live[row]` marks the tile's live columns.
+impl Group {
+    /// The lanes' pixel-centre x.
+    #[inline(always)]
+    pub(crate) unsafe fn x<S: Lanes, const PACKED: bool>(&self) -> S {
+        if PACKED {
+            S::halves(self.x0[0], self.x0[1]).add(S::iota2())
+        } else {
+            S::splat(self.x0[0]).add(S::iota())
+        }
+    }
+
+    /// The lanes' row inputs.
+    #[inline(always)]
+    pub(crate) unsafe fn rows<S: Lanes, const PACKED: bool>(&self) -> RowLanes<S> {
+        let f = |lo: f32, hi: f32| if PACKED { S::halves(lo, hi) } else { S::splat(lo) };
+        let [r0, r1] = &self.rs;
+        RowLanes {
+            a: [f(r0.a[0], r1.a[0]), f(r0.a[1], r1.a[1]), f(r0.a[2], r1.a[2])],
+            b: [f(r0.b[0], r1.b[0]), f(r0.b[1], r1.b[1]), f(r0.b[2], r1.b[2])],
+            y: f(self.yf[0], self.yf[1]),
+        }
+    }
+
+    /// The lanes of tile array `p`.
+    #[inline(always)]
+    pub(crate) unsafe fn load<S: Lanes, const PACKED: bool>(&self, p: *const f32) -> S {
+        if PACKED {
+            S::load2(p.add(self.at[0] as usize), p.add(self.at[1] as usize))
+        } else {
+            S::load(p.add(self.at[0] as usize))
+        }
+    }
+
+    /// Stores `v` to the lanes of tile array `p`.
+    #[inline(always)]
+    pub(crate) unsafe fn store<S: Lanes, const PACKED: bool>(&self, p: *mut f32, v: S) {
+        if PACKED {
+            v.store2(p.add(self.at[0] as usize), p.add(self.at[1] as usize))
+        } else {
+            v.store(p.add(self.at[0] as usize))
+        }
+    }
+
+    /// `*p += d` on the lanes of `m`.
+    #[inline(always)]
+    pub(crate) unsafe fn add_masked<S: Lanes, const PACKED: bool>(&self, p: *mut f32, m: S::M, d: S) {
+        let v = self.load::<S, PACKED>(p);
+        self.store::<S, PACKED>(p, S::select(m, v.add(d), v));
+    }
+
+    /// `*p = d` on the lanes of `m`.
+    #[inline(always)]
+    pub(crate) unsafe fn set_masked<S: Lanes, const PACKED: bool>(&self, p: *mut f32, m: S::M, d: S) {
+        if PACKED {
+            d.store2_where(m, p.add(self.at[0] as usize), p.add(self.at[1] as usize))
+        } else {
+            d.store_where(m, p.add(self.at[0] as usize))
+        }
+    }
+
+    /// Clears the lanes set in `bits` from the per-row column masks `rows`.
+    #[inline(always)]
+    pub(crate) fn clear<const PACKED: bool>(&self, rows: &mut [u64], bits: u32, n: usize) {
+        if PACKED {
+            let h = n / 2;
+            let lo = bits & ((1u32 << h) - 1);
+            rows[self.ry[0] as usize] &= !((lo as u64) << self.c0[0]);
+            rows[self.ry[1] as usize] &= !(((bits >> h) as u64) << self.c0[1]);
+        } else {
+            rows[self.ry[0] as usize] &= !((bits as u64) << self.c0[0]);
+        }
+    }
+}
+
+/// The lane groups of one entry: `wide` and `packed` (see [`Group`]). Every pixel of the entry
+/// lies in exactly one group, so the two lists may run in either order.
+pub(crate) struct Groups {
+    pub wide: Vec<Group>,
+    pub packed: Vec<Group>,
+    /// The row chords of the entry's box rows ([`chord_lanes`]).
+    lo: Vec<f32>,
+    hi: Vec<f32>,
+}
+
+impl Groups {
+    /// Lists for tiles of side up to `tile`.
+    pub(crate) fn new(tile: usize) -> Self {
+        // Chords are stored a whole lane group at a time.
+        let len = tile + MAX_LANES;
+        Self { wide: Vec::new(), packed: Vec::new(), lo: vec![0.0; len], hi: vec![0.0; len] }
+    }
+}
+
+/// The widest lane type.
+const MAX_LANES: usize = 16;
+
+/// [`crate::splat::RowConic::chord`] for the rows with centres `y`, lane by lane (the same
+/// operations; where the scalar code branches, the lanes select).
 #[inline(always)]
-pub(crate) fn list_groups(s: &TileRec<f32>, tr: &[u32; 4], live: &[u64], n: usize, out: &mut Vec<Group>) {
-    out.clear();
-    let (tx0, ty0) = (tr[0] as usize, tr[2] as usize);
-    let bx = EntryBox::new(s, tr);
-    for y in bx.rows.clone() {
-        let ry = y - ty0;
-        let lv = live[ry];
-        let Some((yf, xa, xb)) = bx.row_span::<f32>(&s.conic, y, lv) else { continue };
-        let rs = row_setup(&s.h, yf);
-        let xs = (xa as f64 + 0.5) as f32;
-        let mut k = xa;
-        while k < xb {
-            let c0 = k - tx0;
-            let lanes = (xb - k).min(n);
-            let lb = (lv >> c0) as u32 & ((1u64 << lanes) - 1) as u32;
-            if lb != 0 {
-                out.push(Group { rs, yf, xs, off: (k - xa) as f32, ry: ry as u16, c0: c0 as u16, lb });
+unsafe fn chord_lanes<S: Lanes>(conic: &crate::splat::RowConic, c: [f32; 2], y: S) -> (S, S) {
+    let sp = |v: f32| S::splat(v);
+    let (k, disk_r2) = conic.coefficients();
+    let t = y.sub(sp(c[1]));
+    let bh = sp(k[0]).add(t.mul(sp(k[1])));
+    let ch = sp(k[2]).add(t.mul(sp(k[3]).add(t.mul(sp(k[4])))));
+    let disc = bh.mul(bh).sub(ch);
+    let e2 = sp(disk_r2).sub(t.mul(t));
+    // The square roots of negative lanes are NaN and selected away.
+    let (has, sq) = (disc.ge(sp(0.0)), disc.sqrt());
+    let mid = sp(c[0]).sub(bh);
+    let lo = S::select(has, mid.sub(sq), sp(f32::INFINITY));
+    let hi = S::select(has, mid.add(sq), sp(f32::NEG_INFINITY));
+    let (hasd, e) = (e2.ge(sp(0.0)), e2.sqrt());
+    let (a, b) = (sp(c[0]).sub(e), sp(c[0]).add(e));
+    // f32::min / max: the other operand when it is smaller / larger (a NaN never is).
+    let lo = S::select(S::and(hasd, a.lt(lo)), a, lo);
+    let hi = S::select(S::and(hasd, b.gt(hi)), b, hi);
+    (lo, hi)
+}
+
+/// One row piece of at most `n` pixels, before it is placed in a group.
+#[derive(Clone, Copy)]
+struct Piece {
+    rs: RowSetup<f32>,
+    yf: f32,
+    x0: f32,
+    at: u32,
+    ry: u16,
+    c0: u16,
+    lb: u32,
+}
+
+impl Groups {
+    /// Lists the `n`-lane groups of entry `s` clipped to the tile with pixel rectangle `tr`,
+    /// where `live[row]` marks the tile's live columns and a tile row is `stride` apart. Pieces
+    /// of at most `n/2` pixels are paired into packed groups; an unpaired one is a wide group.
+    #[inline(always)]
+    pub(crate) unsafe fn list<S: Lanes>(&mut self, s: &TileRec<f32>, tr: &[u32; 4], live: &[u64], stride: usize) {
+        let n = S::N;
+        self.wide.clear();
+        self.packed.clear();
+        let (tx0, ty0) = (tr[0] as usize, tr[2] as usize);
+        let bx = EntryBox::new(s, tr);
+        let rows = bx.rows.clone();
+        let bounded = s.conic.bounded();
+        if bounded {
+            // The row chords, N rows at a time (the scalar chord's operations lane by lane).
+            let mut y = rows.start;
+            while y < rows.end {
+                let yl = S::splat((y as f64 + 0.5) as f32).add(S::iota());
+                let (lo, hi) = chord_lanes(&s.conic, bx.center(), yl);
+                let i = y - rows.start;
+                lo.store(self.lo.as_mut_ptr().add(i));
+                hi.store(self.hi.as_mut_ptr().add(i));
+                y += S::N;
             }
-            k += n;
+        }
+        let mut half: Option<Piece> = None;
+        for y in rows.clone() {
+            let ry = y - ty0;
+            let lv = live[ry];
+            let i = y - rows.start;
+            let chord = bounded.then(|| (self.lo[i], self.hi[i]));
+            let Some((xa, xb)) = bx.chord_span(chord, lv) else { continue };
+            let yf = (y as f64 + 0.5) as f32;
+            let rs = row_setup(&s.h, yf);
+            let mut k = xa;
+            while k < xb {
+                let (c0, lanes) = (k - tx0, (xb - k).min(n));
+                // The first pixel's centre as the scalar kernel takes it.
+                let x0 = (k as f64 + 0.5) as f32;
+                k += n;
+                let lb = (lv >> c0) as u32 & ((1u64 << lanes) - 1) as u32;
+                if lb == 0 {
+                    continue;
+                }
+                let p = Piece { rs, yf, x0, at: (ry * stride + c0) as u32, ry: ry as u16, c0: c0 as u16, lb };
+                if lanes > n / 2 {
+                    self.wide.push(p.group(None, n));
+                } else if let Some(first) = half.take() {
+                    self.packed.push(first.group(Some(&p), n));
+                } else {
+                    half = Some(p);
+                }
+            }
+        }
+        if let Some(p) = half {
+            self.wide.push(p.group(None, n));
+        }
+    }
+}
+
+impl Piece {
+    /// A wide group of this piece alone, or a packed one with `hi` as its second half.
+    #[inline(always)]
+    fn group(&self, hi: Option<&Piece>, n: usize) -> Group {
+        let h = hi.unwrap_or(self);
+        let lb = match hi {
+            Some(h) => self.lb | (h.lb << (n / 2)),
+            None => self.lb,
+        };
+        Group {
+            rs: [self.rs, h.rs],
+            yf: [self.yf, h.yf],
+            x0: [self.x0, h.x0],
+            at: [self.at, h.at],
+            ry: [self.ry, h.ry],
+            c0: [self.c0, h.c0],
+            lb,
         }
     }
 }
@@ -180,6 +367,88 @@ pub(crate) unsafe fn feat_weights<S: Lanes>(f: &FeatView<f32>, ut: S, vt: S) -> 
     }
 }
 
+/// What the compositing of one entry's groups reads: the tile arrays and the entry's values.
+struct Composite<'a, S: Lanes> {
+    /// The tile's accumulators, `np` floats per array (see the constants above).
+    base: *mut f32,
+    np: usize,
+    s: &'a TileRec<f32>,
+    near: f32,
+    m_scale: f32,
+    t_stop: f32,
+    /// Per-Gaussian colour and normal, broadcast.
+    col1: [S; 3],
+    nrm: [S; 3],
+    /// The entry's 1-based index in the tile (what `n_contrib` records).
+    local: S,
+    cf: &'a FeatView<'a, f32>,
+    ef: &'a FeatView<'a, f32>,
+    colv: &'a FeatLanes<S>,
+    extv: &'a FeatLanes<S>,
+}
+
+impl<S: Lanes> Composite<'_, S> {
+    /// Composites group `gr` into the tile arrays; returns the lanes that stopped (transmittance
+    /// fell under `t_stop`) and adds the composited weights to `ws`.
+    #[inline(always)]
+    unsafe fn group<const DIST: bool, const FEAT: bool, const PACKED: bool>(&self, gr: &Group, ws: &mut S) -> u32 {
+        let sp = |v: f32| S::splat(v);
+        let a = |k: usize| self.base.add(k * self.np);
+        let (ld, add, set) = (
+            |k: usize| gr.load::<S, PACKED>(a(k)),
+            |k: usize, m: S::M, d: S| gr.add_masked::<S, PACKED>(a(k), m, d),
+            |k: usize, m: S::M, d: S| gr.set_masked::<S, PACKED>(a(k), m, d),
+        );
+        let (cf, ef) = (self.cf, self.ef);
+        let (ci, ce) = (cf.vertices > 1, ef.channels);
+        let interp = ci || (ce > 0 && ef.vertices > 1);
+        let x = gr.x::<S, PACKED>();
+        let ev = eval_lanes::<S>(self.s, &gr.rows::<S, PACKED>(), x, self.near);
+        let live = S::and(S::from_bits(gr.lb), ev.alpha.ne(sp(0.0)));
+        let tcur = ld(T);
+        let test = tcur.mul(sp(1.0).sub(ev.alpha));
+        let stop = S::and(live, test.lt(sp(self.t_stop)));
+        let comp = S::andnot(live, stop);
+        let wgt = ev.alpha.mul(tcur);
+        let (ut, vt) = if FEAT && interp {
+            (normalised_coord_lanes(ev.u).0, normalised_coord_lanes(ev.v).0)
+        } else {
+            (sp(0.0), sp(0.0))
+        };
+        let col = if FEAT && ci {
+            let wc = weights_lanes(cf.vertices, ut, vt);
+            [self.colv.eval(cf, &wc, 0), self.colv.eval(cf, &wc, 1), self.colv.eval(cf, &wc, 2)]
+        } else {
+            self.col1
+        };
+        if FEAT && ce > 0 {
+            let we = feat_weights(ef, ut, vt);
+            for ch in 0..ce {
+                add(ARRAYS + ch, comp, wgt.mul(self.extv.eval(ef, &we, ch)));
+            }
+        }
+        for ch in 0..3 {
+            add(COL + ch, comp, wgt.mul(col[ch]));
+            add(NRM + ch, comp, wgt.mul(self.nrm[ch]));
+        }
+        add(DEP, comp, wgt.mul(ev.z));
+        if DIST {
+            // As the scalar kernel: w_i (m_i^2 A_i + M2 - 2 m_i M1), A_i = 1 - T_i.
+            let m = sp(self.m_scale).mul(sp(1.0).sub(sp(self.near).div(ev.z)));
+            let (m1, m2) = (ld(M1), ld(M2));
+            let d = m.mul(m).mul(sp(1.0).sub(tcur)).add(m2).sub(sp(2.0).mul(m).mul(m1)).mul(wgt);
+            add(DST, comp, d);
+            gr.store::<S, PACKED>(a(M1), S::select(comp, m1.add(m.mul(wgt)), m1));
+            gr.store::<S, PACKED>(a(M2), S::select(comp, m2.add(m.mul(m).mul(wgt)), m2));
+        }
+        set(MED, S::and(comp, tcur.gt(sp(0.5))), ev.z);
+        set(T, comp, test);
+        set(NCON, comp, self.local);
+        *ws = ws.add(S::select(comp, wgt, sp(0.0)));
+        S::bits(stop)
+    }
+}
+
 /// One row of tiles, `S::N` pixels at a time (see the module docs). `FEAT`: the colours or
 /// extra channels come from the feature tables `cf` / `ef` (interpolated over vertices).
 #[inline(always)]
@@ -196,8 +465,6 @@ unsafe fn band<S: Lanes, const DIST: bool, const FEAT: bool>(
     h: u32,
 ) {
     let sp = |v: f32| S::splat(v);
-    let (near, far, t_stop) = (cfg.near, cfg.far, cfg.t_stop);
-    let m_scale = far / (far - near);
     let wu = w as usize;
     let tile = bins.tile as usize;
     // Row stride: a full lane group from any column of the tile stays in its row.
@@ -207,12 +474,10 @@ unsafe fn band<S: Lanes, const DIST: bool, const FEAT: bool>(
     let y_band0 = (b.ty * bins.tile) as usize;
     let ce = ef.channels;
     let ci = cf.vertices > 1;
-    // Normalised hit coordinates are needed when some table has several vertices.
-    let interp = ci || (ce > 0 && ef.vertices > 1);
     let mut buf = vec![0f32; np * (ARRAYS + ce)];
     let (mut colv, mut extv) = (FeatLanes::<S> { v: Vec::new() }, FeatLanes::<S> { v: Vec::new() });
     let mut row_live = vec![0u64; tile];
-    let mut groups: Vec<Group> = Vec::with_capacity(tile * (tile / S::N + 2));
+    let mut groups = Groups::new(tile);
     for tx in 0..bins.tiles_x {
         let t = (b.ty * bins.tiles_x + tx) as usize;
         let tr = bins.tile_rect(t, w, h);
@@ -220,12 +485,6 @@ unsafe fn band<S: Lanes, const DIST: bool, const FEAT: bool>(
         let (tx0, ty0) = (tr[0] as usize, tr[2] as usize);
         buf[..np].fill(1.0);
         buf[np..].fill(0.0);
-        let base = buf.as_mut_ptr();
-        let a = |k: usize| base.add(k * np);
-        let (pt, pdep, pdst, pm1, pm2, pmed, pncon) = (a(T), a(DEP), a(DST), a(M1), a(M2), a(MED), a(NCON));
-        let pcol = [a(COL), a(COL + 1), a(COL + 2)];
-        let pnrm = [a(NRM), a(NRM + 1), a(NRM + 2)];
-        let pext = ARRAYS;
         let mut remaining = (tr[1] - tr[0]) as usize * (tr[3] - tr[2]) as usize;
         row_live.fill(columns_mask(0, (tr[1] - tr[0]) as usize));
         for e in r0 as usize..r1 as usize {
@@ -233,10 +492,7 @@ unsafe fn band<S: Lanes, const DIST: bool, const FEAT: bool>(
                 break;
             }
             let s = &recs[e];
-            list_groups(s, &tr, &row_live, S::N, &mut groups);
-            let local = sp((e - r0 as usize + 1) as f32);
-            let col1 = s.color.map(sp);
-            let nrm = s.normal.map(sp);
+            groups.list::<S>(s, &tr, &row_live, stride);
             if FEAT {
                 if ci {
                     colv.load(cf, s.id as usize);
@@ -245,56 +501,32 @@ unsafe fn band<S: Lanes, const DIST: bool, const FEAT: bool>(
                     extv.load(ef, s.id as usize);
                 }
             }
+            let k = Composite {
+                base: buf.as_mut_ptr(),
+                np,
+                s,
+                near: cfg.near,
+                m_scale: cfg.far / (cfg.far - cfg.near),
+                t_stop: cfg.t_stop,
+                col1: s.color.map(sp),
+                nrm: s.normal.map(sp),
+                local: sp((e - r0 as usize + 1) as f32),
+                cf,
+                ef,
+                colv: &colv,
+                extv: &extv,
+            };
             let mut ws = sp(0.0);
-            for gr in &groups {
-                let x = sp(gr.xs).add(S::iota().add(sp(gr.off)));
-                let ev = eval_lanes::<S>(s, &gr.rs, x, gr.yf, near);
-                let live = S::and(S::from_bits(gr.lb), ev.alpha.ne(sp(0.0)));
-                let i = gr.ry as usize * stride + gr.c0 as usize;
-                let tcur = S::load(pt.add(i));
-                let test = tcur.mul(sp(1.0).sub(ev.alpha));
-                let stop = S::and(live, test.lt(sp(t_stop)));
-                let sb = S::bits(stop);
-                // Branch-free: a group without stopping lanes clears nothing.
-                row_live[gr.ry as usize] &= !((sb as u64) << gr.c0);
+            // Branch-free: a group without stopping lanes clears nothing.
+            for gr in &groups.wide {
+                let sb = k.group::<DIST, FEAT, false>(gr, &mut ws);
+                gr.clear::<false>(&mut row_live, sb, S::N);
                 remaining -= sb.count_ones() as usize;
-                let comp = S::andnot(live, stop);
-                let wgt = ev.alpha.mul(tcur);
-                let (ut, vt) = if FEAT && interp {
-                    (normalised_coord_lanes(ev.u).0, normalised_coord_lanes(ev.v).0)
-                } else {
-                    (sp(0.0), sp(0.0))
-                };
-                let col = if FEAT && ci {
-                    let wc = weights_lanes(cf.vertices, ut, vt);
-                    [colv.eval(cf, &wc, 0), colv.eval(cf, &wc, 1), colv.eval(cf, &wc, 2)]
-                } else {
-                    col1
-                };
-                if FEAT && ce > 0 {
-                    let we = feat_weights(ef, ut, vt);
-                    for ch in 0..ce {
-                        add_masked::<S>(a(pext + ch).add(i), comp, wgt.mul(extv.eval(ef, &we, ch)));
-                    }
-                }
-                for ch in 0..3 {
-                    add_masked::<S>(pcol[ch].add(i), comp, wgt.mul(col[ch]));
-                    add_masked::<S>(pnrm[ch].add(i), comp, wgt.mul(nrm[ch]));
-                }
-                add_masked::<S>(pdep.add(i), comp, wgt.mul(ev.z));
-                if DIST {
-                    // As the scalar kernel: w_i (m_i^2 A_i + M2 - 2 m_i M1), A_i = 1 - T_i.
-                    let m = sp(m_scale).mul(sp(1.0).sub(sp(near).div(ev.z)));
-                    let (m1, m2) = (S::load(pm1.add(i)), S::load(pm2.add(i)));
-                    let d = m.mul(m).mul(sp(1.0).sub(tcur)).add(m2).sub(sp(2.0).mul(m).mul(m1)).mul(wgt);
-                    add_masked::<S>(pdst.add(i), comp, d);
-                    S::select(comp, m1.add(m.mul(wgt)), m1).store(pm1.add(i));
-                    S::select(comp, m2.add(m.mul(m).mul(wgt)), m2).store(pm2.add(i));
-                }
-                set_masked::<S>(pmed.add(i), S::and(comp, tcur.gt(sp(0.5))), ev.z);
-                set_masked::<S>(pt.add(i), comp, test);
-                set_masked::<S>(pncon.add(i), comp, local);
-                ws = ws.add(S::select(comp, wgt, sp(0.0)));
+            }
+            for gr in &groups.packed {
+                let sb = k.group::<DIST, FEAT, true>(gr, &mut ws);
+                gr.clear::<true>(&mut row_live, sb, S::N);
+                remaining -= sb.count_ones() as usize;
             }
             b.wsum[e - e_band0] = ws.hsum();
         }
@@ -343,7 +575,7 @@ unsafe fn band_avx2<const DIST: bool, const FEAT: bool>(
 }
 
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f,avx2,fma")]
+#[target_feature(enable = "avx512f,avx512vl,avx2,fma")]
 #[allow(clippy::too_many_arguments)]
 unsafe fn band_avx512<const DIST: bool, const FEAT: bool>(
     b: &mut Band<f32>,
@@ -356,7 +588,7 @@ unsafe fn band_avx512<const DIST: bool, const FEAT: bool>(
     w: u32,
     h: u32,
 ) {
-    band::<crate::simd::F16, DIST, FEAT>(b, bins, recs, cf, ef, bg, cfg, w, h)
+    band::<crate::simd::F8k, DIST, FEAT>(b, bins, recs, cf, ef, bg, cfg, w, h)
 }
 
 /// Runs the row of tiles on the SIMD path `path` (already resolved); false when `path` is
@@ -403,5 +635,93 @@ pub(crate) fn render_band_simd(
     {
         let _ = (path, b, bins, recs, cf, ef, bg, cfg, w, h);
         false
+    }
+}
+
+#[cfg(all(test, target_arch = "x86_64"))]
+mod tests {
+    use super::*;
+    use crate::bench::Problem;
+    use crate::preprocess::{preprocess, Cam};
+    use crate::simd::F8;
+    use crate::tiles::{bin, gather_records};
+    use svgir_core::rng::Rng;
+
+    /// Every pixel the scalar kernels visit (box rows narrowed by the chord and the live masks)
+    /// lies in exactly one lane group, at the right x, row setup and tile index; and small
+    /// splats do produce packed groups.
+    #[test]
+    fn groups_cover_the_scalar_spans_once() {
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            eprintln!("no AVX2 on this CPU: lane groups not checked");
+            return;
+        }
+        let p = Problem::new(3000, 96);
+        let input = p.input();
+        let cfg = RasterConfig::default();
+        let cam = Cam::<f32>::new(input.camera);
+        let (splats, _) = preprocess(input.surfels, &cam, &input.colors, &cfg);
+        let bins = bin(&splats, cam.width, cam.height, cfg.tile);
+        let recs = gather_records(&bins, &splats, None);
+        let tile = cfg.tile as usize;
+        let stride = tile + 8;
+        let mut groups = Groups::new(tile);
+        let mut rng = Rng::new(5);
+        let (mut packed, mut pixels) = (0, 0);
+        for t in 0..bins.ranges.len() {
+            let tr = bins.tile_rect(t, cam.width, cam.height);
+            let [r0, r1] = bins.ranges[t];
+            for s in &recs[r0 as usize..r1 as usize] {
+                // Random live columns (three in four), one row in eight dead.
+                let live: Vec<u64> = (0..tile)
+                    .map(|_| if rng.next_u64().is_multiple_of(8) { 0 } else { rng.next_u64() | rng.next_u64() })
+                    .collect();
+                let mut want = std::collections::BTreeSet::new();
+                let bx = EntryBox::new(s, &tr);
+                for y in bx.rows.clone() {
+                    let ry = y - tr[2] as usize;
+                    if let Some((_, xa, xb)) = bx.row_span::<f32>(&s.conic, y, live[ry]) {
+                        for x in xa..xb {
+                            if live[ry] >> (x - tr[0] as usize) & 1 == 1 {
+                                want.insert((y, x));
+                            }
+                        }
+                    }
+                }
+                unsafe { groups.list::<F8>(s, &tr, &live, stride) };
+                let mut got = std::collections::BTreeSet::new();
+                let mut lanes = |g: &Group, is_packed: bool| {
+                    let mut xs = [0f32; 8];
+                    unsafe {
+                        let x = if is_packed { g.x::<F8, true>() } else { g.x::<F8, false>() };
+                        x.store(xs.as_mut_ptr());
+                    }
+                    for l in 0..8 {
+                        if g.lb >> l & 1 == 0 {
+                            continue;
+                        }
+                        let (h, col) = if is_packed { (l / 4, l % 4) } else { (0, l) };
+                        let (ry, c) = (g.ry[h] as usize, g.c0[h] as usize + col);
+                        let (y, x) = (ry + tr[2] as usize, c + tr[0] as usize);
+                        assert_eq!(g.at[h] as usize + col, ry * stride + c, "tile index");
+                        assert_eq!(xs[l], x as f32 + 0.5, "pixel centre");
+                        assert_eq!(g.yf[h], y as f32 + 0.5, "row centre");
+                        assert_eq!(g.rs[h].a, row_setup(&s.h, g.yf[h]).a, "row setup");
+                        assert!(got.insert((y, x)), "pixel ({x}, {y}) in two groups");
+                    }
+                };
+                for g in &groups.wide {
+                    lanes(g, false);
+                }
+                for g in &groups.packed {
+                    assert_ne!(g.ry[0], g.ry[1], "a packed group's halves share a row");
+                    lanes(g, true);
+                }
+                packed += groups.packed.len();
+                pixels += want.len();
+                assert_eq!(got, want, "entry {} of tile {t}", s.id);
+            }
+        }
+        assert!(pixels > 10_000 && packed > 1000, "too few pixels ({pixels}) or packed groups ({packed})");
     }
 }

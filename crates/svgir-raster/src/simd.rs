@@ -12,4 +12,4 @@
 pub(crate) use svgir_core::simd::Lanes;
 pub use svgir_core::simd::{best_available, cpu_features, is_f32, Simd};
 #[cfg(target_arch = "x86_64")]
-pub(crate) use svgir_core::simd::{F16, F8};
+pub(crate) use svgir_core::simd::{F8k, F8};

@@ -106,6 +106,20 @@ impl RowConic {
         if !self.bounded {
             return (x0, x1);
         }
+        let (lo, hi) = self.chord(c, y);
+        chord_pixels(lo, hi, x0, x1)
+    }
+
+    /// Whether the chords are bounded (else every pixel of the box may pass).
+    #[inline(always)]
+    pub fn bounded(&self) -> bool {
+        self.bounded
+    }
+
+    /// The chord `[lo, hi]` (continuous x) of the row with centre `y`: the ellipse's joined with
+    /// the filter disk's, `lo > hi` when the row misses both.
+    #[inline(always)]
+    pub fn chord(&self, c: [f32; 2], y: f32) -> (f32, f32) {
         let t = y - c[1];
         let k = &self.k;
         let bh = k[0] + t * k[1];
@@ -123,16 +137,30 @@ impl RowConic {
             lo = lo.min(c[0] - e);
             hi = hi.max(c[0] + e);
         }
-        if lo.partial_cmp(&hi).is_none_or(|o| o.is_gt()) {
-            return (x0, x0);
-        }
-        // Pixel i (centre i + 0.5) with a one-pixel margin: i in [lo - 1.5, hi + 0.5].
-        let (fx0, fx1) = (x0 as f32, x1 as f32);
-        let lo_px = floor_clamped(lo - 1.5, fx0, fx1);
-        let lo_px = if (lo_px as f32) < lo - 1.5 { lo_px + 1 } else { lo_px }.min(x1);
-        let hi_px = (floor_clamped(hi + 0.5, fx0, fx1) + 1).min(x1);
-        (lo_px, hi_px.max(lo_px))
+        (lo, hi)
     }
+
+    /// The coefficients `[B0, B1, C0, C1, C2] / A` and the filter disk's squared radius, for
+    /// lane versions of [`RowConic::chord`].
+    #[inline(always)]
+    pub(crate) fn coefficients(&self) -> ([f32; 5], f32) {
+        (self.k, self.disk_r2)
+    }
+}
+
+/// The pixels `[lo_px, hi_px)` of `[x0, x1)` whose centres lie within a pixel of the chord
+/// `[lo, hi]` ([`RowConic::chord`]); empty as `lo_px == hi_px`.
+#[inline(always)]
+pub fn chord_pixels(lo: f32, hi: f32, x0: usize, x1: usize) -> (usize, usize) {
+    if lo.partial_cmp(&hi).is_none_or(|o| o.is_gt()) {
+        return (x0, x0);
+    }
+    // Pixel i (centre i + 0.5) with a one-pixel margin: i in [lo - 1.5, hi + 0.5].
+    let (fx0, fx1) = (x0 as f32, x1 as f32);
+    let lo_px = floor_clamped(lo - 1.5, fx0, fx1);
+    let lo_px = if (lo_px as f32) < lo - 1.5 { lo_px + 1 } else { lo_px }.min(x1);
+    let hi_px = (floor_clamped(hi + 0.5, fx0, fx1) + 1).min(x1);
+    (lo_px, hi_px.max(lo_px))
 }
 
 /// `floor(v)` clamped to `[lo, hi]` (both non-negative and below 2^24) as an index, without a

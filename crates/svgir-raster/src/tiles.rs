@@ -281,6 +281,26 @@ impl EntryBox {
         let (xa, xb) = live_span(live, self.tx0, xa, xb)?;
         Some((yf, xa, xb))
     }
+
+    /// [`EntryBox::row_span`] from a row chord computed elsewhere (`None`: unbounded, the whole
+    /// box row): the pixels `[xa, xb)`, or `None` when nothing is left.
+    #[inline(always)]
+    pub(crate) fn chord_span(&self, chord: Option<(f32, f32)>, live: u64) -> Option<(usize, usize)> {
+        if live == 0 {
+            return None;
+        }
+        let (xa, xb) = match chord {
+            Some((lo, hi)) => crate::splat::chord_pixels(lo, hi, self.x0, self.x1),
+            None => (self.x0, self.x1),
+        };
+        live_span(live, self.tx0, xa, xb)
+    }
+
+    /// The projected centre in f32, as the row chords take it.
+    #[inline(always)]
+    pub(crate) fn center(&self) -> [f32; 2] {
+        self.c32
+    }
 }
 
 /// Bit mask of tile columns `[lo, hi)` (`lo <= hi <= 64`), for per-row sets of live pixels.
