@@ -35,6 +35,8 @@ pub mod env;
 pub mod env_colour;
 pub mod grads;
 pub mod material;
+#[cfg(target_arch = "x86_64")]
+mod sample_lanes;
 pub mod shade;
 pub mod shade_backward;
 #[cfg(target_arch = "x86_64")]

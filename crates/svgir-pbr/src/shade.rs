@@ -276,10 +276,17 @@ pub(crate) fn samples<'s, F: Float>(
     frame: &'s Frame,
     i: usize,
 ) -> impl Iterator<Item = Sample<F>> + 's {
+    (0..inp.mb.k).filter_map(move |k| sample(inp, table, cache, frame, i, k)).chain(light_samples(inp, i))
+}
+
+/// The directional-light samples of Gaussian i (the tail of [`samples`]).
+#[inline]
+pub(crate) fn light_samples<'s, F: Float>(
+    inp: &'s ShadeInputs<'s, F>,
+    i: usize,
+) -> impl Iterator<Item = Sample<F>> + 's {
     let lights = inp.lights.filter(|l| !l.is_empty());
-    (0..inp.mb.k)
-        .filter_map(move |k| sample(inp, table, cache, frame, i, k))
-        .chain(lights.into_iter().flat_map(move |l| (0..l.len()).filter_map(move |b| light_sample(inp, l, i, b))))
+    lights.into_iter().flat_map(move |l| (0..l.len()).filter_map(move |b| light_sample(inp, l, i, b)))
 }
 
 /// IEEE binary16 to f32, equal to `svgir_trace::pack::f16_to_f32` for every input (tested

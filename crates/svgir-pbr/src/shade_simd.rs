@@ -26,7 +26,8 @@
 // through `Simd::resolve`) -- so the operations inside need no block of their own.
 #![allow(unsafe_op_in_unsafe_fn)]
 
-use crate::shade::{gaussian, samples, FibTable, Frame, Sample, ShadeInputs};
+use crate::sample_lanes::{samples8, serves, LANES};
+use crate::shade::{gaussian, light_samples, sample, samples, FibTable, Frame, Sample, ShadeInputs};
 use svgir_core::simd::{Lanes, F8};
 use svgir_shading::split::Lobe;
 use svgir_shading::{DOT_EPS, F0};
@@ -90,16 +91,40 @@ impl SampleRows {
             v.clear();
         }
         let mut n = 0usize;
-        for s in samples(inp, table, cache, &frame, i) {
-            for c in 0..3 {
-                self.dir[c].push(s.dir[c]);
-                self.direct[c].push(s.direct[c]);
-                self.ind[c].push(s.ind[c]);
+        match cache.filter(|_| serves(inp, cache)) {
+            Some(c) => {
+                // The K directions eight at a time in lanes (`sample_lanes`, the scalar values
+                // bit for bit), a tail of fewer than eight and the lights as the scalar code.
+                let k = inp.mb.k;
+                let full = k - k % LANES;
+                for k0 in (0..full).step_by(LANES) {
+                    // SAFETY: the caller of the `_avx2` kernels checked that the CPU has AVX2;
+                    // k0 + 8 <= K and `serves` holds.
+                    let s8 = unsafe { samples8(inp, table, c, &frame, i, k0) };
+                    let mut y = s8.yields;
+                    while y != 0 {
+                        let l = y.trailing_zeros() as usize;
+                        y &= y - 1;
+                        let (d, dl, il) = s8.rows(l);
+                        self.push_rows(d, dl, il);
+                        if keep {
+                            self.kept.push(s8.sample(l));
+                        }
+                        n += 1;
+                    }
+                }
+                let tail = (full..k).filter_map(|kk| sample(inp, table, cache, &frame, i, kk));
+                for s in tail.chain(light_samples(inp, i)) {
+                    self.push(s, keep);
+                    n += 1;
+                }
             }
-            if keep {
-                self.kept.push(s);
+            None => {
+                for s in samples(inp, table, cache, &frame, i) {
+                    self.push(s, keep);
+                    n += 1;
+                }
             }
-            n += 1;
         }
         // Padding: a zero direction has cos = 0, so the select drops it.
         let padded = n.next_multiple_of(W);
@@ -116,6 +141,25 @@ impl SampleRows {
                 v.clear();
                 v.resize(padded, 0.0);
             }
+        }
+    }
+
+    /// Appends one sample's direction and light to the rows.
+    #[inline(always)]
+    fn push_rows(&mut self, dir: [f32; 3], direct: [f32; 3], ind: [f32; 3]) {
+        for c in 0..3 {
+            self.dir[c].push(dir[c]);
+            self.direct[c].push(direct[c]);
+            self.ind[c].push(ind[c]);
+        }
+    }
+
+    /// Appends sample `s` to the rows, and to `kept` for the backward when `keep`.
+    #[inline(always)]
+    fn push(&mut self, s: Sample<f32>, keep: bool) {
+        self.push_rows(s.dir, s.direct, s.ind);
+        if keep {
+            self.kept.push(s);
         }
     }
 

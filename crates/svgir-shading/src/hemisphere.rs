@@ -62,6 +62,11 @@ pub struct FibTable {
 }
 
 impl FibTable {
+    /// The table's rows `[cos g_k, sin g_k, r_k, z_k]` (lane kernels read them directly).
+    pub fn rows(&self) -> [&[f32]; 4] {
+        [&self.c, &self.s, &self.r, &self.z]
+    }
+
     /// Number of directions.
     pub fn len(&self) -> usize {
         self.z.len()
@@ -100,6 +105,11 @@ impl HemiFrame {
         let (b1, b2) = tangent_frame(n);
         let (sx, cx) = xi.sin_cos();
         Self { b1, b2, n, cx, sx }
+    }
+
+    /// `(b1, b2, n, cos xi, sin xi)`: what [`HemiFrame::dir`] combines (for lane kernels).
+    pub fn parts(&self) -> (Vec3, Vec3, Vec3, f32, f32) {
+        (self.b1, self.b2, self.n, self.cx, self.sx)
     }
 
     /// Direction k: `b1 r cos(g_k + xi) + b2 r sin(g_k + xi) + n z`.

@@ -105,6 +105,12 @@ impl DirectionCache {
         Ok(())
     }
 
+    /// The clamped `(fx, fy)` of samples `s..s + len` and the map size `(width, height)` they
+    /// index ([`DirectionCache::taps`] is `Taps::at` of one of them).
+    pub fn coords(&self, s: usize, len: usize) -> (&[[f32; 2]], u32, u32) {
+        (&self.coords[s..s + len], self.width, self.height)
+    }
+
     /// The bilinear taps of sample `s = i * K + k`, equal to `EnvMap::taps` of its direction.
     #[inline]
     pub fn taps(&self, s: usize) -> Taps {

@@ -1,0 +1,315 @@
+//! The micro-buffer samples of one Gaussian ([`crate::shade::sample`] for k = 0..K), eight
+//! directions at a time in AVX2 lanes, for the lane kernels of [`crate::shade_simd`] on the
+//! stage-2 path (env taps from a [`DirectionCache`], traced or no indirect light).
+//!
+//! Per sample the scalar code rotates a Fibonacci direction into the Gaussian's frame, decodes
+//! the visibility, turns the cached texel coordinates into four bilinear taps, masks the taps
+//! that are directional lights, reads and clamps the environment, and decodes the traced
+//! radiance: about 200 cycles of scalar work, done for the forward and again for the backward
+//! (a fifth of a stage-2 iteration on the shipped scene, docs/performance.md). Here the
+//! direction, the visibility, the taps, the env reads (gathers) and the clamp run over eight
+//! samples at once with the scalar operations in the scalar order (no FMA), so every value is
+//! the scalar one bit for bit; the light mask, the f16 decode and the skip of samples that carry
+//! nothing stay scalar per lane, and the samples come out in the scalar order.
+//!
+//! Work split: one call per (Gaussian, 8 directions); nothing is allocated or saved.
+
+// The kernel is an `unsafe fn` with one contract -- the CPU has AVX2 and the sample range lies
+// inside the micro-buffer -- so the operations inside need no block of their own.
+#![allow(unsafe_op_in_unsafe_fn)]
+
+use crate::shade::{half_to_f32, FibTable, Frame, Indirect, Sample, ShadeInputs};
+use core::arch::x86_64::*;
+use svgir_core::envmap::Taps;
+use svgir_trace::DirectionCache;
+
+/// Directions per call.
+pub(crate) const LANES: usize = 8;
+
+/// Eight consecutive samples `(i, k0..k0 + 8)`, lane-major; `yields` has bit l set when lane l is
+/// a sample ([`crate::shade::sample`] returns `Some`).
+pub(crate) struct Samples8 {
+    pub yields: u32,
+    dir: [[f32; LANES]; 3],
+    vis: [f32; LANES],
+    direct: [[f32; LANES]; 3],
+    live: [[f32; LANES]; 3],
+    index: [[u32; LANES]; 4],
+    weight: [[f32; LANES]; 4],
+    traced: [[f32; LANES]; 3],
+    ind: [[f32; LANES]; 3],
+}
+
+impl Samples8 {
+    /// Lane l's direction, direct light and indirect light.
+    #[inline(always)]
+    pub(crate) fn rows(&self, l: usize) -> ([f32; 3], [f32; 3], [f32; 3]) {
+        let g = |a: &[[f32; LANES]; 3]| [a[0][l], a[1][l], a[2][l]];
+        (g(&self.dir), g(&self.direct), g(&self.ind))
+    }
+
+    /// Lane l as the scalar [`Sample`].
+    #[inline(always)]
+    pub(crate) fn sample(&self, l: usize) -> Sample<f32> {
+        let (dir, direct, ind) = self.rows(l);
+        Sample {
+            dir,
+            vis: self.vis[l],
+            direct,
+            live: [0, 1, 2].map(|c| self.live[c][l] != 0.0),
+            taps: Taps { index: self.index.map(|t| t[l]), weight: self.weight.map(|t| t[l]) },
+            traced: [self.traced[0][l], self.traced[1][l], self.traced[2][l]],
+            ind,
+        }
+    }
+}
+
+/// Whether [`samples8`] serves these inputs: cached taps and traced or no indirect light.
+pub(crate) fn serves(inp: &ShadeInputs<f32>, cache: Option<&DirectionCache>) -> bool {
+    cache.is_some() && matches!(inp.indirect, Indirect::Off | Indirect::Traced { .. })
+}
+
+/// Samples `(i, k0..k0 + 8)` of Gaussian i with frame `frame`.
+///
+/// # Safety
+/// The CPU has AVX2, `k0 + 8 <= K`, `cache` is the micro-buffer's, and [`serves`] holds.
+#[target_feature(enable = "avx2")]
+pub(crate) unsafe fn samples8(
+    inp: &ShadeInputs<f32>,
+    table: &FibTable,
+    cache: &DirectionCache,
+    frame: &Frame,
+    i: usize,
+    k0: usize,
+) -> Samples8 {
+    let mb = inp.mb;
+    let s0 = i * mb.k + k0;
+    let zero = _mm256_setzero_ps();
+    let mut out = Samples8 {
+        yields: 0,
+        dir: [[0.0; LANES]; 3],
+        vis: [0.0; LANES],
+        direct: [[0.0; LANES]; 3],
+        live: [[0.0; LANES]; 3],
+        index: [[0; LANES]; 4],
+        weight: [[0.0; LANES]; 4],
+        traced: [[0.0; LANES]; 3],
+        ind: [[0.0; LANES]; 3],
+    };
+
+    // The direction (`HemiFrame::dir`): c = c_k cx - s_k sx, s = s_k cx + c_k sx,
+    // d = (b1 (r c) + b2 (r s)) + n z.
+    let (b1, b2, n, cx, sx) = frame.parts();
+    let [tc, ts, tr, tz] = table.rows();
+    let row = |r: &[f32]| _mm256_loadu_ps(r[k0..k0 + LANES].as_ptr());
+    let (ck, sk, rk, zk) = (row(tc), row(ts), row(tr), row(tz));
+    let (cxv, sxv) = (_mm256_set1_ps(cx), _mm256_set1_ps(sx));
+    let c = _mm256_sub_ps(_mm256_mul_ps(ck, cxv), _mm256_mul_ps(sk, sxv));
+    let s = _mm256_add_ps(_mm256_mul_ps(sk, cxv), _mm256_mul_ps(ck, sxv));
+    let (rc, rs) = (_mm256_mul_ps(rk, c), _mm256_mul_ps(rk, s));
+    for a in 0..3 {
+        let d = _mm256_add_ps(
+            _mm256_add_ps(_mm256_mul_ps(_mm256_set1_ps(b1[a]), rc), _mm256_mul_ps(_mm256_set1_ps(b2[a]), rs)),
+            _mm256_mul_ps(_mm256_set1_ps(n[a]), zk),
+        );
+        _mm256_storeu_ps(out.dir[a].as_mut_ptr(), d);
+    }
+
+    // The visibility: u16 unorm as `q as f32 * (1 / 65535)`, or 1 with the switch off.
+    let vis = if inp.params.visibility {
+        let q = _mm_loadu_si128(mb.vis[s0..s0 + LANES].as_ptr() as *const __m128i);
+        const INV: f32 = 1.0 / 65535.0;
+        _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_cvtepu16_epi32(q)), _mm256_set1_ps(INV))
+    } else {
+        _mm256_set1_ps(1.0)
+    };
+    _mm256_storeu_ps(out.vis.as_mut_ptr(), vis);
+
+    // The taps (`Taps::at` of the cached coordinates): truncation is floor for fx, fy >= 0.
+    let (coords, width, height) = cache.coords(s0, LANES);
+    let (mut fx, mut fy) = ([0f32; LANES], [0f32; LANES]);
+    for (l, xy) in coords.iter().enumerate() {
+        fx[l] = xy[0];
+        fy[l] = xy[1];
+    }
+    let (fx, fy) = (_mm256_loadu_ps(fx.as_ptr()), _mm256_loadu_ps(fy.as_ptr()));
+    let (x0, y0) = (_mm256_cvttps_epi32(fx), _mm256_cvttps_epi32(fy));
+    let one_i = _mm256_set1_epi32(1);
+    let x1 = _mm256_min_epi32(_mm256_add_epi32(x0, one_i), _mm256_set1_epi32(width as i32 - 1));
+    let y1 = _mm256_min_epi32(_mm256_add_epi32(y0, one_i), _mm256_set1_epi32(height as i32 - 1));
+    let tx = _mm256_sub_ps(fx, _mm256_cvtepi32_ps(x0));
+    let ty = _mm256_sub_ps(fy, _mm256_cvtepi32_ps(y0));
+    let one = _mm256_set1_ps(1.0);
+    let (ux, uy) = (_mm256_sub_ps(one, tx), _mm256_sub_ps(one, ty));
+    let wv = _mm256_set1_epi32(width as i32);
+    let (r0, r1) = (_mm256_mullo_epi32(y0, wv), _mm256_mullo_epi32(y1, wv));
+    let index =
+        [_mm256_add_epi32(r0, x0), _mm256_add_epi32(r0, x1), _mm256_add_epi32(r1, x0), _mm256_add_epi32(r1, x1)];
+    let mut weight = [_mm256_mul_ps(ux, uy), _mm256_mul_ps(tx, uy), _mm256_mul_ps(ux, ty), _mm256_mul_ps(tx, ty)];
+    for t in 0..4 {
+        _mm256_storeu_si256(out.index[t].as_mut_ptr() as *mut __m256i, index[t]);
+    }
+    // Taps on directional lights carry nothing (`BrightLights::mask_taps`).
+    if let Some(lights) = inp.lights.filter(|l| !l.is_empty()) {
+        for t in 0..4 {
+            let mut w = [0f32; LANES];
+            _mm256_storeu_ps(w.as_mut_ptr(), weight[t]);
+            for l in 0..LANES {
+                if lights.is_light(out.index[t][l]) {
+                    w[l] = 0.0;
+                }
+            }
+            weight[t] = _mm256_loadu_ps(w.as_ptr());
+        }
+    }
+
+    // The environment: raw_c = sum_t w_t L[idx_t]_c from 0, clamped to [0, env_max] as
+    // `maxf` then `minf`, times V; live where the clamp is inactive. Lanes with V <= 0 get no
+    // light, no live channel and empty taps, as the scalar branch.
+    let env = inp.env.as_ptr() as *const f32;
+    let three = _mm256_set1_epi32(3);
+    let base = index.map(|ix| _mm256_mullo_epi32(ix, three));
+    let emax = _mm256_set1_ps(inp.params.env_max);
+    let seen = _mm256_cmp_ps::<_CMP_GT_OQ>(vis, zero);
+    for ch in 0..3 {
+        let chv = _mm256_set1_epi32(ch as i32);
+        let mut raw = zero;
+        for t in 0..4 {
+            let texel = _mm256_i32gather_ps::<4>(env, _mm256_add_epi32(base[t], chv));
+            raw = _mm256_add_ps(raw, _mm256_mul_ps(weight[t], texel));
+        }
+        let lo = _mm256_blendv_ps(zero, raw, _mm256_cmp_ps::<_CMP_GT_OQ>(raw, zero));
+        let cl = _mm256_blendv_ps(emax, lo, _mm256_cmp_ps::<_CMP_LT_OQ>(lo, emax));
+        let direct = _mm256_and_ps(_mm256_mul_ps(vis, cl), seen);
+        let live = _mm256_and_ps(
+            _mm256_and_ps(_mm256_cmp_ps::<_CMP_GE_OQ>(raw, zero), _mm256_cmp_ps::<_CMP_LE_OQ>(raw, emax)),
+            seen,
+        );
+        _mm256_storeu_ps(out.direct[ch].as_mut_ptr(), direct);
+        _mm256_storeu_ps(out.live[ch].as_mut_ptr(), _mm256_and_ps(live, one));
+    }
+    for t in 0..4 {
+        _mm256_storeu_ps(out.weight[t].as_mut_ptr(), _mm256_and_ps(weight[t], seen));
+        let ix = _mm256_and_si256(index[t], _mm256_castps_si256(seen));
+        _mm256_storeu_si256(out.index[t].as_mut_ptr() as *mut __m256i, ix);
+    }
+
+    // Traced radiance (f16, scalar per lane) and which lanes carry anything.
+    let rho = match inp.indirect {
+        Indirect::Traced { rho } => Some(rho),
+        _ => None,
+    };
+    for l in 0..LANES {
+        if let Some(rho) = rho {
+            let h = mb.radiance[s0 + l];
+            for ch in 0..3 {
+                let x = half_to_f32(h[ch]);
+                out.traced[ch][l] = x;
+                out.ind[ch][l] = x * rho;
+            }
+        }
+        let traced = [out.traced[0][l], out.traced[1][l], out.traced[2][l]];
+        let ind = [out.ind[0][l], out.ind[1][l], out.ind[2][l]];
+        if !(out.vis[l] <= 0.0 && traced == [0.0; 3] && ind == [0.0; 3]) {
+            out.yields |= 1 << l;
+        }
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bench::{synthetic_materials, synthetic_microbuffer, synthetic_positions};
+    use crate::shade::{sample, ShadeParams};
+    use crate::EnvLight;
+    use glam::Vec3;
+    use svgir_core::Rng;
+    use svgir_trace::{brightest_texels, BrightLights, VertexMaterials};
+
+    fn same(a: &Sample<f32>, b: &Sample<f32>) -> bool {
+        let bits = |s: &Sample<f32>| {
+            let mut v: Vec<u32> =
+                s.dir.iter().chain(&s.direct).chain(&s.traced).chain(&s.ind).map(|x| x.to_bits()).collect();
+            v.push(s.vis.to_bits());
+            v.extend(s.taps.weight.map(f32::to_bits));
+            v.extend(s.taps.index);
+            v.extend(s.live.map(u32::from));
+            v
+        };
+        bits(a) == bits(b)
+    }
+
+    /// Every lane is `shade::sample` bit for bit (or both say "no sample"), with and without
+    /// visibility, lights, traced or no indirect light, and env values past the clamp.
+    #[test]
+    fn lane_samples_are_the_scalar_ones() {
+        if !std::is_x86_feature_detected!("avx2") {
+            eprintln!("SKIPPED: this CPU has no AVX2, so the sample lanes cannot run here");
+            return;
+        }
+        let (n, k) = (60, 64);
+        let mb = synthetic_microbuffer(n, k, 3);
+        let positions = synthetic_positions(&mb, 3);
+        let mut env = EnvLight::new(8, 3).unwrap().radiance();
+        // Some texels beyond the clamp and some negative, so that `live` varies.
+        let mut rng = Rng::new(9);
+        for t in env.data.iter_mut() {
+            if rng.uniform() < 0.2 {
+                *t = t.map(|x| x * 80.0);
+            } else if rng.uniform() < 0.1 {
+                t[1] = -0.5;
+            }
+        }
+        let act = synthetic_materials(n, 2, 3).activated(&mb.normals).unwrap();
+        let cache = DirectionCache::new(&mb, &env).unwrap();
+        let texels = brightest_texels(&env, 3);
+        let cols: Vec<Vec<f32>> = texels.iter().map(|_| (0..n).map(|_| rng.uniform()).collect()).collect();
+        let lights = BrightLights::from_visibility(&env, &texels, &cols).unwrap();
+        let visible = vec![true; n];
+        let table = FibTable::new(k);
+        let (mut yielded, mut skipped) = (0, 0);
+        for (visibility, indirect, with_lights) in [
+            (true, Indirect::Traced { rho: 0.7 }, true),
+            (true, Indirect::Off, false),
+            (false, Indirect::Traced { rho: 1.3 }, false),
+            (true, Indirect::Traced { rho: 0.0 }, true),
+        ] {
+            let inp = ShadeInputs {
+                mb: &mb,
+                positions: &positions,
+                camera_center: Vec3::new(0.3, -2.5, 1.2),
+                visible: &visible,
+                mats: VertexMaterials { m: 2, albedo: &act.albedo, roughness: &act.roughness, normals: &act.normals },
+                env_geom: &env,
+                env: &env.data,
+                indirect,
+                params: ShadeParams { visibility, ..ShadeParams::default() },
+                lights: with_lights.then_some(&lights),
+            };
+            assert!(serves(&inp, Some(&cache)));
+            for i in 0..n {
+                let frame = Frame::new(mb.normals[i], mb.xi[i]);
+                for k0 in (0..k).step_by(LANES) {
+                    // SAFETY: AVX2 checked above; k0 + 8 <= K.
+                    let got = unsafe { samples8(&inp, &table, &cache, &frame, i, k0) };
+                    for l in 0..LANES {
+                        let want = sample(&inp, &table, Some(&cache), &frame, i, k0 + l);
+                        match want {
+                            Some(w) => {
+                                assert!(got.yields >> l & 1 == 1, "sample ({i}, {}) missing", k0 + l);
+                                assert!(same(&got.sample(l), &w), "sample ({i}, {}) differs", k0 + l);
+                                yielded += 1;
+                            }
+                            None => {
+                                assert!(got.yields >> l & 1 == 0, "sample ({i}, {}) should be skipped", k0 + l);
+                                skipped += 1;
+                            }
+                        }
+                    }
+                }
+            }
+        }
+        assert!(yielded > 1000 && skipped > 100, "{yielded} samples, {skipped} skipped: too few of one kind");
+    }
+}
