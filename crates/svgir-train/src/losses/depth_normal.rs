@@ -4,11 +4,14 @@
 //! central differences, normalised and multiplied by the detached opacity. Border pixels have
 //! N_D = 0, as 2DGS pads them.
 //!
-//! Work split: one pass per pixel computes N_D and the gradients of the two difference vectors;
-//! a second pass gathers them onto each pixel's depth (no scattered writes, deterministic).
+//! Work split: the back-projected points once per pixel; then one pass, rows in parallel, computes
+//! N_D and the gradients of the two difference vectors, and a second pass gathers them onto each
+//! pixel's depth (no scattered writes; the loss is summed in pixel order, so every value is the
+//! same for any thread count).
 //! Computed in f64 so the same code is the finite-difference oracle.
 
 use glam::DVec3;
+use rayon::prelude::*;
 use svgir_core::Camera;
 
 /// Gradients of [`depth_normal_loss`] with respect to its rendered inputs.
@@ -64,50 +67,59 @@ pub fn depth_normal_loss(depth_sum: &[f32], opacity: &[f32], normal: &[f32], cam
 pub fn depth_normal_loss_f64(s: &[f64], o: &[f64], n: &[f64], cam: &Camera) -> (f64, Vec<f64>, Vec<f64>, Vec<f64>) {
     let (w, h) = (cam.width() as usize, cam.height() as usize);
     let np = (w * h) as f64;
-    let depth: Vec<f64> = s.iter().zip(o).map(|(s, o)| s / o.max(MIN_OPACITY)).collect();
     let ray = ray_of_pixel(cam);
     let c = cam.center().as_dvec3();
-    let p = |x: usize, y: usize| c + depth[y * w + x] * ray(x, y);
+    // The back-projected points, once per pixel (each is read by four neighbours).
+    let pts: Vec<DVec3> = (0..w * h)
+        .into_par_iter()
+        .with_min_len(1024)
+        .map(|i| c + s[i] / o[i].max(MIN_OPACITY) * ray(i % w, i / w))
+        .collect();
     let nvec = |i: usize| DVec3::new(n[3 * i], n[3 * i + 1], n[3 * i + 2]);
 
-    let mut loss = 0.0;
+    // Pass 1, rows in parallel: per-pixel loss, dL/dN and the gradients of the two differences.
+    let mut pix_loss = vec![1.0; w * h];
     let mut v_n = vec![0.0; 3 * w * h];
     let mut v_dx = vec![DVec3::ZERO; w * h];
     let mut v_dy = vec![DVec3::ZERO; w * h];
-    for y in 0..h {
-        for x in 0..w {
+    let rows = pix_loss
+        .par_chunks_mut(w)
+        .zip(v_n.par_chunks_mut(3 * w))
+        .zip(v_dx.par_chunks_mut(w))
+        .zip(v_dy.par_chunks_mut(w));
+    rows.enumerate().for_each(|(y, (((l_row, vn_row), vdx_row), vdy_row))| {
+        if y == 0 || y + 1 >= h {
+            return;
+        }
+        for x in 1..w.saturating_sub(1) {
             let i = y * w + x;
-            let interior = x > 0 && y > 0 && x + 1 < w && y + 1 < h;
-            if !interior {
-                loss += 1.0;
-                continue;
-            }
-            let dx = p(x + 1, y) - p(x - 1, y);
-            let dy = p(x, y + 1) - p(x, y - 1);
+            let dx = pts[i + 1] - pts[i - 1];
+            let dy = pts[i + w] - pts[i - w];
             let cr = dy.cross(dx);
             let len = cr.length();
             if len < 1e-20 {
-                loss += 1.0;
                 continue;
             }
             let nd = cr / len;
             let nd_masked = nd * o[i]; // opacity detached here: no gradient through this factor
             let ni = nvec(i);
-            loss += 1.0 - ni.dot(nd_masked);
+            l_row[x] = 1.0 - ni.dot(nd_masked);
             let g_n = -nd_masked / np;
-            v_n[3 * i] = g_n.x;
-            v_n[3 * i + 1] = g_n.y;
-            v_n[3 * i + 2] = g_n.z;
+            vn_row[3 * x..3 * x + 3].copy_from_slice(&g_n.to_array());
             let v_nd = -ni * o[i] / np;
             let v_cr = (v_nd - nd * nd.dot(v_nd)) / len;
             // cr = dy x dx: d/d dy = dx x v_cr, d/d dx = v_cr x dy.
-            v_dy[i] = dx.cross(v_cr);
-            v_dx[i] = v_cr.cross(dy);
+            vdy_row[x] = dx.cross(v_cr);
+            vdx_row[x] = v_cr.cross(dy);
         }
-    }
+    });
+    // Summed in pixel order, so the value does not depend on the thread count.
+    let loss: f64 = pix_loss.iter().fold(0.0, |a, &l| a + l);
+
+    // Pass 2, rows in parallel: gather the differences' gradients onto each pixel's depth.
     let mut v_s = vec![0.0; w * h];
     let mut v_o = vec![0.0; w * h];
-    for y in 0..h {
+    v_s.par_chunks_mut(w).zip(v_o.par_chunks_mut(w)).enumerate().for_each(|(y, (vs_row, vo_row))| {
         for x in 0..w {
             let i = y * w + x;
             let mut v_p = DVec3::ZERO;
@@ -125,13 +137,13 @@ pub fn depth_normal_loss_f64(s: &[f64], o: &[f64], n: &[f64], cam: &Camera) -> (
             }
             let v_d = v_p.dot(ray(x, y));
             if o[i] > MIN_OPACITY {
-                v_s[i] = v_d / o[i];
-                v_o[i] = -v_d * s[i] / (o[i] * o[i]);
+                vs_row[x] = v_d / o[i];
+                vo_row[x] = -v_d * s[i] / (o[i] * o[i]);
             } else {
-                v_s[i] = v_d / MIN_OPACITY;
+                vs_row[x] = v_d / MIN_OPACITY;
             }
         }
-    }
+    });
     (loss / np, v_s, v_o, v_n)
 }
 
