@@ -56,14 +56,14 @@ impl Simd {
     /// best one below it (never `Auto`).
     pub fn resolve(self) -> Self {
         let want = match self {
-            // The widest path: the AVX-512 kernels (8 lanes with mask registers, since 16
-            // lanes idled on splat rows of a handful of pixels) measured 10% faster than AVX2
-            // on the 400x400 / 100k raster bench (docs/performance.md).
-            Self::Auto => env_choice().unwrap_or(Self::Avx512),
+            Self::Auto => env_choice().unwrap_or(Self::Auto),
             s => s,
         };
         let best = best_available();
         match (want, best) {
+            // The widest path: the AVX-512 kernels (8 lanes with mask registers, since 16
+            // lanes idled on splat rows of a handful of pixels) measured 10% faster than AVX2
+            // on the 400x400 / 100k raster bench (docs/performance.md).
             (Self::Auto, b) => b,
             (Self::Scalar, _) | (_, Self::Scalar) => Self::Scalar,
             (Self::Avx512, b) => b,

@@ -64,9 +64,9 @@ impl Samples8 {
     }
 }
 
-/// Whether [`samples8`] serves these inputs: cached taps and traced or no indirect light.
-pub(crate) fn serves(inp: &ShadeInputs<f32>, cache: Option<&DirectionCache>) -> bool {
-    cache.is_some() && matches!(inp.indirect, Indirect::Off | Indirect::Traced { .. })
+/// Whether [`samples8`] serves these inputs (given cached taps): traced or no indirect light.
+pub(crate) fn serves(inp: &ShadeInputs<f32>) -> bool {
+    matches!(inp.indirect, Indirect::Off | Indirect::Traced { .. })
 }
 
 /// Samples `(i, k0..k0 + 8)` of Gaussian i with frame `frame`.
@@ -287,7 +287,7 @@ mod tests {
                 params: ShadeParams { visibility, ..ShadeParams::default() },
                 lights: with_lights.then_some(&lights),
             };
-            assert!(serves(&inp, Some(&cache)));
+            assert!(serves(&inp));
             for i in 0..n {
                 let frame = Frame::new(mb.normals[i], mb.xi[i]);
                 for k0 in (0..k).step_by(LANES) {

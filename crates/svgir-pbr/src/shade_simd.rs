@@ -90,8 +90,7 @@ impl SampleRows {
         for v in self.rows_mut() {
             v.clear();
         }
-        let mut n = 0usize;
-        match cache.filter(|_| serves(inp, cache)) {
+        match cache.filter(|_| serves(inp)) {
             Some(c) => {
                 // The K directions eight at a time in lanes (`sample_lanes`, the scalar values
                 // bit for bit), a tail of fewer than eight and the lights as the scalar code.
@@ -110,24 +109,21 @@ impl SampleRows {
                         if keep {
                             self.kept.push(s8.sample(l));
                         }
-                        n += 1;
                     }
                 }
                 let tail = (full..k).filter_map(|kk| sample(inp, table, cache, &frame, i, kk));
                 for s in tail.chain(light_samples(inp, i)) {
                     self.push(s, keep);
-                    n += 1;
                 }
             }
             None => {
                 for s in samples(inp, table, cache, &frame, i) {
                     self.push(s, keep);
-                    n += 1;
                 }
             }
         }
         // Padding: a zero direction has cos = 0, so the select drops it.
-        let padded = n.next_multiple_of(W);
+        let padded = self.dir[0].len().next_multiple_of(W);
         for v in self.rows_mut() {
             v.resize(padded, 0.0);
         }
