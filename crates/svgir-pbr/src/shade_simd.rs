@@ -29,30 +29,10 @@
 use crate::sample_lanes::{samples8, serves, LANES};
 use crate::shade::{gaussian, light_samples, sample, samples, FibTable, Frame, Sample, ShadeInputs};
 use svgir_core::simd::{Lanes, F8};
-use svgir_shading::split::Lobe;
-use svgir_shading::{DOT_EPS, F0};
+use svgir_shading::split_lanes::{cdot, dot_l, lobe_l, spec_grad_lanes, spec_lanes};
+use svgir_shading::tri;
+use svgir_shading::F0;
 use svgir_trace::DirectionCache;
-
-/// `[e(0), e(1), e(2)]` written out: `array::map` would call the closure through code compiled
-/// without AVX, where the lane intrinsics cannot be inlined.
-macro_rules! tri {
-    ($c:ident => $e:expr) => {
-        [
-            {
-                let $c = 0;
-                $e
-            },
-            {
-                let $c = 1;
-                $e
-            },
-            {
-                let $c = 2;
-                $e
-            },
-        ]
-    };
-}
 
 /// Lanes per step of the (vertex, direction) loops: one AVX2 register of f32.
 pub(crate) const W: usize = 8;
@@ -193,104 +173,6 @@ impl SampleRows {
 unsafe fn load<L: Lanes>(row: &[f32], j: usize) -> L {
     debug_assert!((j + 1) * L::N <= row.len());
     L::load(row.as_ptr().add(j * L::N))
-}
-
-/// `cdot` of `svgir_shading::split` per lane: x clamped to [DOT_EPS, 1] (as `clampf`: max, then min).
-#[inline(always)]
-unsafe fn cdot<L: Lanes>(x: L) -> L {
-    let (lo, one) = (L::splat(DOT_EPS as f32), L::splat(1.0));
-    let x = L::select(x.gt(lo), x, lo);
-    L::select(x.lt(one), x, one)
-}
-
-/// Whether `cdot`'s clamp is inactive: `DOT_EPS < x < 1`.
-#[inline(always)]
-unsafe fn cdot_live<L: Lanes>(x: L) -> L::M {
-    L::and(x.gt(L::splat(DOT_EPS as f32)), x.lt(L::splat(1.0)))
-}
-
-/// `a . b` for lane vectors, in `dot`'s order.
-#[inline(always)]
-unsafe fn dot_l<L: Lanes>(a: [f32; 3], b: &[L; 3]) -> L {
-    L::splat(a[0]).mul(b[0]).add(L::splat(a[1]).mul(b[1])).add(L::splat(a[2]).mul(b[2]))
-}
-
-/// A vertex's lobe broadcast to lanes.
-struct LobeL<L> {
-    a2: L,
-    a2m1: L,
-    k: L,
-    omk: L,
-    c0: L,
-}
-
-#[inline(always)]
-unsafe fn lobe_l<L: Lanes>(lb: &Lobe<f32>) -> LobeL<L> {
-    LobeL {
-        a2: L::splat(lb.a2),
-        a2m1: L::splat(lb.a2 - 1.0),
-        k: L::splat(lb.k),
-        omk: L::splat(lb.omk),
-        c0: L::splat(lb.c0),
-    }
-}
-
-/// `split::spec` per lane: `S = F c0 / (q^2 (n.l (1-k) + k))`, `q = (n.h)^2 (a^2-1) + 1`.
-#[inline(always)]
-unsafe fn spec_lanes<L: Lanes>(lb: &LobeL<L>, nh_raw: L, fr: L, nl_raw: L) -> L {
-    let nl = cdot(nl_raw);
-    let nh = cdot(nh_raw);
-    let q = nh.mul(nh).mul(lb.a2m1).add(L::splat(1.0));
-    fr.mul(lb.c0).div(q.mul(q).mul(nl.mul(lb.omk).add(lb.k)))
-}
-
-/// `split::spec_grad` per lane: S, dS/dr and dS/dn.
-struct SpecGradL<L> {
-    value: L,
-    v_r: L,
-    v_n: [L; 3],
-}
-
-#[inline(always)]
-#[allow(clippy::too_many_arguments)]
-unsafe fn spec_grad_lanes<L: Lanes>(
-    lb: &Lobe<f32>,
-    ll: &LobeL<L>,
-    h: &[L; 3],
-    fr: L,
-    v: [f32; 3],
-    l: &[L; 3],
-    nl_raw: L,
-) -> SpecGradL<L> {
-    let s = L::splat;
-    let zero = s(0.0);
-    let one = s(1.0);
-    let pi = s(std::f64::consts::PI as f32);
-    let nh_raw = dot_l(lb.n, h);
-    let (nl, nl_live) = (cdot(nl_raw), cdot_live(nl_raw));
-    let (nh, nh_live) = (cdot(nh_raw), cdot_live(nh_raw));
-    let a2 = ll.a2;
-    let q = nh.mul(nh).mul(ll.a2m1).add(one);
-    let inv_q = one.div(q);
-    let d = a2.mul(inv_q).mul(inv_q).div(pi);
-    let gl = one.div(nl.mul(ll.omk).add(ll.k));
-    let gv = s(lb.gv);
-    let fq = fr.mul(s(0.25));
-    let value = fq.mul(d).mul(gv).mul(gl);
-    let inv_piq3 = inv_q.mul(inv_q).mul(inv_q).div(pi);
-    let r = s(lb.r);
-    let dd_dr = q.sub(s(2.0).mul(a2).mul(nh).mul(nh)).mul(inv_piq3).mul(s(4.0)).mul(r).mul(r).mul(r);
-    let dk_dr = s((lb.r + 1.0) * 0.25);
-    let dgv_dk = s(-(1.0 - lb.nv) * lb.gv * lb.gv);
-    let dgl_dk = zero.sub(one.sub(nl)).mul(gl).mul(gl);
-    let v_r = fq.mul(dd_dr.mul(gv).mul(gl).add(d.mul(dgv_dk.mul(gl).add(gv.mul(dgl_dk))).mul(dk_dr)));
-    let ds_dnh = fq.mul(gv).mul(gl).mul(zero.sub(s(4.0)).mul(a2).mul(nh).mul(ll.a2m1).mul(inv_piq3));
-    let ds_dnh = L::select(nh_live, ds_dnh, zero);
-    let ds_dnv = if lb.nv_live { zero.sub(fq).mul(d).mul(gl).mul(ll.omk).mul(gv).mul(gv) } else { zero };
-    let ds_dnl = zero.sub(fq).mul(d).mul(gv).mul(ll.omk).mul(gl).mul(gl);
-    let ds_dnl = L::select(nl_live, ds_dnl, zero);
-    let v_n = tri!(i => ds_dnh.mul(h[i]).add(ds_dnv.mul(s(v[i]))).add(ds_dnl.mul(l[i])));
-    SpecGradL { value, v_r, v_n }
 }
 
 /// The forward of Gaussian i into its M x 3 slices (as `shade::shade_gaussian`).

@@ -144,7 +144,7 @@ fn whole_loss_gradients_match_finite_differences() {
         }
         let light = EnvLight::new(4, seed).unwrap();
         let env_max = 3.5f32; // some lookups are clamped
-        let params = GatherParams { env_max, lights: None, diffuse, cache: None };
+        let params = GatherParams { env_max, lights: None, diffuse, cache: None, ..Default::default() };
         let rho = 0.8f32;
         let normals = mb.normals.clone();
 

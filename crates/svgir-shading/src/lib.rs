@@ -15,6 +15,7 @@ pub mod layering;
 #[cfg(test)]
 mod quadrature;
 pub mod split;
+pub mod split_lanes;
 pub mod vertex;
 
 pub use brdf::{ggx, ggx_specular, ggx_specular_grad, SpecularGrad, DOT_EPS, F0};

@@ -12,17 +12,19 @@
 //! Work split: [`gather_all`] / [`gather_from`] sort the rays by their hit Gaussian h and run
 //! rayon over h: each task builds h's escape list (directions and env radiance of its unoccluded
 //! samples) once and shades every ray that hit h (building it per ray cost as much as the
-//! shading). [`gather_pairs`] runs over its pairs, reusing the escape list while consecutive
-//! pairs hit the same h.
+//! shading). [`gather_pairs`] runs over its pairs sorted by h, reusing the escape list while
+//! consecutive pairs hit the same h.
 //! Nothing is saved for backward: [`crate::gather_backward`] recomputes the (cheap) escape lists.
 //! All maths is generic over `Float` so the tests check the gradients in f64.
 
 use crate::bright::BrightLights;
 use crate::direction_cache::DirectionCache;
+use crate::gather_lanes::{lane_kernels, EscapeRows};
 use crate::microbuffer::{MicroBuffer, NO_HIT};
 use crate::TraceError;
 use rayon::prelude::*;
 use svgir_core::envmap::Taps;
+use svgir_core::simd::Simd;
 use svgir_core::EnvMap;
 use svgir_shading::float::{dot, to_f};
 use svgir_shading::hemisphere::{FibTable, HemiFrame};
@@ -78,11 +80,14 @@ pub struct GatherParams<'a> {
     /// the gathered micro-buffer and a map of this size (checked); ignored by the two-sided
     /// gathers, whose sides have micro-buffers of their own.
     pub cache: Option<&'a DirectionCache>,
+    /// Which f32 kernels shade the rays (`Simd::Auto`: the lane kernels of `gather_lanes` where
+    /// the CPU has AVX2; `Simd::Scalar`: the scalar oracle).
+    pub simd: Simd,
 }
 
 impl Default for GatherParams<'_> {
     fn default() -> Self {
-        Self { env_max: 64.0, lights: None, diffuse: Diffuse::Added, cache: None }
+        Self { env_max: 64.0, lights: None, diffuse: Diffuse::Added, cache: None, simd: Simd::Auto }
     }
 }
 
@@ -111,6 +116,8 @@ pub(crate) struct Escapes<F> {
     pub light: Vec<[F; 3]>,
     pub live: Vec<[bool; 3]>,
     pub taps: Vec<Taps>,
+    /// The directions and light again as padded lane rows, for [`crate::gather_lanes`].
+    pub rows: EscapeRows,
     /// The micro-buffer's Fibonacci table (built on the first fill).
     table: FibTable,
 }
@@ -123,6 +130,7 @@ impl<F: Float> Escapes<F> {
             light: Vec::new(),
             live: Vec::new(),
             taps: Vec::new(),
+            rows: EscapeRows::default(),
             table: FibTable::new(0),
         }
     }
@@ -136,6 +144,7 @@ impl<F: Float> Escapes<F> {
         self.light.clear();
         self.live.clear();
         self.taps.clear();
+        self.rows.clear();
         let hu = h as usize;
         if self.table.len() != mb.k {
             self.table = FibTable::new(mb.k);
@@ -163,14 +172,27 @@ impl<F: Float> Escapes<F> {
                     raw[c] += w * texel[c];
                 }
             }
-            self.dirs.push(to_f(d.to_array()));
-            self.light.push(raw.map(|x| x.clampf(F::ZERO, light.env_max)));
+            self.push(d.to_array(), raw.map(|x| x.clampf(F::ZERO, light.env_max)), taps);
             self.live.push(raw.map(|x| x >= F::ZERO && x <= light.env_max));
-            self.taps.push(taps);
         }
         // Directional lights: the sample weight is 2pi/K, so each carries `V Omega K / 2pi`
         // times its texel as a one-tap lookup (unclamped; the backward routes through the tap).
-        let Some(l) = light.lights else { return };
+        if let Some(l) = light.lights {
+            self.push_lights(mb, light, l, hu);
+        }
+        self.rows.pad();
+    }
+
+    /// One escape, in both layouts (`live` is the caller's).
+    fn push(&mut self, d: [f32; 3], light: [F; 3], taps: Taps) {
+        self.dirs.push(to_f(d));
+        self.light.push(light);
+        self.rows.push(d, light.map(F::to_f32));
+        self.taps.push(taps);
+    }
+
+    /// h's directional lights as escapes.
+    fn push_lights(&mut self, mb: &MicroBuffer, light: &LightIn<F>, l: &BrightLights, hu: usize) {
         for (b, &t) in l.texels.iter().enumerate() {
             let v = l.visibility(hu, b);
             if v <= 0.0 {
@@ -178,10 +200,12 @@ impl<F: Float> Escapes<F> {
             }
             let w = v * l.sample_scale(b, mb.k);
             let texel = light.env[t as usize];
-            self.dirs.push(to_f(l.dirs[b].to_array()));
-            self.light.push(texel.map(|x| F::from_f32(w) * x));
+            self.push(
+                l.dirs[b].to_array(),
+                texel.map(|x| F::from_f32(w) * x),
+                Taps { index: [t; 4], weight: [w, 0.0, 0.0, 0.0] },
+            );
             self.live.push([true; 3]);
-            self.taps.push(Taps { index: [t; 4], weight: [w, 0.0, 0.0, 0.0] });
         }
     }
 }
@@ -375,6 +399,7 @@ fn gather_grouped(
         sides.iter().map(|side| LightIn::new(env, &GatherParams { lights: side.lights, cache: None, ..*p })).collect();
     let n = rays.len();
     let by_hit = PairsByHit::new(rays, sides.len(), side_of)?;
+    let lanes = lane_kernels::<f32>(p.simd);
     // One task per (side, hit Gaussian h): its escape list is built once and shades every ray
     // that hit it. Each value is the same `shade_pair` as a ray-by-ray loop gives (bit for bit).
     let mut shaded = vec![[0.0f32; 3]; by_hit.pairs.len()];
@@ -395,7 +420,7 @@ fn gather_grouped(
         esc.fill(sides[s].mb, &lights[s], h as u32);
         for (o, &pair) in values.iter_mut().zip(&by_hit.pairs[by_hit.range(group)]) {
             let (j, k) = (pair as usize / rays.k, pair as usize % rays.k);
-            *o = shade_pair(rays, &sides[s].mats, esc, p.diffuse, j, k);
+            *o = shade_f32(lanes, rays, &sides[s].mats, esc, p.diffuse, j, k);
         }
     });
     let mut out = vec![[0.0f32; 3]; n * rays.k];
@@ -473,16 +498,52 @@ pub fn gather_pairs(
     check_pairs(mb, pairs.iter().map(|&(j, k)| (j as usize, k as usize)))?;
     check_lights(mb, env, p)?;
     let light = LightIn::new(env, p);
-    Ok(pairs
+    let lanes = lane_kernels::<f32>(p.simd);
+    // Visit the pairs grouped by hit Gaussian, so that each task builds an escape list once
+    // for all its consecutive pairs that hit the same h; the values do not depend on the order.
+    let hit = |i: u32| {
+        let (j, k) = pairs[i as usize];
+        mb.hit(j as usize, k as usize).unwrap_or(NO_HIT)
+    };
+    let mut order: Vec<u32> = (0..pairs.len() as u32).collect();
+    order.par_sort_unstable_by_key(|&i| (hit(i), i));
+    let shaded: Vec<[f32; 3]> = order
         .par_iter()
-        .map_init(Escapes::new, |esc, &(j, k)| match mb.hit(j as usize, k as usize) {
-            None => [0.0; 3],
-            Some(h) => {
-                esc.fill(mb, &light, h);
-                shade_pair(mb, mats, esc, light.diffuse, j as usize, k as usize)
+        .map_init(Escapes::new, |esc, &i| {
+            let (j, k) = pairs[i as usize];
+            match mb.hit(j as usize, k as usize) {
+                None => [0.0; 3],
+                Some(h) => {
+                    esc.fill(mb, &light, h);
+                    shade_f32(lanes, mb, mats, esc, light.diffuse, j as usize, k as usize)
+                }
             }
         })
-        .collect())
+        .collect();
+    let mut out = vec![[0.0f32; 3]; pairs.len()];
+    for (&i, v) in order.iter().zip(shaded) {
+        out[i as usize] = v;
+    }
+    Ok(out)
+}
+
+/// [`shade_pair`], in the lane kernels when `lanes` ([`lane_kernels`]).
+fn shade_f32(
+    lanes: bool,
+    mb: &MicroBuffer,
+    mats: &VertexMaterials<f32>,
+    esc: &Escapes<f32>,
+    diffuse: Diffuse,
+    j: usize,
+    k: usize,
+) -> [f32; 3] {
+    #[cfg(target_arch = "x86_64")]
+    if lanes {
+        // SAFETY: `lane_kernels` checked that the CPU has AVX2.
+        return unsafe { crate::gather_lanes::shade_pair_avx2(mb, mats, esc, diffuse, j, k) };
+    }
+    let _ = lanes;
+    shade_pair(mb, mats, esc, diffuse, j, k)
 }
 
 #[cfg(test)]

@@ -18,9 +18,11 @@
 //! bit-identical for any thread count.
 
 use crate::gather::{check, check_lights, check_pairs, Escapes, GatherParams, LightIn, VertexMaterials};
+use crate::gather_lanes::lane_kernels;
 use crate::microbuffer::{MicroBuffer, NO_HIT};
 use crate::TraceError;
 use rayon::prelude::*;
+use svgir_core::simd::Simd;
 use svgir_core::EnvMap;
 use svgir_shading::float::{dot, to_f};
 use svgir_shading::split::{half, lobe, spec_grad, Lobe};
@@ -142,14 +144,17 @@ pub(crate) fn backward_pair<F: Float>(
     }
 }
 
-/// Generic batched backward: `entries` are (flat j*K+k, index into `v_out`).
+/// Generic batched backward: `entries` are (flat j*K+k, index into `v_out`); `simd` picks the
+/// lane kernels for f32 ([`crate::gather_lanes`]).
 pub(crate) fn backward_generic<F: Float>(
     mb: &MicroBuffer,
     mats: &VertexMaterials<F>,
     light: &LightIn<F>,
     entries: impl Iterator<Item = (usize, usize)>,
     v_out: &[[F; 3]],
+    simd: Simd,
 ) -> GatherGrads<F> {
+    let lanes = lane_kernels::<F>(simd);
     let n = mb.len();
     let m = mats.m;
     let kk = mb.k;
@@ -190,10 +195,37 @@ pub(crate) fn backward_generic<F: Float>(
             }
             let mut v_env = vec![[F::ZERO; 3]; texels];
             let mut esc = Escapes::new();
+            let mut scratch: [Vec<f32>; 3] = Default::default();
             for h in h0..h1 {
                 let lh = h - h0;
                 for &(jk, up) in &sorted[start[h]..start[h + 1]] {
                     esc.fill(mb, light, h as u32);
+                    let (alb, rough, nrm) = (
+                        &mut alb[lh * m * 3..(lh + 1) * m * 3],
+                        &mut rough[lh * m..(lh + 1) * m],
+                        &mut nrm[lh * m * 3..(lh + 1) * m * 3],
+                    );
+                    #[cfg(target_arch = "x86_64")]
+                    if lanes {
+                        // SAFETY: `lane_kernels` checked that `F` is `f32` and that the CPU has
+                        // AVX2, so every cast below is to the same type.
+                        unsafe {
+                            crate::gather_lanes::backward_pair_avx2(
+                                mb,
+                                same(mats),
+                                same(&esc),
+                                light.diffuse,
+                                (jk / kk, jk % kk),
+                                *same::<[F; 3], [f32; 3]>(&v_out[up]),
+                                same_mut(alb),
+                                same_mut(rough),
+                                same_mut(nrm),
+                                same_mut(&mut v_env),
+                                &mut scratch,
+                            );
+                        }
+                        continue;
+                    }
                     backward_pair(
                         mb,
                         mats,
@@ -202,9 +234,9 @@ pub(crate) fn backward_generic<F: Float>(
                         jk / kk,
                         jk % kk,
                         v_out[up],
-                        &mut alb[lh * m * 3..(lh + 1) * m * 3],
-                        &mut rough[lh * m..(lh + 1) * m],
-                        &mut nrm[lh * m * 3..(lh + 1) * m * 3],
+                        alb,
+                        rough,
+                        nrm,
                         &mut v_env,
                     );
                 }
@@ -222,6 +254,23 @@ pub(crate) fn backward_generic<F: Float>(
     grads
 }
 
+/// `x` as a `U`.
+///
+/// # Safety
+/// `T` and `U` are the same type up to `F` = `f32` (checked by [`lane_kernels`]).
+#[cfg(target_arch = "x86_64")]
+unsafe fn same<T, U>(x: &T) -> &U {
+    // SAFETY: the caller's contract.
+    unsafe { &*(x as *const T as *const U) }
+}
+
+/// `x` as a slice of `U`; the contract of [`same`].
+#[cfg(target_arch = "x86_64")]
+unsafe fn same_mut<T, U>(x: &mut [T]) -> &mut [U] {
+    // SAFETY: the caller's contract.
+    unsafe { std::slice::from_raw_parts_mut(x.as_mut_ptr() as *mut U, x.len()) }
+}
+
 /// Gradients for upstream `v_l1b` on every (j, k) (`j * K + k`, as [`crate::gather_all`] returns).
 pub fn gather_all_backward(
     mb: &MicroBuffer,
@@ -235,7 +284,7 @@ pub fn gather_all_backward(
         return Err(TraceError::SizeMismatch { what: "v_l1b", got: v_l1b.len(), want: mb.len() * mb.k });
     }
     check_lights(mb, env, p)?;
-    Ok(backward_generic(mb, mats, &LightIn::new(env, p), (0..v_l1b.len()).map(|i| (i, i)), v_l1b))
+    Ok(backward_generic(mb, mats, &LightIn::new(env, p), (0..v_l1b.len()).map(|i| (i, i)), v_l1b, p.simd))
 }
 
 /// Gradients for upstream `v_l1b[i]` on the pairs `pairs[i] = (j, k)` (radiance consistency).
@@ -254,7 +303,7 @@ pub fn gather_pairs_backward(
     check_pairs(mb, pairs.iter().map(|&(j, k)| (j as usize, k as usize)))?;
     let entries = pairs.iter().enumerate().map(|(i, &(j, k))| (j as usize * mb.k + k as usize, i));
     check_lights(mb, env, p)?;
-    Ok(backward_generic(mb, mats, &LightIn::new(env, p), entries, v_l1b))
+    Ok(backward_generic(mb, mats, &LightIn::new(env, p), entries, v_l1b, p.simd))
 }
 
 /// Add the gradient of `v . L1b(j, k)` into `grads` (sequential; one pair).
@@ -388,6 +437,7 @@ mod tests {
                 &light_in(&c, &env64, env_max),
                 (0..g.len()).map(|i| (i, i)),
                 &g,
+                Simd::Scalar,
             );
             let h = 1e-6;
             let pick = |v: &[f64], rng: &mut Rng| -> Vec<usize> {
@@ -505,19 +555,23 @@ mod tests {
     #[test]
     fn f32_paths_agree_with_naive_formula_and_each_other() {
         for (lights, diffuse) in [(0, Diffuse::Added), (5, Diffuse::Layered)] {
-            f32_paths_agree(lights, diffuse);
+            // Every kernel this CPU runs: the scalar one and the lanes of `gather_lanes`.
+            for simd in Simd::available() {
+                f32_paths_agree(lights, diffuse, simd);
+            }
         }
     }
 
-    fn f32_paths_agree(lights: usize, diffuse: Diffuse) {
+    fn f32_paths_agree(lights: usize, diffuse: Diffuse, simd: Simd) {
         let m = 4;
         let c = case(m, 7, lights);
         let alb: Vec<f32> = c.albedo.iter().map(|&x| x as f32).collect();
         let rough: Vec<f32> = c.rough.iter().map(|&x| x as f32).collect();
         let nrm: Vec<f32> = c.normals.iter().map(|&x| x as f32).collect();
         let mats = VertexMaterials { m, albedo: &alb, roughness: &rough, normals: &nrm };
-        let p = GatherParams { lights: c.lights.as_ref(), diffuse, ..GatherParams::default() };
+        let p = GatherParams { lights: c.lights.as_ref(), diffuse, simd, ..GatherParams::default() };
         let all = gather_all(&c.mb, &mats, &c.env, &p).unwrap();
+        let scalar = gather_all(&c.mb, &mats, &c.env, &GatherParams { simd: Simd::Scalar, ..p }).unwrap();
         // The K-sample part sees the light texels as black.
         let mut sampled = c.env.clone();
         for &t in c.lights.iter().flat_map(|l| l.texels.iter()) {
@@ -528,7 +582,16 @@ mod tests {
         for j in 0..n {
             for k in 0..kk {
                 let got = all[j * kk + k];
-                assert_eq!(got, gather_one(&c.mb, &mats, &c.env, &p, j, k).unwrap());
+                let one = gather_one(&c.mb, &mats, &c.env, &p, j, k).unwrap();
+                assert_eq!(scalar[j * kk + k], one, "{simd:?}");
+                // The lanes sum the escapes in another order and take Fresnel's exp2 from a
+                // polynomial: a few ulp of each term.
+                for ch in 0..3 {
+                    assert!(
+                        (got[ch] - one[ch]).abs() <= 2e-6 * one[ch].abs() + 1e-9,
+                        "{simd:?} ({j},{k}): {got:?} vs {one:?}"
+                    );
+                }
                 // Naive Eqn 13 straight from the SPEC text.
                 let mut want = [0.0f32; 3];
                 if let Some(h) = c.mb.hit(j, k) {
@@ -597,11 +660,16 @@ mod tests {
         for (i, &(j, k)) in pairs.iter().enumerate() {
             gather_one_backward(&c.mb, &mats, &c.env, &p, j as usize, k as usize, g[i], &mut single).unwrap();
         }
-        for (a, b) in
-            batched.v_albedo.iter().zip(&single.v_albedo).chain(batched.v_normals.iter().zip(&single.v_normals))
+        for (a, b) in batched
+            .v_albedo
+            .iter()
+            .zip(&single.v_albedo)
+            .chain(batched.v_normals.iter().zip(&single.v_normals))
+            .chain(batched.v_roughness.iter().zip(&single.v_roughness))
         {
-            assert!((a - b).abs() <= 1e-5 * (1.0 + b.abs()));
+            assert!((a - b).abs() <= 1e-5 * (1.0 + b.abs()), "{simd:?}: {a} vs {b}");
         }
+        assert!(batched.v_roughness.iter().filter(|x| **x != 0.0).count() > 100, "{simd:?}");
         for (a, b) in batched.v_env.iter().flatten().zip(single.v_env.iter().flatten()) {
             assert!((a - b).abs() <= 1e-4 * (1.0 + b.abs()));
         }

@@ -20,6 +20,7 @@ pub mod bvh;
 pub mod direction_cache;
 pub mod gather;
 pub mod gather_backward;
+mod gather_lanes;
 pub mod hit;
 pub mod microbuffer;
 pub mod pack;

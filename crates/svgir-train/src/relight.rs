@@ -126,8 +126,13 @@ impl Relighter {
             return Ok(PreparedLight { env, one_bounce: None, lights, back_one_bounce: None, back_lights });
         }
         let act = s2.materials.activated(&s2.normals)?;
-        let p =
-            GatherParams { env_max: f32::INFINITY, lights: lights.as_ref(), diffuse: s2.config.diffuse, cache: None };
+        let p = GatherParams {
+            env_max: f32::INFINITY,
+            lights: lights.as_ref(),
+            diffuse: s2.config.diffuse,
+            cache: None,
+            ..Default::default()
+        };
         let Some((back, _)) = &self.back else {
             let mut one_bounce = svgir_trace::gather_all(&self.mb, &act.view(), &env, &p)?;
             svgir_trace::add_bounces(&self.mb, &act.view(), &mut one_bounce, self.bounces)?;

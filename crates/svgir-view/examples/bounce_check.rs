@@ -9,7 +9,13 @@ fn main() {
     let s2 = svgir_train::checkpoint::load_stage2(std::path::Path::new(&path)).expect("checkpoint");
     let env = s2.env.radiance();
     let act = s2.materials.activated(&s2.normals).expect("materials");
-    let p = svgir_trace::GatherParams { env_max: f32::INFINITY, lights: None, diffuse: s2.config.diffuse, cache: None };
+    let p = svgir_trace::GatherParams {
+        env_max: f32::INFINITY,
+        lights: None,
+        diffuse: s2.config.diffuse,
+        cache: None,
+        ..Default::default()
+    };
     let l1b = svgir_trace::gather_all(&s2.mb, &act.view(), &env, &p).expect("gather");
     let model = svgir_view::model_from_stage2(&s2, &s2.mb, None, 3, false).expect("model");
     let data = svgir_view::VertexData { albedo: &act.albedo, roughness: &act.roughness, normals: &act.normals };
