@@ -12,7 +12,8 @@
 //! ulp), and the sums over escapes (the radiance, and in the backward the albedo, roughness and
 //! normal gradients) are summed lane-wise and then across lanes. The light gradient of each
 //! escape (summed over vertices in vertex order) is stored per lane and routed to the env taps
-//! in the scalar loop's order. `tests/gather_lanes.rs` holds both to the scalar kernels.
+//! in the scalar loop's order. The test `f32_paths_agree_with_naive_formula_and_each_other`
+//! (`gather_backward.rs`) holds every path to the scalar kernels.
 //!
 //! Work split and saved state: none of its own; the callers in `gather` and `gather_backward`
 //! decide both.
