@@ -372,6 +372,7 @@ pub fn bench_scene(surfels: Surfels, cameras: &[Camera], background: [f32; 3], t
             let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().expect("rayon pool");
             let (mut pairs, mut evals) = (0usize, 0u64);
             let (mut fwd, mut fb) = (Vec::new(), Vec::new());
+            let mut phases: Vec<Vec<(String, f64)>> = Vec::new();
             for p in &problems {
                 let mut input = p.input();
                 input.background = Background::Color(background);
@@ -387,7 +388,13 @@ pub fn bench_scene(surfels: Surfels, cameras: &[Camera], background: [f32; 3], t
                     fb.push(median_ms(
                         || {
                             let (out, st) = render(&input, &cfg);
-                            drop(crate::backward(&input, &cfg, &st, &out, &grads));
+                            let g = crate::backward(&input, &cfg, &st, &out, &grads);
+                            let named = |pre: &str, p: &PhaseTimes| -> Vec<(String, f64)> {
+                                p.ms.iter().map(|(n, t)| (format!("{pre} {n}"), *t)).collect()
+                            };
+                            let mut ph = named("fwd", &st.phases);
+                            ph.extend(named("bwd", &g.phases));
+                            phases.push(ph);
                         },
                         reps,
                     ));
@@ -399,6 +406,9 @@ pub fn bench_scene(surfels: Surfels, cameras: &[Camera], background: [f32; 3], t
                 v[v.len() / 2]
             };
             row(&mut s, &format!("{w}x{h}"), n, t, (pairs / k) as u64, evals / k as u64, med(&mut fwd), med(&mut fb));
+            // Phases over every camera's calls (medians).
+            s += &phase_line(&format!("phases, {t}t"), &phases);
+            s.push('\n');
         }
     }
     s
