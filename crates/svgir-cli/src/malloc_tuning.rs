@@ -6,7 +6,11 @@
 //! them in again: on the 2-core development VM that was 0.7-0.9 s of system time per 8
 //! rasterizer forward+backward calls on lego (75.9k Gaussians, 400x400), and 15-25% of the wall
 //! time. Raising the mmap threshold to its maximum (32 MiB) and disabling trimming drops it to
-//! 0.15 s. Buffers above 32 MiB are still mapped per call.
+//! 0.15 s. Buffers above 32 MiB were still mapped per call: at 200k Gaussians the SH gradient
+//! (42 MB) and the tile records (50 MB) were page-faulted in on every iteration, so `mmap` is now
+//! off altogether (`M_MMAP_MAX = 0`) and such buffers come from the heap and are reused: `svgir
+//! bench raster --ply` on a trained 217.7k-Gaussian lego, 2 threads, 176 -> 165 ms (per-Gaussian
+//! backward 25.5 -> 15.6 ms; 2026-11-25).
 //!
 //! The rayon workers allocate from glibc's per-thread arenas, whose heaps are shrunk (pages given
 //! back with `madvise`) whenever their free top exceeds the top pad, whatever the trim
@@ -22,6 +26,7 @@ pub fn keep_freed_memory() {
         const M_TRIM_THRESHOLD: i32 = -1;
         const M_TOP_PAD: i32 = -2;
         const M_MMAP_THRESHOLD: i32 = -3;
+        const M_MMAP_MAX: i32 = -4;
         extern "C" {
             fn mallopt(param: i32, value: i32) -> i32;
         }
@@ -31,6 +36,7 @@ pub fn keep_freed_memory() {
             mallopt(M_MMAP_THRESHOLD, 32 * 1024 * 1024);
             mallopt(M_TRIM_THRESHOLD, i32::MAX);
             mallopt(M_TOP_PAD, 64 * 1024 * 1024);
+            mallopt(M_MMAP_MAX, 0);
         }
     }
 }
