@@ -113,24 +113,28 @@ impl Ray {
         let v = (-mb.direction(j, k)).to_array();
         let uv = mb.uv(j, k);
         let w = vertex_weights(m, uv[0], uv[1]);
-        let vertex = |mm: usize| {
-            let mm = mm.min(m - 1);
+        // Vertex 0 fills the unused slots (only the first m are read).
+        let b0 = h * m * 3;
+        let n0 = [mats.normals[b0], mats.normals[b0 + 1], mats.normals[b0 + 2]];
+        let r0 = mats.roughness[h * m];
+        let mut ray = Self {
+            v,
+            w,
+            n: [n0; MAX_VERTICES],
+            a: [[mats.albedo[b0], mats.albedo[b0 + 1], mats.albedo[b0 + 2]]; MAX_VERTICES],
+            dw: [diffuse.weight(dot(n0, v), r0); MAX_VERTICES],
+            lobes: [lobe(n0, v, r0); MAX_VERTICES],
+        };
+        for mm in 1..m {
             let b = (h * m + mm) * 3;
             let n = [mats.normals[b], mats.normals[b + 1], mats.normals[b + 2]];
-            let a = [mats.albedo[b], mats.albedo[b + 1], mats.albedo[b + 2]];
-            (n, a, mats.roughness[h * m + mm])
-        };
-        let n = std::array::from_fn(|mm| vertex(mm).0);
-        let a = std::array::from_fn(|mm| vertex(mm).1);
-        let dw = std::array::from_fn(|mm| {
-            let (n, _, r) = vertex(mm);
-            diffuse.weight(dot(n, v), r)
-        });
-        let lobes = std::array::from_fn(|mm| {
-            let (n, _, r) = vertex(mm);
-            lobe(n, v, r)
-        });
-        Self { v, w, n, a, dw, lobes }
+            let r = mats.roughness[h * m + mm];
+            ray.n[mm] = n;
+            ray.a[mm] = [mats.albedo[b], mats.albedo[b + 1], mats.albedo[b + 2]];
+            ray.dw[mm] = diffuse.weight(dot(n, v), r);
+            ray.lobes[mm] = lobe(n, v, r);
+        }
+        ray
     }
 
     /// The lobes broadcast to lanes (a loop, not `array::map`: see `svgir_shading::tri`).
