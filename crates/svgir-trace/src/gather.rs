@@ -28,7 +28,7 @@ use svgir_core::simd::Simd;
 use svgir_core::EnvMap;
 use svgir_shading::float::{dot, to_f};
 use svgir_shading::hemisphere::{FibTable, HemiFrame};
-use svgir_shading::split::{half, lobe, spec, Lobe};
+use svgir_shading::split::{half, lobe, spec};
 use svgir_shading::{vertex_weights, Diffuse, Float, DOT_EPS, MAX_VERTICES};
 
 /// Per-vertex materials of all Gaussians, structure of arrays: `albedo[(i*M + m)*3 + c]`,
@@ -229,16 +229,22 @@ pub(crate) fn shade_pair<F: Float>(
     // Per vertex of h: normal, roughness and the diffuse term `t a/pi` (`t` depends on the view,
     // not on the escape direction), so the loop below evaluates only the specular lobe.
     let inv_pi = F::from_f64(std::f64::consts::FRAC_1_PI);
-    let vx: [([F; 3], F, [F; 3]); MAX_VERTICES] = std::array::from_fn(|mm| {
-        let mm = mm.min(m - 1);
+    let vertex = |mm: usize| {
         let b = (h * m + mm) * 3;
         let n = [mats.normals[b], mats.normals[b + 1], mats.normals[b + 2]];
         let r = mats.roughness[h * m + mm];
         let kd = inv_pi * diffuse.weight(dot(n, v), r).value;
         (n, r, [mats.albedo[b] * kd, mats.albedo[b + 1] * kd, mats.albedo[b + 2] * kd])
-    });
-    // The specular lobe split per vertex and per direction (`svgir_shading::split`).
-    let lobes: [Lobe<F>; MAX_VERTICES] = std::array::from_fn(|mm| lobe(vx[mm].0, v, vx[mm].1));
+    };
+    // Only h's M vertices are built; vertex 0 fills the unused slots. The specular lobe is
+    // split per vertex and per direction (`svgir_shading::split`).
+    let first = vertex(0);
+    let mut vx = [first; MAX_VERTICES];
+    let mut lobes = [lobe(first.0, v, first.1); MAX_VERTICES];
+    for mm in 1..m {
+        vx[mm] = vertex(mm);
+        lobes[mm] = lobe(vx[mm].0, v, vx[mm].1);
+    }
     for (l, light) in esc.dirs.iter().zip(&esc.light) {
         let mut f_cos = [F::ZERO; 3];
         let hv = half(v, *l);

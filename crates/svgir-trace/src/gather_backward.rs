@@ -25,8 +25,8 @@ use rayon::prelude::*;
 use svgir_core::simd::Simd;
 use svgir_core::EnvMap;
 use svgir_shading::float::{dot, to_f};
-use svgir_shading::split::{half, lobe, spec_grad, Lobe};
-use svgir_shading::{vertex_weights, Diffuse, DiffuseWeight, Float, DOT_EPS, MAX_VERTICES};
+use svgir_shading::split::{half, lobe, spec_grad};
+use svgir_shading::{vertex_weights, Diffuse, Float, DOT_EPS, MAX_VERTICES};
 
 /// Gradients, laid out like [`VertexMaterials`] and `EnvMap::data`.
 #[derive(Clone, Debug, PartialEq)]
@@ -84,16 +84,17 @@ pub(crate) fn backward_pair<F: Float>(
     };
     // Diffuse weight t(n.v, r) per vertex (1 for SPEC 4's added lobes) and, per vertex,
     // `q = sum_s sum_c g_c C w_m L_c cos a_c/pi`, the factor of dt/dr and dt/dn.
-    let dw: [DiffuseWeight<F>; MAX_VERTICES] = std::array::from_fn(|mm| {
-        let (n, _, r) = vertex(mm.min(m - 1));
-        diffuse.weight(dot(n, v), r)
-    });
+    // The specular lobe is split per vertex and per direction (`svgir_shading::split`). Only
+    // h's M vertices are built; vertex 0 fills the unused slots.
+    let (n0, _, r0) = vertex(0);
+    let mut dw = [diffuse.weight(dot(n0, v), r0); MAX_VERTICES];
+    let mut lobes = [lobe(n0, v, r0); MAX_VERTICES];
+    for mm in 1..m {
+        let (n, _, r) = vertex(mm);
+        dw[mm] = diffuse.weight(dot(n, v), r);
+        lobes[mm] = lobe(n, v, r);
+    }
     let mut q = [F::ZERO; MAX_VERTICES];
-    // The specular lobe split per vertex and per direction (`svgir_shading::split`).
-    let lobes: [Lobe<F>; MAX_VERTICES] = std::array::from_fn(|mm| {
-        let (n, _, r) = vertex(mm.min(m - 1));
-        lobe(n, v, r)
-    });
     for s in 0..esc.dirs.len() {
         let l = esc.dirs[s];
         let light = esc.light[s];
