@@ -12,8 +12,8 @@
 //! Work split: [`gather_all`] / [`gather_from`] sort the rays by their hit Gaussian h and run
 //! rayon over h: each task builds h's escape list (directions and env radiance of its unoccluded
 //! samples) once and shades every ray that hit h (building it per ray cost as much as the
-//! shading). [`gather_pairs`] runs over its pairs sorted by h, reusing the escape list while
-//! consecutive pairs hit the same h.
+//! shading). [`gather_pairs`] runs over its pairs, reusing the escape list while consecutive
+//! pairs hit the same h.
 //! Nothing is saved for backward: [`crate::gather_backward`] recomputes the (cheap) escape lists.
 //! All maths is generic over `Float` so the tests check the gradients in f64.
 
@@ -505,32 +505,16 @@ pub fn gather_pairs(
     check_lights(mb, env, p)?;
     let light = LightIn::new(env, p);
     let lanes = lane_kernels::<f32>(p.simd);
-    // Visit the pairs grouped by hit Gaussian, so that each task builds an escape list once
-    // for all its consecutive pairs that hit the same h; the values do not depend on the order.
-    let hit = |i: u32| {
-        let (j, k) = pairs[i as usize];
-        mb.hit(j as usize, k as usize).unwrap_or(NO_HIT)
-    };
-    let mut order: Vec<u32> = (0..pairs.len() as u32).collect();
-    order.par_sort_unstable_by_key(|&i| (hit(i), i));
-    let shaded: Vec<[f32; 3]> = order
+    Ok(pairs
         .par_iter()
-        .map_init(Escapes::new, |esc, &i| {
-            let (j, k) = pairs[i as usize];
-            match mb.hit(j as usize, k as usize) {
-                None => [0.0; 3],
-                Some(h) => {
-                    esc.fill(mb, &light, h);
-                    shade_f32(lanes, mb, mats, esc, light.diffuse, j as usize, k as usize)
-                }
+        .map_init(Escapes::new, |esc, &(j, k)| match mb.hit(j as usize, k as usize) {
+            None => [0.0; 3],
+            Some(h) => {
+                esc.fill(mb, &light, h);
+                shade_f32(lanes, mb, mats, esc, light.diffuse, j as usize, k as usize)
             }
         })
-        .collect();
-    let mut out = vec![[0.0f32; 3]; pairs.len()];
-    for (&i, v) in order.iter().zip(shaded) {
-        out[i as usize] = v;
-    }
-    Ok(out)
+        .collect())
 }
 
 /// [`shade_pair`], in the lane kernels when `lanes` ([`lane_kernels`]).
