@@ -28,8 +28,8 @@ use svgir_core::simd::Simd;
 use svgir_core::EnvMap;
 use svgir_shading::float::{dot, to_f};
 use svgir_shading::hemisphere::{FibTable, HemiFrame};
-use svgir_shading::split::{half, lobe, spec};
-use svgir_shading::{vertex_weights, Diffuse, Float, DOT_EPS, MAX_VERTICES};
+use svgir_shading::split::{half, lobe, spec, Lobe};
+use svgir_shading::{vertex_weights, Diffuse, DiffuseWeight, Float, DOT_EPS, MAX_VERTICES};
 
 /// Per-vertex materials of all Gaussians, structure of arrays: `albedo[(i*M + m)*3 + c]`,
 /// `roughness[i*M + m]`, `normals[(i*M + m)*3 + c]` (unit shading normals, already activated).
@@ -210,6 +210,54 @@ impl<F: Float> Escapes<F> {
     }
 }
 
+/// The per-ray set-up of the gather's kernels (forward and backward, scalar and lanes): the view
+/// direction towards j, the vertex weights at the hit's (u~, v~), and per vertex of h its
+/// normal, albedo, diffuse weight `t(n.v, r)` (1 for SPEC 4's added lobes) and specular lobe
+/// split per vertex and per direction (`svgir_shading::split`). Only h's M vertices are built;
+/// vertex 0 fills the unused slots.
+#[derive(Clone, Copy)]
+pub(crate) struct RaySetup<F> {
+    pub v: [F; 3],
+    pub w: [F; MAX_VERTICES],
+    pub n: [[F; 3]; MAX_VERTICES],
+    pub a: [[F; 3]; MAX_VERTICES],
+    pub dw: [DiffuseWeight<F>; MAX_VERTICES],
+    pub lobes: [Lobe<F>; MAX_VERTICES],
+}
+
+impl<F: Float> RaySetup<F> {
+    /// Ray (j, k) of `mb` hitting Gaussian h.
+    pub fn new(mb: &MicroBuffer, mats: &VertexMaterials<F>, diffuse: Diffuse, h: usize, j: usize, k: usize) -> Self {
+        let m = mats.m;
+        let v: [F; 3] = to_f((-mb.direction(j, k)).to_array());
+        let uv = mb.uv(j, k);
+        let w = vertex_weights(m, F::from_f32(uv[0]), F::from_f32(uv[1]));
+        let vertex = |mm: usize| {
+            let b = (h * m + mm) * 3;
+            let n = [mats.normals[b], mats.normals[b + 1], mats.normals[b + 2]];
+            let a = [mats.albedo[b], mats.albedo[b + 1], mats.albedo[b + 2]];
+            (n, a, mats.roughness[h * m + mm])
+        };
+        let (n0, a0, r0) = vertex(0);
+        let mut ray = Self {
+            v,
+            w,
+            n: [n0; MAX_VERTICES],
+            a: [a0; MAX_VERTICES],
+            dw: [diffuse.weight(dot(n0, v), r0); MAX_VERTICES],
+            lobes: [lobe(n0, v, r0); MAX_VERTICES],
+        };
+        for mm in 1..m {
+            let (n, a, r) = vertex(mm);
+            ray.n[mm] = n;
+            ray.a[mm] = a;
+            ray.dw[mm] = diffuse.weight(dot(n, v), r);
+            ray.lobes[mm] = lobe(n, v, r);
+        }
+        ray
+    }
+}
+
 /// Eqn 13 for one (j, k) given the escape list of its hit Gaussian.
 pub(crate) fn shade_pair<F: Float>(
     mb: &MicroBuffer,
@@ -219,40 +267,27 @@ pub(crate) fn shade_pair<F: Float>(
     j: usize,
     k: usize,
 ) -> [F; 3] {
-    let h = esc.h as usize;
     let m = mats.m;
-    let v: [F; 3] = to_f((-mb.direction(j, k)).to_array());
-    let uv = mb.uv(j, k);
-    let w = vertex_weights(m, F::from_f32(uv[0]), F::from_f32(uv[1]));
+    let ray = RaySetup::new(mb, mats, diffuse, esc.h as usize, j, k);
+    let v = ray.v;
     let mut acc = [F::ZERO; 3];
     let eps = F::from_f64(DOT_EPS);
-    // Per vertex of h: normal, roughness and the diffuse term `t a/pi` (`t` depends on the view,
-    // not on the escape direction), so the loop below evaluates only the specular lobe.
+    // The diffuse term `t a/pi` per vertex (`t` depends on the view, not on the escape
+    // direction), so the loop below evaluates only the specular lobe.
     let inv_pi = F::from_f64(std::f64::consts::FRAC_1_PI);
-    let vertex = |mm: usize| {
-        let b = (h * m + mm) * 3;
-        let n = [mats.normals[b], mats.normals[b + 1], mats.normals[b + 2]];
-        let r = mats.roughness[h * m + mm];
-        let kd = inv_pi * diffuse.weight(dot(n, v), r).value;
-        (n, r, [mats.albedo[b] * kd, mats.albedo[b + 1] * kd, mats.albedo[b + 2] * kd])
-    };
-    // Only h's M vertices are built; vertex 0 fills the unused slots. The specular lobe is
-    // split per vertex and per direction (`svgir_shading::split`).
-    let first = vertex(0);
-    let mut vx = [first; MAX_VERTICES];
-    let mut lobes = [lobe(first.0, v, first.1); MAX_VERTICES];
-    for mm in 1..m {
-        vx[mm] = vertex(mm);
-        lobes[mm] = lobe(vx[mm].0, v, vx[mm].1);
+    let mut diffuse_part = [[F::ZERO; 3]; MAX_VERTICES];
+    for mm in 0..m {
+        let kd = inv_pi * ray.dw[mm].value;
+        diffuse_part[mm] = ray.a[mm].map(|x| x * kd);
     }
     for (l, light) in esc.dirs.iter().zip(&esc.light) {
         let mut f_cos = [F::ZERO; 3];
         let hv = half(v, *l);
-        for (mm, &(n, _, diffuse_part)) in vx.iter().enumerate().take(m) {
-            let nl = dot(n, *l);
-            let s = spec(&lobes[mm], &hv, nl);
-            let f = diffuse_part.map(|d| d + s);
-            let cw = nl.maxf(eps) * w[mm];
+        for mm in 0..m {
+            let nl = dot(ray.n[mm], *l);
+            let s = spec(&ray.lobes[mm], &hv, nl);
+            let f = diffuse_part[mm].map(|d| d + s);
+            let cw = nl.maxf(eps) * ray.w[mm];
             for c in 0..3 {
                 f_cos[c] += f[c] * cw;
             }

@@ -17,16 +17,16 @@
 //! partials are then added in block order. Block size depends only on N, so the result is
 //! bit-identical for any thread count.
 
-use crate::gather::{check, check_lights, check_pairs, Escapes, GatherParams, LightIn, VertexMaterials};
+use crate::gather::{check, check_lights, check_pairs, Escapes, GatherParams, LightIn, RaySetup, VertexMaterials};
 use crate::gather_lanes::lane_kernels;
 use crate::microbuffer::{MicroBuffer, NO_HIT};
 use crate::TraceError;
 use rayon::prelude::*;
 use svgir_core::simd::Simd;
 use svgir_core::EnvMap;
-use svgir_shading::float::{dot, to_f};
-use svgir_shading::split::{half, lobe, spec_grad};
-use svgir_shading::{vertex_weights, Diffuse, Float, DOT_EPS, MAX_VERTICES};
+use svgir_shading::float::dot;
+use svgir_shading::split::{half, spec_grad};
+use svgir_shading::{Diffuse, Float, DOT_EPS, MAX_VERTICES};
 
 /// Gradients, laid out like [`VertexMaterials`] and `EnvMap::data`.
 #[derive(Clone, Debug, PartialEq)]
@@ -68,32 +68,13 @@ pub(crate) fn backward_pair<F: Float>(
     nrm: &mut [F],
     v_env: &mut [[F; 3]],
 ) {
-    let h = esc.h as usize;
     let m = mats.m;
-    let v: [F; 3] = to_f((-mb.direction(j, k)).to_array());
-    let uv = mb.uv(j, k);
-    let w = vertex_weights(m, F::from_f32(uv[0]), F::from_f32(uv[1]));
+    let ray = RaySetup::new(mb, mats, diffuse, esc.h as usize, j, k);
+    let (v, w, dw, lobes) = (ray.v, ray.w, ray.dw, ray.lobes);
     let cscale = F::from_f64(std::f64::consts::TAU / mb.k as f64);
     let inv_pi = F::from_f64(std::f64::consts::FRAC_1_PI);
     let eps = F::from_f64(DOT_EPS);
-    let vertex = |mm: usize| {
-        let b = (h * m + mm) * 3;
-        let n = [mats.normals[b], mats.normals[b + 1], mats.normals[b + 2]];
-        let a = [mats.albedo[b], mats.albedo[b + 1], mats.albedo[b + 2]];
-        (n, a, mats.roughness[h * m + mm])
-    };
-    // Diffuse weight t(n.v, r) per vertex (1 for SPEC 4's added lobes) and, per vertex,
-    // `q = sum_s sum_c g_c C w_m L_c cos a_c/pi`, the factor of dt/dr and dt/dn.
-    // The specular lobe is split per vertex and per direction (`svgir_shading::split`). Only
-    // h's M vertices are built; vertex 0 fills the unused slots.
-    let (n0, _, r0) = vertex(0);
-    let mut dw = [diffuse.weight(dot(n0, v), r0); MAX_VERTICES];
-    let mut lobes = [lobe(n0, v, r0); MAX_VERTICES];
-    for mm in 1..m {
-        let (n, _, r) = vertex(mm);
-        dw[mm] = diffuse.weight(dot(n, v), r);
-        lobes[mm] = lobe(n, v, r);
-    }
+    // Per vertex, `q = sum_s sum_c g_c C w_m L_c cos a_c/pi`, the factor of dt/dr and dt/dn.
     let mut q = [F::ZERO; MAX_VERTICES];
     for s in 0..esc.dirs.len() {
         let l = esc.dirs[s];
@@ -101,7 +82,7 @@ pub(crate) fn backward_pair<F: Float>(
         let mut v_light = [F::ZERO; 3];
         let hv = half(v, l);
         for mm in 0..m {
-            let (n, a, _) = vertex(mm);
+            let (n, a) = (ray.n[mm], ray.a[mm]);
             let ndl = dot(n, l);
             let sg = spec_grad(&lobes[mm], &hv, v, l, ndl);
             let cos = ndl.maxf(eps);

@@ -4,9 +4,10 @@
 //!
 //! The hit Gaussian's escape list is kept as structure-of-arrays rows ([`EscapeRows`]: direction
 //! and clamped env radiance), padded to a multiple of [`W`] with directions that carry no light.
-//! Per ray, the per-vertex set-up (lobe, diffuse weight) is the scalar code's; then, per chunk of
-//! [`W`] escapes, the half vector and Fresnel ([`half_lanes`]) and, vertex by vertex, the split
-//! GGX term and its gradient (`svgir_shading::split_lanes`, the scalar formulas lane by lane).
+//! Per ray, the per-vertex set-up is the scalar kernels' ([`crate::gather::RaySetup`]); then,
+//! per chunk of [`W`] escapes, the half vector and Fresnel ([`half_lanes`]) and, vertex by
+//! vertex, the split GGX term and its gradient (`svgir_shading::split_lanes`, the scalar
+//! formulas lane by lane).
 //!
 //! What differs from the scalar oracle: the Fresnel's `exp2` is the lanes' polynomial (a few
 //! ulp), and the sums over escapes (the radiance, and in the backward the albedo, roughness and
@@ -22,13 +23,11 @@
 // through `Simd::resolve`) -- so the operations inside need no block of their own.
 #![allow(unsafe_op_in_unsafe_fn)]
 
-use crate::gather::{Escapes, VertexMaterials};
+use crate::gather::{Escapes, RaySetup, VertexMaterials};
 use crate::microbuffer::MicroBuffer;
 use svgir_core::simd::{is_f32, Lanes, Simd};
-use svgir_shading::float::dot;
-use svgir_shading::split::{lobe, Lobe};
 use svgir_shading::split_lanes::{dot_l, half_lanes, lobe_l, spec_grad_lanes, spec_lanes, LobeL};
-use svgir_shading::{tri, vertex_weights, Diffuse, DiffuseWeight, DOT_EPS, MAX_VERTICES};
+use svgir_shading::{tri, Diffuse, DOT_EPS, MAX_VERTICES};
 
 /// Escapes per lane step: one AVX2 register of f32.
 pub(crate) const W: usize = 8;
@@ -95,57 +94,14 @@ unsafe fn clamp_cos<L: Lanes>(x: L) -> (L, L::M) {
     (L::select(live, x, eps), live)
 }
 
-/// The per-ray set-up shared by forward and backward: the view direction (towards j), the vertex
-/// weights at the hit's (u~, v~) and each vertex's normal, albedo, roughness, diffuse weight and
-/// specular lobe, as the scalar kernels compute them.
-struct Ray {
-    v: [f32; 3],
-    w: [f32; MAX_VERTICES],
-    n: [[f32; 3]; MAX_VERTICES],
-    a: [[f32; 3]; MAX_VERTICES],
-    dw: [DiffuseWeight<f32>; MAX_VERTICES],
-    lobes: [Lobe<f32>; MAX_VERTICES],
-}
-
-impl Ray {
-    fn new(mb: &MicroBuffer, mats: &VertexMaterials<f32>, diffuse: Diffuse, h: usize, j: usize, k: usize) -> Self {
-        let m = mats.m;
-        let v = (-mb.direction(j, k)).to_array();
-        let uv = mb.uv(j, k);
-        let w = vertex_weights(m, uv[0], uv[1]);
-        // Vertex 0 fills the unused slots (only the first m are read).
-        let b0 = h * m * 3;
-        let n0 = [mats.normals[b0], mats.normals[b0 + 1], mats.normals[b0 + 2]];
-        let r0 = mats.roughness[h * m];
-        let mut ray = Self {
-            v,
-            w,
-            n: [n0; MAX_VERTICES],
-            a: [[mats.albedo[b0], mats.albedo[b0 + 1], mats.albedo[b0 + 2]]; MAX_VERTICES],
-            dw: [diffuse.weight(dot(n0, v), r0); MAX_VERTICES],
-            lobes: [lobe(n0, v, r0); MAX_VERTICES],
-        };
-        for mm in 1..m {
-            let b = (h * m + mm) * 3;
-            let n = [mats.normals[b], mats.normals[b + 1], mats.normals[b + 2]];
-            let r = mats.roughness[h * m + mm];
-            ray.n[mm] = n;
-            ray.a[mm] = [mats.albedo[b], mats.albedo[b + 1], mats.albedo[b + 2]];
-            ray.dw[mm] = diffuse.weight(dot(n, v), r);
-            ray.lobes[mm] = lobe(n, v, r);
-        }
-        ray
+/// The ray's lobes broadcast to lanes (a loop, not `array::map`: see `svgir_shading::tri`).
+#[inline(always)]
+unsafe fn lane_lobes<L: Lanes>(ray: &RaySetup<f32>, m: usize) -> [LobeL<L>; MAX_VERTICES] {
+    let mut out = [lobe_l(&ray.lobes[0]); MAX_VERTICES];
+    for mm in 1..m {
+        out[mm] = lobe_l(&ray.lobes[mm]);
     }
-
-    /// The lobes broadcast to lanes (a loop, not `array::map`: see `svgir_shading::tri`).
-    #[inline(always)]
-    unsafe fn lane_lobes<L: Lanes>(&self, m: usize) -> [LobeL<L>; MAX_VERTICES] {
-        let mut out = [lobe_l(&self.lobes[0]); MAX_VERTICES];
-        for mm in 1..m {
-            out[mm] = lobe_l(&self.lobes[mm]);
-        }
-        out
-    }
+    out
 }
 
 /// Eqn 13 for ray (j, k) of `mb` off its hit Gaussian `esc.h`, whose escapes `rows` holds.
@@ -160,7 +116,7 @@ unsafe fn shade_pair_lanes<L: Lanes>(
 ) -> [f32; 3] {
     let rows = &esc.rows;
     let m = mats.m;
-    let ray = Ray::new(mb, mats, diffuse, esc.h as usize, j, k);
+    let ray = RaySetup::new(mb, mats, diffuse, esc.h as usize, j, k);
     let inv_pi = std::f64::consts::FRAC_1_PI as f32;
     // The diffuse term `t a/pi` per vertex (independent of the escape direction).
     let mut kd = [[0.0f32; 3]; MAX_VERTICES];
@@ -168,7 +124,7 @@ unsafe fn shade_pair_lanes<L: Lanes>(
         let t = inv_pi * ray.dw[mm].value;
         kd[mm] = [ray.a[mm][0] * t, ray.a[mm][1] * t, ray.a[mm][2] * t];
     }
-    let ll = ray.lane_lobes::<L>(m);
+    let ll = lane_lobes::<L>(&ray, m);
     let zero = L::splat(0.0);
     let mut acc = [zero; 3];
     for step in 0..rows.steps() {
@@ -223,11 +179,11 @@ unsafe fn backward_pair_lanes<L: Lanes>(
 ) {
     let rows = &esc.rows;
     let m = mats.m;
-    let ray = Ray::new(mb, mats, diffuse, esc.h as usize, j, k);
+    let ray = RaySetup::new(mb, mats, diffuse, esc.h as usize, j, k);
     let v = ray.v;
     let cscale = (std::f64::consts::TAU / mb.k as f64) as f32;
     let inv_pi = std::f64::consts::FRAC_1_PI as f32;
-    let ll = ray.lane_lobes::<L>(m);
+    let ll = lane_lobes::<L>(&ray, m);
     let s = L::splat;
     let zero = s(0.0);
     // Per vertex, summed over escapes lane-wise: dL/da (3), dL/dr, dL/dn (3) and q, the factor of
