@@ -272,11 +272,7 @@ fn bench_problem(
                 let t1 = Instant::now();
                 let g = crate::backward(&input, &cfg, &st, &out, &grads);
                 let b = t1.elapsed().as_secs_f64() * 1e3;
-                let named = |pre: &str, p: &PhaseTimes| -> Vec<(String, f64)> {
-                    p.ms.iter().map(|(n, t)| (format!("{pre} {n}"), *t)).collect()
-                };
-                let mut ph = named("fwd", &st.phases);
-                ph.extend(named("bwd", &g.phases));
+                let ph = phases_of(&st.phases, &g.phases);
                 drop(g);
                 (f, b, ph)
             });
@@ -314,6 +310,14 @@ fn bench_problem(
         let label = format!("{size} {} {threads}t {}", problem.surfels.len(), path.name());
         breakdown.push(phase_line(&label, &phases[i]));
     }
+}
+
+/// The phases of one forward and its backward, named `fwd <phase>` and `bwd <phase>`.
+fn phases_of(fwd: &PhaseTimes, bwd: &PhaseTimes) -> Vec<(String, f64)> {
+    let named = |pre: &str, p: &PhaseTimes| p.ms.iter().map(|(n, t)| (format!("{pre} {n}"), *t)).collect::<Vec<_>>();
+    let mut ph = named("fwd", fwd);
+    ph.extend(named("bwd", bwd));
+    ph
 }
 
 /// One line of the phase breakdown: the median milliseconds of each phase over the calls.
@@ -389,12 +393,7 @@ pub fn bench_scene(surfels: Surfels, cameras: &[Camera], background: [f32; 3], t
                         || {
                             let (out, st) = render(&input, &cfg);
                             let g = crate::backward(&input, &cfg, &st, &out, &grads);
-                            let named = |pre: &str, p: &PhaseTimes| -> Vec<(String, f64)> {
-                                p.ms.iter().map(|(n, t)| (format!("{pre} {n}"), *t)).collect()
-                            };
-                            let mut ph = named("fwd", &st.phases);
-                            ph.extend(named("bwd", &g.phases));
-                            phases.push(ph);
+                            phases.push(phases_of(&st.phases, &g.phases));
                         },
                         reps,
                     ));
