@@ -78,12 +78,20 @@ impl Shape {
     }
 }
 
+/// Rows of output per rayon task in the blur passes (a row alone is too little work per task).
+const BAND: usize = 8;
+/// Outputs accumulated together in registers by the blur passes.
+const LANES: usize = 8;
+
 /// Separable Gaussian blur of `k_planes` planes stored one after another (`w x h` each).
 /// `same`: zero padding 5, output `w x h`; otherwise 'valid', output `(w-10) x (h-10)`.
-/// Both passes are written as 11 shifted axpys over whole rows, so they vectorise.
+/// Each output sums its 11 taps in ascending order from zero, [`LANES`] outputs at a time in
+/// registers, so the passes vectorise and give the same floats as the tap-by-tap sums of
+/// `tests::blur_reference` (a skipped zero-padding tap adds an exact zero).
 /// The window is symmetric, so with `same` this operator is its own adjoint (used by backward).
 /// `tmp` and `out` are scratch reused between calls (their old contents are ignored); the result is
 /// `out[..k_planes * wo * ho]`.
+#[allow(clippy::too_many_arguments)]
 pub(crate) fn blur<T: Real>(
     src: &[T],
     k_planes: usize,
@@ -96,33 +104,116 @@ pub(crate) fn blur<T: Real>(
 ) -> (usize, usize) {
     let (off, wo, ho) = if same { (HALF, w, h) } else { (0, w + 1 - WINDOW, h + 1 - WINDOW) };
     debug_assert_eq!(src.len(), k_planes * w * h);
+    let wide = wide_blur();
     tmp.resize(k_planes * wo * h, T::ZERO);
-    tmp.par_chunks_mut(wo).enumerate().for_each(|(r, row)| {
-        row.fill(T::ZERO);
-        // Row r of the stacked planes is row r of the source too (same plane, same y).
-        let src_row = &src[r * w..(r + 1) * w];
-        for k in 0..WINDOW {
-            let (lo, hi) = tap_range(k, off, wo, w);
-            for (d, &v) in row[lo..hi].iter_mut().zip(&src_row[lo + k - off..hi + k - off]) {
-                *d += g[k] * v;
-            }
+    tmp.par_chunks_mut(wo * BAND).enumerate().for_each(|(band, rows)| {
+        // Row r of the stacked planes is row r of the source too (same plane, same y); it is
+        // copied between `off` zeros so that every output reads all 11 taps.
+        let mut padded = vec![T::ZERO; w + 2 * off];
+        for (j, row) in rows.chunks_exact_mut(wo).enumerate() {
+            let r = band * BAND + j;
+            padded[off..off + w].copy_from_slice(&src[r * w..(r + 1) * w]);
+            taps_along_row(&padded, row, g, wide);
         }
     });
     out.resize(k_planes * wo * ho, T::ZERO);
     let tmp = &tmp[..];
-    out.par_chunks_mut(wo).enumerate().for_each(|(r, row)| {
-        row.fill(T::ZERO);
-        let (q, oy) = (r / ho, r % ho);
-        let plane = &tmp[q * wo * h..(q + 1) * wo * h];
-        let (lo, hi) = (off.saturating_sub(oy), WINDOW.min((h + off).saturating_sub(oy)));
-        for k in lo..hi {
-            let iy = oy + k - off;
-            for (d, &v) in row.iter_mut().zip(&plane[iy * wo..(iy + 1) * wo]) {
-                *d += g[k] * v;
+    out.par_chunks_mut(wo * BAND).enumerate().for_each(|(band, rows)| {
+        for (j, row) in rows.chunks_exact_mut(wo).enumerate() {
+            let r = band * BAND + j;
+            let (q, oy) = (r / ho, r % ho);
+            let plane = &tmp[q * wo * h..(q + 1) * wo * h];
+            let (lo, hi) = (off.saturating_sub(oy), WINDOW.min((h + off).saturating_sub(oy)));
+            if hi - lo == WINDOW {
+                taps_down_rows(&plane[(oy - off) * wo..(oy - off + WINDOW) * wo], row, g, wide);
+            } else {
+                // Rows within 5 of a 'same' border: only the taps inside the image, in order.
+                row.fill(T::ZERO);
+                for k in lo..hi {
+                    let iy = oy + k - off;
+                    for (d, &v) in row.iter_mut().zip(&plane[iy * wo..(iy + 1) * wo]) {
+                        *d += g[k] * v;
+                    }
+                }
             }
         }
     });
     (wo, ho)
+}
+
+/// Runs `$body` (a call of an `#[inline(always)]` row kernel) compiled for AVX2 when `$wide`
+/// (the CPU has it; `Simd::resolve`), else as built. Without FMA contraction, which Rust never
+/// does on its own, both give the same floats.
+macro_rules! avx2_or_not {
+    ($wide:expr, $body:expr) => {{
+        #[cfg(target_arch = "x86_64")]
+        if $wide {
+            #[target_feature(enable = "avx2")]
+            unsafe fn wide<R>(f: impl FnOnce() -> R) -> R {
+                f()
+            }
+            // SAFETY: `$wide` is true only where the CPU has AVX2.
+            return unsafe { wide(|| $body) };
+        }
+        $body
+    }};
+}
+
+/// Whether the blur kernels run their AVX2 build (`SVGIR_SIMD=scalar` keeps the baseline one).
+fn wide_blur() -> bool {
+    svgir_core::simd::Simd::Auto.resolve() != svgir_core::simd::Simd::Scalar
+}
+
+/// `out[x] = sum_k g[k] src[x + k]` for every output, the taps summed in order from zero.
+fn taps_along_row<T: Real>(src: &[T], out: &mut [T], g: &[T; WINDOW], wide: bool) {
+    avx2_or_not!(wide, taps_along_row_body(src, out, g))
+}
+
+#[inline(always)]
+fn taps_along_row_body<T: Real>(src: &[T], out: &mut [T], g: &[T; WINDOW]) {
+    let mut chunks = out.chunks_exact_mut(LANES);
+    let mut x = 0;
+    for o in &mut chunks {
+        let mut acc = [T::ZERO; LANES];
+        for (k, &gk) in g.iter().enumerate() {
+            let taps = &src[x + k..x + k + LANES];
+            for (a, &v) in acc.iter_mut().zip(taps) {
+                *a += gk * v;
+            }
+        }
+        o.copy_from_slice(&acc);
+        x += LANES;
+    }
+    for (i, o) in chunks.into_remainder().iter_mut().enumerate() {
+        *o = g.iter().zip(&src[x + i..x + i + WINDOW]).fold(T::ZERO, |s, (&gk, &v)| s + gk * v);
+    }
+}
+
+/// `out[x] = sum_k g[k] rows[k][x]` over the 11 rows of `rows` (each `out.len()` wide), the taps
+/// summed in order from zero.
+fn taps_down_rows<T: Real>(rows: &[T], out: &mut [T], g: &[T; WINDOW], wide: bool) {
+    avx2_or_not!(wide, taps_down_rows_body(rows, out, g))
+}
+
+#[inline(always)]
+fn taps_down_rows_body<T: Real>(rows: &[T], out: &mut [T], g: &[T; WINDOW]) {
+    let w = out.len();
+    let mut chunks = out.chunks_exact_mut(LANES);
+    let mut x = 0;
+    for o in &mut chunks {
+        let mut acc = [T::ZERO; LANES];
+        for (k, &gk) in g.iter().enumerate() {
+            let taps = &rows[k * w + x..k * w + x + LANES];
+            for (a, &v) in acc.iter_mut().zip(taps) {
+                *a += gk * v;
+            }
+        }
+        o.copy_from_slice(&acc);
+        x += LANES;
+    }
+    for (i, o) in chunks.into_remainder().iter_mut().enumerate() {
+        *o = g.iter().enumerate().fold(T::ZERO, |s, (k, &gk)| s + gk * rows[k * w + x + i]);
+    }
 }
 
 /// Scratch of one SSIM pass: stacked source planes, the horizontal pass, the blurred planes.
@@ -138,14 +229,6 @@ impl<T: Real> BlurBuffers<T> {
     pub(crate) fn blur(&mut self, k_planes: usize, w: usize, h: usize, same: bool) -> (usize, usize) {
         blur(&self.src, k_planes, w, h, &gaussian_window(), same, &mut self.tmp, &mut self.out)
     }
-}
-
-/// Outputs `o` in `lo..hi` whose input `o + k - off` lies in `[0, n)` (and `o < n_out`).
-#[inline]
-fn tap_range(k: usize, off: usize, n_out: usize, n: usize) -> (usize, usize) {
-    let lo = off.saturating_sub(k);
-    let hi = n_out.min((n + off).saturating_sub(k));
-    (lo, hi.max(lo))
 }
 
 /// Filtered moments of channel `c` as five stacked planes in `bufs.out`: mu_x, mu_y, E[x^2], E[y^2],
@@ -282,6 +365,60 @@ pub(crate) mod tests {
             }
         }
         total / (s.channels * wo * ho) as f64
+    }
+
+    /// Outputs `o` in `lo..hi` whose input `o + k - off` lies in `[0, n)` (and `o < n_out`).
+    #[inline]
+    fn tap_range(k: usize, off: usize, n_out: usize, n: usize) -> (usize, usize) {
+        let lo = off.saturating_sub(k);
+        let hi = n_out.min((n + off).saturating_sub(k));
+        (lo, hi.max(lo))
+    }
+
+    /// The blur as its definition reads: each output adds only the taps inside the image, one tap
+    /// over the whole row at a time (the oracle of [`blur`]).
+    fn blur_reference<T: Real>(src: &[T], k_planes: usize, w: usize, h: usize, same: bool) -> Vec<T> {
+        let g = gaussian_window::<T>();
+        let (off, wo, ho) = if same { (HALF, w, h) } else { (0, w + 1 - WINDOW, h + 1 - WINDOW) };
+        let mut tmp = vec![T::ZERO; k_planes * wo * h];
+        for (r, row) in tmp.chunks_mut(wo).enumerate() {
+            for k in 0..WINDOW {
+                let (lo, hi) = tap_range(k, off, wo, w);
+                for o in lo..hi {
+                    row[o] += g[k] * src[r * w + o + k - off];
+                }
+            }
+        }
+        let mut out = vec![T::ZERO; k_planes * wo * ho];
+        for (r, row) in out.chunks_mut(wo).enumerate() {
+            let (q, oy) = (r / ho, r % ho);
+            for k in 0..WINDOW {
+                let iy = oy + k;
+                if iy >= off && iy - off < h {
+                    for (o, d) in row.iter_mut().enumerate() {
+                        *d += g[k] * tmp[q * wo * h + (iy - off) * wo + o];
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn blur_gives_the_reference_floats() {
+        let mut rng = Rng::new(17);
+        // Widths with and without a remainder of the register blocks; heights past a rayon band.
+        for (w, h, k_planes) in [(40, 30, 2), (27, 19, 3), (11, 11, 1), (13, 40, 5)] {
+            let src: Vec<f32> = (0..w * h * k_planes).map(|_| rng.uniform()).collect();
+            for same in [true, false] {
+                let (mut tmp, mut out) = (Vec::new(), Vec::new());
+                let (wo, ho) = blur(&src, k_planes, w, h, &gaussian_window(), same, &mut tmp, &mut out);
+                let want = blur_reference(&src, k_planes, w, h, same);
+                assert_eq!(wo * ho * k_planes, want.len());
+                let diff = out[..want.len()].iter().zip(&want).filter(|(a, b)| a.to_bits() != b.to_bits()).count();
+                assert_eq!(diff, 0, "{w}x{h}x{k_planes} same={same}: {diff} outputs differ");
+            }
+        }
     }
 
     #[test]

@@ -14,7 +14,7 @@ use rayon::prelude::*;
 
 use crate::error::Result;
 use crate::real::Real;
-use crate::ssim::{gather5, moments, ssim_from_moments, BlurBuffers, Shape, SsimVariant, C1, C2};
+use crate::ssim::{gather5, moments, BlurBuffers, Shape, SsimVariant, C1, C2};
 
 /// 3DGS SSIM of `a` against `b` and its gradient `v_a` (d SSIM / d a, same layout as `a`).
 pub fn ssim_with_grad<T: Real>(a: &[T], b: &[T], shape: Shape) -> Result<(T, Vec<T>)> {
@@ -25,20 +25,24 @@ pub fn ssim_with_grad<T: Real>(a: &[T], b: &[T], shape: Shape) -> Result<(T, Vec
     let mut total = 0.0f64;
     let mut v_a = vec![T::ZERO; a.len()];
     let (mut fwd, mut bwd) = (BlurBuffers::default(), BlurBuffers::default());
+    let mut row_sums: Vec<f64> = Vec::new();
     for c in 0..n {
         let (w, h) = moments(a, b, shape, c, true, &mut fwd);
         let m = &fwd.out;
         let np = w * h;
-        total += (0..h)
-            .into_par_iter()
-            .map(|y| (y * w..(y + 1) * w).map(|i| ssim_from_moments(&gather5(m, np, i), false).to_f64()).sum::<f64>())
-            .sum::<f64>();
-        // Three stacked planes: dS/dmu1, dS/de11, dS/de12, each already scaled by 1/N.
+        // Three stacked planes: dS/dmu1, dS/de11, dS/de12, each already scaled by 1/N; and each
+        // row's SSIM sum (the map value is `a1 a2 / (b1 b2)`, as `ssim_from_moments` forms it).
         bwd.src.resize(3 * np, T::ZERO);
         let (p_mu, rest) = bwd.src.split_at_mut(np);
         let (p_e11, p_e12) = rest.split_at_mut(np);
-        p_mu.par_chunks_mut(w).zip(p_e11.par_chunks_mut(w)).zip(p_e12.par_chunks_mut(w)).enumerate().for_each(
-            |(y, ((r_mu, r_e11), r_e12))| {
+        row_sums.resize(h, 0.0);
+        p_mu.par_chunks_mut(w)
+            .zip(p_e11.par_chunks_mut(w))
+            .zip(p_e12.par_chunks_mut(w))
+            .zip(row_sums.par_iter_mut())
+            .enumerate()
+            .for_each(|(y, (((r_mu, r_e11), r_e12), row_sum))| {
+                let mut sum = 0.0f64;
                 for x in 0..w {
                     let p = gather5(m, np, y * w + x);
                     let (mu1, mu2) = (p[0], p[1]);
@@ -46,13 +50,17 @@ pub fn ssim_with_grad<T: Real>(a: &[T], b: &[T], shape: Shape) -> Result<(T, Vec
                     let a2 = two * (p[4] - mu1 * mu2) + c2;
                     let b1 = mu1 * mu1 + mu2 * mu2 + c1;
                     let b2 = (p[2] - mu1 * mu1) + (p[3] - mu2 * mu2) + c2;
-                    let s = (a1 * a2) / (b1 * b2) * inv_count;
+                    let s_map = (a1 * a2) / (b1 * b2);
+                    sum += s_map.to_f64();
+                    let s = s_map * inv_count;
                     r_mu[x] = s * (two * mu2 / a1 - two * mu2 / a2 - two * mu1 / b1 + two * mu1 / b2);
                     r_e11[x] = -s / b2;
                     r_e12[x] = two * s / a2;
                 }
-            },
-        );
+                *row_sum = sum;
+            });
+        // Rows summed in order: the value does not depend on the thread count.
+        total += row_sums.iter().sum::<f64>();
         bwd.blur(3, w, h, true);
         let back = &bwd.out;
         let (q_mu, q_e11, q_e12) = (&back[..np], &back[np..2 * np], &back[2 * np..]);

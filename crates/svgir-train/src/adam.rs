@@ -66,38 +66,61 @@ impl AdamGroup {
     }
 
     /// One Adam update of `params` with gradient `grad` (same length).
+    ///
+    /// Every float is updated on its own, in torch.optim.Adam's (non-fused) order of operations,
+    /// so the result does not depend on how the rows are split over threads or over SIMD lanes:
+    /// it is bit-identical to [`AdamGroup::step_reference`], the per-float oracle. The update is
+    /// memory-bound; the loops run over whole slices so that the compiler vectorises them (SSE2
+    /// already saturates memory: an AVX2 build of the same loops measured no faster,
+    /// `benches/adam.rs`).
     pub fn step(&mut self, params: &mut [f32], grad: &[f32]) {
-        assert_eq!(params.len(), self.m.len(), "Adam group '{}' size mismatch", self.name);
-        assert_eq!(grad.len(), params.len());
-        self.step += 1;
-        let bc1 = 1.0 - (self.beta1 as f64).powi(self.step as i32);
-        let bc2 = 1.0 - (self.beta2 as f64).powi(self.step as i32);
-        let step_size = (self.lr as f64 / bc1) as f32;
-        let bc2_sqrt = bc2.sqrt() as f32;
-        let (b1, b2, eps, stride) = (self.beta1, self.beta2, self.eps, self.stride);
-        let lr_scale = &self.lr_scale;
-        // Every float is updated on its own, so the rows are split over threads in blocks (no
-        // effect on the result) and each row's components meet their `lr_scale` by position.
+        let k = self.begin_step(params, grad);
+        let stride = self.stride;
+        // `step_size * lr_scale[c]` once per component: the product the oracle forms per float.
+        let lr: Vec<f32> = self.lr_scale.iter().map(|s| k.step_size * s).collect();
+        let uniform = lr.iter().all(|&l| l == lr[0]);
         let block = ROWS_PER_TASK * stride;
         params
             .par_chunks_mut(block)
             .zip(grad.par_chunks(block))
             .zip(self.m.par_chunks_mut(block).zip(self.v.par_chunks_mut(block)))
             .for_each(|((p, g), (m, v))| {
-                for ((p, g), (m, v)) in p
-                    .chunks_exact_mut(stride)
-                    .zip(g.chunks_exact(stride))
-                    .zip(m.chunks_exact_mut(stride).zip(v.chunks_exact_mut(stride)))
-                {
-                    for c in 0..stride {
-                        m[c] = b1 * m[c] + (1.0 - b1) * g[c];
-                        v[c] = b2 * v[c] + (1.0 - b2) * g[c] * g[c];
-                        // Same order of operations as torch.optim.Adam (non-fused).
-                        let denom = v[c].sqrt() / bc2_sqrt + eps;
-                        p[c] -= step_size * lr_scale[c] * m[c] / denom;
-                    }
+                let mut slices = Slices { p, g, m, v };
+                if uniform {
+                    k.update_uniform(&mut slices, lr[0]);
+                } else {
+                    k.update_rows(&mut slices, &lr);
                 }
             });
+    }
+
+    /// The same update one float at a time, as the formula reads: the oracle of [`AdamGroup::step`].
+    pub fn step_reference(&mut self, params: &mut [f32], grad: &[f32]) {
+        let k = self.begin_step(params, grad);
+        let stride = self.stride;
+        for (i, ((p, g), (m, v))) in params.iter_mut().zip(grad).zip(self.m.iter_mut().zip(self.v.iter_mut())).enumerate()
+        {
+            *m = k.b1 * *m + (1.0 - k.b1) * g;
+            *v = k.b2 * *v + (1.0 - k.b2) * g * g;
+            let denom = v.sqrt() / k.bc2_sqrt + k.eps;
+            *p -= k.step_size * self.lr_scale[i % stride] * *m / denom;
+        }
+    }
+
+    /// Checks the sizes, counts the step and returns its constants (bias corrections included).
+    fn begin_step(&mut self, params: &[f32], grad: &[f32]) -> AdamConsts {
+        assert_eq!(params.len(), self.m.len(), "Adam group '{}' size mismatch", self.name);
+        assert_eq!(grad.len(), params.len());
+        self.step += 1;
+        let bc1 = 1.0 - (self.beta1 as f64).powi(self.step as i32);
+        let bc2 = 1.0 - (self.beta2 as f64).powi(self.step as i32);
+        AdamConsts {
+            b1: self.beta1,
+            b2: self.beta2,
+            eps: self.eps,
+            step_size: (self.lr as f64 / bc1) as f32,
+            bc2_sqrt: bc2.sqrt() as f32,
+        }
     }
 
     /// Keep rows where `keep[row]`.
@@ -130,6 +153,56 @@ impl AdamGroup {
     }
 }
 
+/// One block of rows: parameters, gradient and both moments.
+struct Slices<'a> {
+    p: &'a mut [f32],
+    g: &'a [f32],
+    m: &'a mut [f32],
+    v: &'a mut [f32],
+}
+
+/// The constants of one Adam step.
+#[derive(Clone, Copy)]
+struct AdamConsts {
+    b1: f32,
+    b2: f32,
+    eps: f32,
+    step_size: f32,
+    bc2_sqrt: f32,
+}
+
+impl AdamConsts {
+    /// Update one float; `lr` is `step_size * lr_scale[c]`.
+    #[inline(always)]
+    fn update(&self, p: &mut f32, g: f32, m: &mut f32, v: &mut f32, lr: f32) {
+        *m = self.b1 * *m + (1.0 - self.b1) * g;
+        *v = self.b2 * *v + (1.0 - self.b2) * g * g;
+        let denom = v.sqrt() / self.bc2_sqrt + self.eps;
+        *p -= lr * *m / denom;
+    }
+
+    /// Every float of the block at one rate: one flat loop.
+    #[inline(always)]
+    fn update_uniform(&self, s: &mut Slices, lr: f32) {
+        for ((p, g), (m, v)) in s.p.iter_mut().zip(s.g).zip(s.m.iter_mut().zip(s.v.iter_mut())) {
+            self.update(p, *g, m, v, lr);
+        }
+    }
+
+    /// Rows of `lr.len()` floats, component `c` at rate `lr[c]`.
+    #[inline(always)]
+    fn update_rows(&self, s: &mut Slices, lr: &[f32]) {
+        let n = lr.len();
+        for ((p, g), (m, v)) in
+            s.p.chunks_exact_mut(n).zip(s.g.chunks_exact(n)).zip(s.m.chunks_exact_mut(n).zip(s.v.chunks_exact_mut(n)))
+        {
+            for ((((p, g), m), v), &lr) in p.iter_mut().zip(g).zip(m.iter_mut()).zip(v.iter_mut()).zip(lr) {
+                self.update(p, *g, m, v, lr);
+            }
+        }
+    }
+}
+
 /// 3DGS's exponential learning-rate schedule: log-linear from `lr_init` to `lr_final` over
 /// `max_steps` (no delay phase: 3DGS sets lr_delay_steps = 0, so delay_mult has no effect).
 pub fn exp_lr(step: u64, lr_init: f32, lr_final: f32, max_steps: u64) -> f32 {
@@ -153,6 +226,27 @@ mod tests {
             adam.step(&mut p, &g);
         }
         assert!(p.iter().all(|x| x.abs() < 0.05), "{p:?}");
+    }
+
+    #[test]
+    fn step_is_bit_identical_to_the_per_float_oracle() {
+        let mut rng = svgir_core::Rng::new(5);
+        // Strides of every stage-1/2 group; rows past one rayon block; uniform and mixed rates.
+        for (stride, rows, mixed) in [(1, 9000, false), (3, 5000, false), (4, 4097, false), (48, 4500, true), (7, 300, true)]
+        {
+            let scale: Vec<f32> = (0..stride).map(|c| if mixed && c >= 3 { 0.05 } else { 1.0 }).collect();
+            let mut fast = AdamGroup::new("x", 0.01, stride, rows).with_lr_scale(scale.clone());
+            let mut slow = fast.clone();
+            let mut p: Vec<f32> = (0..rows * stride).map(|_| rng.normal()).collect();
+            let mut q = p.clone();
+            for _ in 0..3 {
+                let g: Vec<f32> = (0..rows * stride).map(|_| 1e-3 * rng.normal()).collect();
+                fast.step(&mut p, &g);
+                slow.step_reference(&mut q, &g);
+            }
+            assert!(p.iter().zip(&q).all(|(a, b)| a.to_bits() == b.to_bits()), "stride {stride}: params differ");
+            assert_eq!(fast, slow, "stride {stride}: moments differ");
+        }
     }
 
     #[test]

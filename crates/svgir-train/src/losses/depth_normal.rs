@@ -54,11 +54,11 @@ pub fn normal_from_depth(depth: &[f64], cam: &Camera) -> Vec<DVec3> {
 
 /// Loss value and gradients; inputs as the rasterizer outputs them (f32).
 pub fn depth_normal_loss(depth_sum: &[f32], opacity: &[f32], normal: &[f32], cam: &Camera) -> (f32, DepthNormalGrads) {
-    let s: Vec<f64> = depth_sum.iter().map(|&v| v as f64).collect();
-    let o: Vec<f64> = opacity.iter().map(|&v| v as f64).collect();
-    let n: Vec<f64> = normal.iter().map(|&v| v as f64).collect();
+    // The conversions run in parallel too: serial, they cost as much as the loss itself.
+    let up = |v: &[f32]| -> Vec<f64> { v.par_iter().with_min_len(4096).map(|&x| x as f64).collect() };
+    let (s, o, n) = (up(depth_sum), up(opacity), up(normal));
     let (loss, vs, vo, vn) = depth_normal_loss_f64(&s, &o, &n, cam);
-    let f = |v: Vec<f64>| v.into_iter().map(|x| x as f32).collect();
+    let f = |v: Vec<f64>| v.par_iter().with_min_len(4096).map(|&x| x as f32).collect();
     (loss as f32, DepthNormalGrads { v_depth_sum: f(vs), v_opacity: f(vo), v_normal: f(vn) })
 }
 

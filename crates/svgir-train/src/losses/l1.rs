@@ -4,12 +4,11 @@
 pub fn l1_loss(a: &[f32], b: &[f32], weight: f32, v_a: &mut [f32]) -> f32 {
     assert_eq!(a.len(), b.len());
     let n = a.len() as f32;
-    let mut sum = 0.0f64;
-    for ((x, y), g) in a.iter().zip(b).zip(v_a.iter_mut()) {
-        let d = x - y;
-        sum += d.abs() as f64;
+    let sum = super::mask::chunked_sum(a, v_a, |i, x, g| {
+        let d = x - b[i];
         *g += weight * d.signum() * (d != 0.0) as u8 as f32 / n;
-    }
+        d.abs() as f64
+    });
     (sum / n as f64) as f32
 }
 

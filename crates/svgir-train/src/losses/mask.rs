@@ -1,6 +1,9 @@
 //! Opacity losses for RGBA data (SPEC 2): the mask loss penalises opacity outside the 9x9-dilated
 //! ground-truth mask, and the entropy loss is the binary cross-entropy of the rendered opacity
 //! against the ground-truth alpha, which pushes opacity to 0 or 1 where the photo says so.
+//! Work split: chunks of pixels in parallel, each summing its own part of the mean.
+
+use rayon::prelude::*;
 
 /// 9x9 (radius 4) dilation of `alpha > 0.5`, separable max filter.
 pub fn dilated_mask(alpha: &[f32], width: usize, height: usize, radius: usize) -> Vec<bool> {
@@ -25,27 +28,47 @@ pub fn dilated_mask(alpha: &[f32], width: usize, height: usize, radius: usize) -
 /// Mean opacity outside the dilated mask; accumulates `weight * d/d opacity` into `v_opacity`.
 pub fn mask_loss(opacity: &[f32], dilated: &[bool], weight: f32, v_opacity: &mut [f32]) -> f32 {
     let n = opacity.len() as f32;
-    let mut sum = 0.0f64;
-    for ((o, inside), g) in opacity.iter().zip(dilated).zip(v_opacity.iter_mut()) {
-        if !inside {
-            sum += *o as f64;
+    let sum = chunked_sum(opacity, v_opacity, |i, o, g| {
+        if dilated[i] {
+            0.0
+        } else {
             *g += weight / n;
+            o as f64
         }
-    }
+    });
     (sum / n as f64) as f32
 }
 
 /// Mean binary cross-entropy of opacity against the ground-truth alpha.
 pub fn entropy_loss(opacity: &[f32], gt_alpha: &[f32], weight: f32, v_opacity: &mut [f32]) -> f32 {
     let n = opacity.len() as f32;
-    let mut sum = 0.0f64;
-    for ((o, m), g) in opacity.iter().zip(gt_alpha).zip(v_opacity.iter_mut()) {
+    let sum = chunked_sum(opacity, v_opacity, |i, o, g| {
         let o = o.clamp(1e-6, 1.0 - 1e-6) as f64;
-        let m = *m as f64;
-        sum += -(m * o.ln() + (1.0 - m) * (1.0 - o).ln());
+        let m = gt_alpha[i] as f64;
         *g += weight * ((o - m) / (o * (1.0 - o)) / n as f64) as f32;
-    }
+        -(m * o.ln() + (1.0 - m) * (1.0 - o).ln())
+    });
     (sum / n as f64) as f32
+}
+
+/// Pixels per rayon task of [`chunked_sum`].
+const CHUNK: usize = 4096;
+
+/// `sum_i f(i, x[i], &mut g[i])`, chunks of pixels in parallel; the chunk sums are added in
+/// order, so the value does not depend on the thread count.
+pub(crate) fn chunked_sum(
+    x: &[f32],
+    g: &mut [f32],
+    f: impl Fn(usize, f32, &mut f32) -> f64 + Sync,
+) -> f64 {
+    assert_eq!(x.len(), g.len());
+    let sums: Vec<f64> = x
+        .par_chunks(CHUNK)
+        .zip(g.par_chunks_mut(CHUNK))
+        .enumerate()
+        .map(|(c, (xs, gs))| xs.iter().zip(gs).enumerate().map(|(j, (&x, g))| f(c * CHUNK + j, x, g)).sum())
+        .collect();
+    sums.iter().sum()
 }
 
 #[cfg(test)]
