@@ -16,6 +16,23 @@ pub enum BackgroundMode {
     Random,
 }
 
+/// How the training view of each iteration is drawn.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ViewOrder {
+    /// Independently at random every iteration (with replacement; runs before `view_order`
+    /// existed, so their checkpoints resume as they ran).
+    Uniform,
+    /// Each view once per epoch, in a fresh random order (3DGS's `viewpoint_stack`).
+    Epochs,
+}
+
+impl ViewOrder {
+    fn before_the_option() -> Self {
+        Self::Uniform
+    }
+}
+
 impl BackgroundMode {
     /// The constant colour of this mode, `None` for `Random`.
     pub fn fixed_color(self) -> Option<[f32; 3]> {
@@ -201,6 +218,9 @@ pub struct Stage1Config {
     /// Test views are rendered without one.
     #[serde(default)]
     pub exposure: bool,
+    /// How each iteration's training view is drawn.
+    #[serde(default = "ViewOrder::before_the_option")]
+    pub view_order: ViewOrder,
 }
 
 /// [`Stage1Config::near_fraction`] of captures: 0.2 units at an extent of 4.4.
@@ -224,6 +244,7 @@ impl Default for Stage1Config {
             profile: Profile::Object,
             near_fraction: None,
             exposure: false,
+            view_order: ViewOrder::Epochs,
         }
     }
 }

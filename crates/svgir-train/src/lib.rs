@@ -19,6 +19,6 @@ pub mod relight;
 pub mod stage1;
 pub mod stage2;
 
-pub use config::{BackgroundMode, NamedWeights, Profile, Stage1Config};
+pub use config::{BackgroundMode, NamedWeights, Profile, Stage1Config, ViewOrder};
 pub use stage1::{Stage1, StepStats};
 pub use stage2::{Stage2, Stage2Config};

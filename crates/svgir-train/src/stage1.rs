@@ -6,7 +6,7 @@
 //! whose state is part of the checkpoint, so a resumed run continues bit-identically.
 
 use crate::adam::{exp_lr, AdamGroup};
-use crate::config::Stage1Config;
+use crate::config::{Stage1Config, ViewOrder};
 use crate::densify::{densify_and_prune, reset_opacity, DensifyReport, DensifyStats, Groups};
 use crate::exposure::{self, ExposureCorrection};
 use crate::losses::mask;
@@ -97,6 +97,18 @@ pub fn make_groups(cfg: &Stage1Config, n: usize, extent: f32) -> Groups {
     ]
 }
 
+/// The training view of iteration `it` (1-based) under [`ViewOrder::Epochs`]: epoch
+/// `(it - 1) / n` visits the `n` views in an order shuffled from the seed and the epoch, so the
+/// order needs no state of its own (a resumed run draws the same views).
+pub fn view_of_iteration(seed: u64, it: u64, n: usize) -> usize {
+    // Stream tag of the view order (ASCII "VIEWS"), so it shares no draws with other choices.
+    const STREAM: u64 = 0x56_4945_5753;
+    let (epoch, pos) = ((it - 1) / n as u64, ((it - 1) % n as u64) as usize);
+    let mut order: Vec<usize> = (0..n).collect();
+    Rng::new(seed).fork(STREAM).fork(epoch).shuffle(&mut order);
+    order[pos]
+}
+
 /// RGB of a view's photo composited over `bg` (sRGB values, as compared in the loss).
 pub fn target_rgb(image: &Image, bg: [f32; 3]) -> Vec<f32> {
     if image.channels == 4 {
@@ -169,7 +181,10 @@ impl Stage1 {
         let cfg = self.config.clone();
         self.iteration += 1;
         let it = self.iteration;
-        let view_idx = self.rng.below(dataset.train.len());
+        let view_idx = match cfg.view_order {
+            ViewOrder::Uniform => self.rng.below(dataset.train.len()),
+            ViewOrder::Epochs => view_of_iteration(cfg.seed, it, dataset.train.len()),
+        };
         let view = &dataset.train[view_idx];
         let bg = match cfg.background.fixed_color() {
             Some(c) => c,
@@ -304,4 +319,24 @@ pub fn render_surfels(surfels: &Surfels, camera: &Camera, bg: [f32; 3], raster: 
     let input =
         RenderInput { surfels, camera, colors: ColorSource::Sh, extra: None, background: Background::Color(bg) };
     render(&input, raster).0
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn each_epoch_visits_every_view_once_in_a_new_order() {
+        let n = 7;
+        let epoch = |e: u64| (1..=n as u64).map(|i| view_of_iteration(3, e * n as u64 + i, n)).collect::<Vec<_>>();
+        let (first, second) = (epoch(0), epoch(1));
+        for order in [&first, &second] {
+            let mut sorted = order.clone();
+            sorted.sort();
+            assert_eq!(sorted, (0..n).collect::<Vec<_>>(), "{order:?}");
+        }
+        assert_ne!(first, second, "epochs should be shuffled afresh");
+        assert_ne!(first, (0..n).collect::<Vec<_>>(), "the order should be shuffled");
+        assert_ne!(epoch(0), (1..=n as u64).map(|i| view_of_iteration(4, i, n)).collect::<Vec<_>>(), "the seed picks it");
+    }
 }

@@ -16,7 +16,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 use svgir_core::{Dataset, Image, Rng};
-use svgir_train::{checkpoint, init, BackgroundMode, Profile, Stage1, Stage1Config};
+use svgir_train::{checkpoint, init, BackgroundMode, Profile, Stage1, Stage1Config, ViewOrder};
 
 /// `--profile`: which defaults to start from.
 #[derive(Clone, Copy, Debug, ValueEnum, PartialEq)]
@@ -32,6 +32,15 @@ pub enum Bg {
     White,
     Black,
     Random,
+}
+
+/// `--view-order`.
+#[derive(Clone, Copy, Debug, ValueEnum)]
+pub enum ViewOrderArg {
+    /// Each view once per epoch, shuffled afresh (3DGS's `viewpoint_stack`).
+    Epochs,
+    /// Independently at random every iteration.
+    Uniform,
 }
 
 #[derive(Args)]
@@ -65,6 +74,10 @@ pub struct TrainArgs {
     /// balance). Test views are rendered without one.
     #[arg(long)]
     pub exposure: bool,
+    /// How each iteration's training view is drawn: each view once per epoch in a shuffled order
+    /// (3DGS), or independently at random.
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, value_enum, default_value_t = ViewOrderArg::Epochs)]
+    pub view_order: ViewOrderArg,
     /// Initial surfels from a point-cloud PLY instead of the dataset's points / a random box.
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub init_ply: Option<PathBuf>,
@@ -185,6 +198,10 @@ fn make_config(args: &TrainArgs, dataset: &Dataset) -> Result<(Stage1Config, &'s
         };
     }
     c.exposure = args.exposure;
+    c.view_order = match args.view_order {
+        ViewOrderArg::Epochs => ViewOrder::Epochs,
+        ViewOrderArg::Uniform => ViewOrder::Uniform,
+    };
     c.distortion_from = args.distortion_from;
     if let Some(d) = args.sh_degree {
         c.max_sh_degree = d;
