@@ -104,16 +104,32 @@ pub(crate) fn blur<T: Real>(
     tmp: &mut Vec<T>,
     out: &mut Vec<T>,
 ) -> (usize, usize) {
-    let (off, wo, ho) = if same { (HALF, w, h) } else { (0, w + 1 - WINDOW, h + 1 - WINDOW) };
     debug_assert_eq!(src.len(), k_planes * w * h);
+    blur_rows(|r, row| row.copy_from_slice(&src[r * w..(r + 1) * w]), k_planes, w, h, g, same, tmp, out)
+}
+
+/// [`blur`] of planes whose rows `source_row(r, row)` writes on demand (row `r` of the stacked
+/// planes), so that a source computed per pixel is never stored whole.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn blur_rows<T: Real>(
+    source_row: impl Fn(usize, &mut [T]) + Sync,
+    k_planes: usize,
+    w: usize,
+    h: usize,
+    g: &[T; WINDOW],
+    same: bool,
+    tmp: &mut Vec<T>,
+    out: &mut Vec<T>,
+) -> (usize, usize) {
+    let (off, wo, ho) = if same { (HALF, w, h) } else { (0, w + 1 - WINDOW, h + 1 - WINDOW) };
     tmp.resize(k_planes * wo * h, T::ZERO);
     tmp.par_chunks_mut(wo * BAND).enumerate().for_each(|(band, rows)| {
         // Row r of the stacked planes is row r of the source too (same plane, same y); it is
-        // copied between `off` zeros so that every output reads all 11 taps.
+        // written between `off` zeros so that every output reads all 11 taps.
         let mut padded = vec![T::ZERO; w + 2 * off];
         for (j, row) in rows.chunks_exact_mut(wo).enumerate() {
             let r = band * BAND + j;
-            padded[off..off + w].copy_from_slice(&src[r * w..(r + 1) * w]);
+            source_row(r, &mut padded[off..off + w]);
             taps_along_row(&padded, row, g);
         }
     });
@@ -186,7 +202,8 @@ fn taps_down_rows<T: Real>(rows: &[T], out: &mut [T], g: &[T; WINDOW]) {
     }
 }
 
-/// Scratch of one SSIM pass: stacked source planes, the horizontal pass, the blurred planes.
+/// Scratch of one SSIM pass: stacked source planes (for [`blur`]; the moments write theirs row by
+/// row), the horizontal pass, the blurred planes.
 #[derive(Default)]
 pub(crate) struct BlurBuffers<T> {
     pub src: Vec<T>,
@@ -211,10 +228,12 @@ pub(crate) fn moments<T: Real>(
     same: bool,
     bufs: &mut BlurBuffers<T>,
 ) -> (usize, usize) {
-    let (n, np) = (shape.channels, shape.width * shape.height);
-    bufs.src.resize(5 * np, T::ZERO);
-    bufs.src.par_chunks_mut(np).enumerate().for_each(|(q, plane)| {
-        for ((d, pa), pb) in plane.iter_mut().zip(a.chunks_exact(n)).zip(b.chunks_exact(n)) {
+    let (n, w, h) = (shape.channels, shape.width, shape.height);
+    // Plane q's row y, straight from the interleaved images (the planes are never stored).
+    let source_row = |r: usize, row: &mut [T]| {
+        let (q, y) = (r / h, r % h);
+        let (ra, rb) = (&a[y * w * n..(y + 1) * w * n], &b[y * w * n..(y + 1) * w * n]);
+        for ((d, pa), pb) in row.iter_mut().zip(ra.chunks_exact(n)).zip(rb.chunks_exact(n)) {
             let (x, y) = (pa[c], pb[c]);
             *d = match q {
                 0 => x,
@@ -224,8 +243,8 @@ pub(crate) fn moments<T: Real>(
                 _ => x * y,
             };
         }
-    });
-    bufs.blur(5, shape.width, shape.height, same)
+    };
+    blur_rows(source_row, 5, w, h, &gaussian_window(), same, &mut bufs.tmp, &mut bufs.out)
 }
 
 /// The five moments of pixel `i` from stacked planes of `np` pixels.
