@@ -79,13 +79,17 @@ pub fn stage1_objective(
         loss += w.entropy * mask::entropy_loss(out.alpha, target.alpha, w.entropy, &mut v_alpha);
     }
     let w_dn = w.normal_start + w.normal_ramp * t_frac.clamp(0.0, 1.0);
-    let (dn, g_dn) = depth_normal_loss(out.depth, out.alpha, out.normal, camera);
-    loss += w_dn * dn;
-    let v_depth = g_dn.v_depth_sum.iter().map(|g| w_dn * g).collect();
-    let v_normal = g_dn.v_normal.iter().map(|g| w_dn * g).collect();
-    for (a, g) in v_alpha.iter_mut().zip(&g_dn.v_opacity) {
-        *a += w_dn * g;
-    }
+    let (v_depth, v_normal) = if w_dn == 0.0 {
+        // A switched-off term costs nothing (it is the loss phase's second largest).
+        (vec![0.0; npix], vec![0.0; 3 * npix])
+    } else {
+        let (dn, g_dn) = depth_normal_loss(out.depth, out.alpha, out.normal, camera);
+        loss += w_dn * dn;
+        for (a, g) in v_alpha.iter_mut().zip(&g_dn.v_opacity) {
+            *a += w_dn * g;
+        }
+        (g_dn.v_depth_sum.iter().map(|g| w_dn * g).collect(), g_dn.v_normal.iter().map(|g| w_dn * g).collect())
+    };
     // 2DGS: lambda_dist * mean over pixels, so each pixel's gradient is lambda / npix.
     let v_distortion = (w.distortion > 0.0).then(|| {
         loss += w.distortion * out.distortion.iter().map(|&d| d as f64).sum::<f64>() as f32 / npix as f32;
