@@ -340,6 +340,13 @@ pub fn run(args: InverseArgs) -> Result<()> {
     );
     let (dataset, data) = svgir_eval::load_run_dataset(&args.run, args.data.as_deref())?;
     let stage1 = checkpoint::load(&args.run.join("checkpoint.bin"), &dataset)?;
+    if stage1.config.profile == svgir_train::Profile::Views {
+        eprintln!(
+            "warning: {} was trained with --profile views (3DGS's loss alone): its surfels are not held to the \
+             surface, so normals and materials will be poor; retrain with --profile object",
+            args.run.display()
+        );
+    }
     let out = args.out.clone().unwrap_or_else(|| args.run.join("stage2"));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
 

@@ -23,8 +23,13 @@ use svgir_train::{checkpoint, init, BackgroundMode, Profile, Stage1, Stage1Confi
 pub enum ProfileArg {
     /// Object if the dataset has foreground masks, capture otherwise.
     Auto,
+    /// A masked object, for `svgir inverse`: mask, entropy and depth-normal losses.
     Object,
+    /// Photos of a real scene, background included.
     Capture,
+    /// Novel views of a masked object, as 3DGS is benchmarked: 3DGS's loss alone (higher test
+    /// PSNR, but no surface constraints: not a stage 1 for `svgir inverse`).
+    Views,
 }
 
 #[derive(Clone, Copy, Debug, ValueEnum)]
@@ -178,6 +183,7 @@ pub fn choose_profile(arg: ProfileArg, dataset: &Dataset) -> (Profile, &'static 
     match arg {
         ProfileArg::Object => (Profile::Object, "--profile object"),
         ProfileArg::Capture => (Profile::Capture, "--profile capture"),
+        ProfileArg::Views => (Profile::Views, "--profile views"),
         ProfileArg::Auto if dataset.has_masks() => (Profile::Object, "the dataset has foreground masks"),
         ProfileArg::Auto => (Profile::Capture, "the dataset has no foreground masks"),
     }
