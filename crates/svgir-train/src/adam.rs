@@ -98,7 +98,8 @@ impl AdamGroup {
     pub fn step_reference(&mut self, params: &mut [f32], grad: &[f32]) {
         let k = self.begin_step(params, grad);
         let stride = self.stride;
-        for (i, ((p, g), (m, v))) in params.iter_mut().zip(grad).zip(self.m.iter_mut().zip(self.v.iter_mut())).enumerate()
+        for (i, ((p, g), (m, v))) in
+            params.iter_mut().zip(grad).zip(self.m.iter_mut().zip(self.v.iter_mut())).enumerate()
         {
             *m = k.b1 * *m + (1.0 - k.b1) * g;
             *v = k.b2 * *v + (1.0 - k.b2) * g * g;
@@ -232,7 +233,8 @@ mod tests {
     fn step_is_bit_identical_to_the_per_float_oracle() {
         let mut rng = svgir_core::Rng::new(5);
         // Strides of every stage-1/2 group; rows past one rayon block; uniform and mixed rates.
-        for (stride, rows, mixed) in [(1, 9000, false), (3, 5000, false), (4, 4097, false), (48, 4500, true), (7, 300, true)]
+        for (stride, rows, mixed) in
+            [(1, 9000, false), (3, 5000, false), (4, 4097, false), (48, 4500, true), (7, 300, true)]
         {
             let scale: Vec<f32> = (0..stride).map(|c| if mixed && c >= 3 { 0.05 } else { 1.0 }).collect();
             let mut fast = AdamGroup::new("x", 0.01, stride, rows).with_lr_scale(scale.clone());

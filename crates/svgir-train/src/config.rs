@@ -285,8 +285,20 @@ impl Stage1Config {
                 c
             }
             Profile::Views => {
-                let mut c = Self { profile, use_mask: false, ..Self::for_profile(Profile::Object, iterations, training_pixels) };
-                c.loss = LossWeights { l1: 0.8, ssim: 0.2, mask: 0.0, normal_start: 0.0, normal_ramp: 0.0, entropy: 0.0, distortion: 0.0 };
+                let mut c = Self {
+                    profile,
+                    use_mask: false,
+                    ..Self::for_profile(Profile::Object, iterations, training_pixels)
+                };
+                c.loss = LossWeights {
+                    l1: 0.8,
+                    ssim: 0.2,
+                    mask: 0.0,
+                    normal_start: 0.0,
+                    normal_ramp: 0.0,
+                    entropy: 0.0,
+                    distortion: 0.0,
+                };
                 c
             }
             Profile::Capture => {

@@ -337,6 +337,10 @@ mod tests {
         }
         assert_ne!(first, second, "epochs should be shuffled afresh");
         assert_ne!(first, (0..n).collect::<Vec<_>>(), "the order should be shuffled");
-        assert_ne!(epoch(0), (1..=n as u64).map(|i| view_of_iteration(4, i, n)).collect::<Vec<_>>(), "the seed picks it");
+        assert_ne!(
+            epoch(0),
+            (1..=n as u64).map(|i| view_of_iteration(4, i, n)).collect::<Vec<_>>(),
+            "the seed picks it"
+        );
     }
 }

@@ -56,11 +56,7 @@ const CHUNK: usize = 4096;
 
 /// `sum_i f(i, x[i], &mut g[i])`, chunks of pixels in parallel; the chunk sums are added in
 /// order, so the value does not depend on the thread count.
-pub(crate) fn chunked_sum(
-    x: &[f32],
-    g: &mut [f32],
-    f: impl Fn(usize, f32, &mut f32) -> f64 + Sync,
-) -> f64 {
+pub(crate) fn chunked_sum(x: &[f32], g: &mut [f32], f: impl Fn(usize, f32, &mut f32) -> f64 + Sync) -> f64 {
     assert_eq!(x.len(), g.len());
     let sums: Vec<f64> = x
         .par_chunks(CHUNK)
