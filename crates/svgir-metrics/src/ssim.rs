@@ -130,7 +130,7 @@ pub(crate) fn blur_rows<T: Real>(
         for (j, row) in rows.chunks_exact_mut(wo).enumerate() {
             let r = band * BAND + j;
             source_row(r, &mut padded[off..off + w]);
-            taps_along_row(&padded, row, g);
+            taps(&padded, 1, row, g);
         }
     });
     out.resize(k_planes * wo * ho, T::ZERO);
@@ -142,7 +142,7 @@ pub(crate) fn blur_rows<T: Real>(
             let plane = &tmp[q * wo * h..(q + 1) * wo * h];
             let (lo, hi) = (off.saturating_sub(oy), WINDOW.min((h + off).saturating_sub(oy)));
             if hi - lo == WINDOW {
-                taps_down_rows(&plane[(oy - off) * wo..(oy - off + WINDOW) * wo], row, g);
+                taps(&plane[(oy - off) * wo..(oy - off + WINDOW) * wo], wo, row, g);
             } else {
                 // Rows within 5 of a 'same' border: only the taps inside the image, in order.
                 row.fill(T::ZERO);
@@ -158,16 +158,17 @@ pub(crate) fn blur_rows<T: Real>(
     (wo, ho)
 }
 
-/// `out[x] = sum_k g[k] src[x + k]` for every output, the taps summed in order from zero.
+/// `out[x] = sum_k g[k] src[k * stride + x]` for every output, the taps summed in order from
+/// zero: along a padded row with `stride` 1, down 11 rows of `stride` floats otherwise.
 #[inline]
-fn taps_along_row<T: Real>(src: &[T], out: &mut [T], g: &[T; WINDOW]) {
+fn taps<T: Real>(src: &[T], stride: usize, out: &mut [T], g: &[T; WINDOW]) {
     let mut chunks = out.chunks_exact_mut(LANES);
     let mut x = 0;
     for o in &mut chunks {
         let mut acc = [T::ZERO; LANES];
         for (k, &gk) in g.iter().enumerate() {
-            let taps = &src[x + k..x + k + LANES];
-            for (a, &v) in acc.iter_mut().zip(taps) {
+            let tap = &src[k * stride + x..k * stride + x + LANES];
+            for (a, &v) in acc.iter_mut().zip(tap) {
                 *a += gk * v;
             }
         }
@@ -175,30 +176,7 @@ fn taps_along_row<T: Real>(src: &[T], out: &mut [T], g: &[T; WINDOW]) {
         x += LANES;
     }
     for (i, o) in chunks.into_remainder().iter_mut().enumerate() {
-        *o = g.iter().zip(&src[x + i..x + i + WINDOW]).fold(T::ZERO, |s, (&gk, &v)| s + gk * v);
-    }
-}
-
-/// `out[x] = sum_k g[k] rows[k][x]` over the 11 rows of `rows` (each `out.len()` wide), the taps
-/// summed in order from zero.
-#[inline]
-fn taps_down_rows<T: Real>(rows: &[T], out: &mut [T], g: &[T; WINDOW]) {
-    let w = out.len();
-    let mut chunks = out.chunks_exact_mut(LANES);
-    let mut x = 0;
-    for o in &mut chunks {
-        let mut acc = [T::ZERO; LANES];
-        for (k, &gk) in g.iter().enumerate() {
-            let taps = &rows[k * w + x..k * w + x + LANES];
-            for (a, &v) in acc.iter_mut().zip(taps) {
-                *a += gk * v;
-            }
-        }
-        o.copy_from_slice(&acc);
-        x += LANES;
-    }
-    for (i, o) in chunks.into_remainder().iter_mut().enumerate() {
-        *o = g.iter().enumerate().fold(T::ZERO, |s, (k, &gk)| s + gk * rows[k * w + x + i]);
+        *o = g.iter().enumerate().fold(T::ZERO, |s, (k, &gk)| s + gk * src[k * stride + x + i]);
     }
 }
 

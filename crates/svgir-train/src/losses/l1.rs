@@ -4,7 +4,7 @@
 pub fn l1_loss(a: &[f32], b: &[f32], weight: f32, v_a: &mut [f32]) -> f32 {
     assert_eq!(a.len(), b.len());
     let n = a.len() as f32;
-    let sum = super::mask::chunked_sum(a, v_a, |i, x, g| {
+    let sum = super::chunked_sum(a, v_a, |i, x, g| {
         let d = x - b[i];
         *g += weight * d.signum() * (d != 0.0) as u8 as f32 / n;
         d.abs() as f64

@@ -3,7 +3,7 @@
 //! against the ground-truth alpha, which pushes opacity to 0 or 1 where the photo says so.
 //! Work split: chunks of pixels in parallel, each summing its own part of the mean.
 
-use rayon::prelude::*;
+use super::chunked_sum;
 
 /// 9x9 (radius 4) dilation of `alpha > 0.5`, separable max filter.
 pub fn dilated_mask(alpha: &[f32], width: usize, height: usize, radius: usize) -> Vec<bool> {
@@ -49,22 +49,6 @@ pub fn entropy_loss(opacity: &[f32], gt_alpha: &[f32], weight: f32, v_opacity: &
         -(m * o.ln() + (1.0 - m) * (1.0 - o).ln())
     });
     (sum / n as f64) as f32
-}
-
-/// Pixels per rayon task of [`chunked_sum`].
-const CHUNK: usize = 4096;
-
-/// `sum_i f(i, x[i], &mut g[i])`, chunks of pixels in parallel; the chunk sums are added in
-/// order, so the value does not depend on the thread count.
-pub(crate) fn chunked_sum(x: &[f32], g: &mut [f32], f: impl Fn(usize, f32, &mut f32) -> f64 + Sync) -> f64 {
-    assert_eq!(x.len(), g.len());
-    let sums: Vec<f64> = x
-        .par_chunks(CHUNK)
-        .zip(g.par_chunks_mut(CHUNK))
-        .enumerate()
-        .map(|(c, (xs, gs))| xs.iter().zip(gs).enumerate().map(|(j, (&x, g))| f(c * CHUNK + j, x, g)).sum())
-        .collect();
-    sums.iter().sum()
 }
 
 #[cfg(test)]
