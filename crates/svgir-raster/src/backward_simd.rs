@@ -96,6 +96,8 @@ struct Entry<'a, S: Lanes> {
     ef: &'a FeatView<'a, f32>,
     colv: &'a FeatLanes<S>,
     extv: &'a FeatLanes<S>,
+    /// Carry the normal and depth gradients ([`crate::RasterConfig::geometry`]).
+    geom: bool,
 }
 
 impl<S: Lanes> Entry<'_, S> {
@@ -131,8 +133,10 @@ impl<S: Lanes> Entry<'_, S> {
         gr.store::<S, PACKED>(arr(T), S::select(m, ti, tcur));
         let wgt = ev.alpha.mul(ti);
         let gc = [ld(GC), ld(GC + 1), ld(GC + 2)];
-        let gn = [ld(GN), ld(GN + 1), ld(GN + 2)];
-        let gd = ld(GD);
+        // Geometry off: the normal and depth gradients are zero, so their terms are skipped
+        // (adding exact zeros changes no bit but a zero's sign).
+        let geom = self.geom;
+        let (gn, gd) = if geom { ([ld(GN), ld(GN + 1), ld(GN + 2)], ld(GD)) } else { ([zero; 3], zero) };
         // Interpolation weights and their derivatives at the hit (features only).
         let (ut, dut, vt, dvt) = if FEAT && interp {
             let (ut, dut) = normalised_coord_lanes(ev.u);
@@ -162,8 +166,12 @@ impl<S: Lanes> Entry<'_, S> {
         };
         // dL/dw as a tree of sums (a chain of eight adds was on the critical path).
         let g_col = gc[0].mul(col[0]).add(gc[1].mul(col[1])).add(gc[2].mul(col[2]));
-        let g_nrm = gn[0].mul(nrm[0]).add(gn[1].mul(nrm[1])).add(gn[2].mul(nrm[2]));
-        let mut gw = g_col.add(g_nrm).add(ld(GO).add(gd.mul(ev.z)));
+        let mut gw = if geom {
+            let g_nrm = gn[0].mul(nrm[0]).add(gn[1].mul(nrm[1])).add(gn[2].mul(nrm[2]));
+            g_col.add(g_nrm).add(ld(GO).add(gd.mul(ev.z)))
+        } else {
+            g_col.add(ld(GO))
+        };
         if FEAT && ce > 0 {
             let we = feat_weights(ef, ut, vt);
             let (weu, wev) = if ef.vertices > 1 {
@@ -191,7 +199,7 @@ impl<S: Lanes> Entry<'_, S> {
                 }
             }
         }
-        let mut v_z = wgt.mul(gd);
+        let mut v_z = if geom { wgt.mul(gd) } else { zero };
         if DIST {
             let inv_z = sp(1.0).div(ev.z);
             let mz = sp(m_scale).mul(sp(1.0).sub(sp(near).mul(inv_z)));
@@ -206,7 +214,9 @@ impl<S: Lanes> Entry<'_, S> {
                 // One colour per Gaussian (interpolated colours are summed per vertex above).
                 sm.v_col[ch] = wgt_m.mul_add(gc[ch], sm.v_col[ch]);
             }
-            sm.v_n[ch] = wgt_m.mul_add(gn[ch], sm.v_n[ch]);
+            if geom {
+                sm.v_n[ch] = wgt_m.mul_add(gn[ch], sm.v_n[ch]);
+            }
         }
         let pacc = ld(ACC);
         let v_alpha = ti.mul(gw).sub(pacc.mul(inv_one_m));
@@ -215,12 +225,16 @@ impl<S: Lanes> Entry<'_, S> {
         // interpolation's, `w d(sum_ch g_ch f_ch)/du~ du~/du`.
         let (mut gu, mut gv) = if FEAT && interp {
             (wgt.mul(gut).mul(dut).add(v_z.mul(h6)), wgt.mul(gvt).mul(dvt).add(v_z.mul(h7)))
-        } else {
+        } else if geom || DIST {
             (v_z.mul(h6), v_z.mul(h7))
+        } else {
+            (zero, zero)
         };
-        acc(&mut sm.h_depth[0], m, v_z.mul(ev.u));
-        acc(&mut sm.h_depth[1], m, v_z.mul(ev.v));
-        acc(&mut sm.h_depth[2], m, v_z);
+        if geom || DIST {
+            acc(&mut sm.h_depth[0], m, v_z.mul(ev.u));
+            acc(&mut sm.h_depth[1], m, v_z.mul(ev.v));
+            acc(&mut sm.h_depth[2], m, v_z);
+        }
         let free = S::andnot(m, o.mul(ev.g).gt(sp(0.99)));
         acc(&mut sm.opacity, free, v_alpha.mul(ev.g));
         let v_rho = sp(-0.5).mul(v_alpha).mul(o).mul(ev.g);
@@ -262,6 +276,7 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool>(
     let dim = ctx.dim;
     let near = ctx.cfg.near;
     let far = ctx.cfg.far;
+    let geom = ctx.cfg.geometry;
     let m_scale = far / (far - near);
     let wu = ctx.w as usize;
     let tile = bins.tile as usize;
@@ -293,7 +308,8 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool>(
                 by_ncon.push((nc, ((y - ty0) * 64 + (x - tx0)) as u32));
             }
             let gc = g.color.map_or([0.0; 3], |v| [v[p * 3], v[p * 3 + 1], v[p * 3 + 2]]);
-            let gn = g.normal.map_or([0.0; 3], |v| [v[p * 3], v[p * 3 + 1], v[p * 3 + 2]]);
+            // Without the geometry outputs their gradients are ignored (read as zero).
+            let gn = g.normal.filter(|_| geom).map_or([0.0; 3], |v| [v[p * 3], v[p * 3 + 1], v[p * 3 + 2]]);
             let b = background_at(ctx.bg, p);
             let set = |k: usize, v: f32| *arr(k).add(li) = v;
             set(T, tn);
@@ -303,7 +319,7 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool>(
                 set(GN + ch, gn[ch]);
             }
             set(GO, g.alpha.map_or(0.0, |v| v[p]));
-            set(GD, g.depth.map_or(0.0, |v| v[p]));
+            set(GD, g.depth.filter(|_| geom).map_or(0.0, |v| v[p]));
             set(GDIST, if DIST { g.distortion.map_or(0.0, |v| v[p]) } else { 0.0 });
             set(A, 1.0 - tn);
             set(M1, st.moment1[p]);
@@ -354,6 +370,7 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool>(
             ef,
             colv: &colv,
             extv: &extv,
+            geom,
         };
         let mut sm = Sums::<S>::zero();
         groups.list::<S>(s, &tr, row_act, stride);

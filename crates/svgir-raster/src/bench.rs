@@ -367,9 +367,13 @@ pub fn bench_scene(surfels: Surfels, cameras: &[Camera], background: [f32; 3], t
     }
     let (w, h) = (cameras[0].intrinsics.width, cameras[0].intrinsics.height);
     // "all": a gradient on every output (as the random table); "stage 1": the outputs stage-1
-    // training differentiates (colour, opacity, depth, normal; distortion off, as its weight).
-    let variants =
-        [("all", RasterConfig::default()), ("stage 1", RasterConfig { distortion: false, ..Default::default() })];
+    // training differentiates (colour, opacity, depth, normal; distortion off, as its weight);
+    // "colour": 3DGS's loss (`--profile views`), no distortion and no geometry outputs.
+    let variants = [
+        ("all", RasterConfig::default()),
+        ("stage 1", RasterConfig { distortion: false, ..Default::default() }),
+        ("colour", RasterConfig { distortion: false, geometry: false, ..Default::default() }),
+    ];
     for (label, cfg) in variants {
         let _ = writeln!(s, "gradients on: {label} outputs");
         for t in thread_counts(threads) {

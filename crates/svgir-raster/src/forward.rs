@@ -321,6 +321,7 @@ fn render_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
     let m_scale = far / (far - near);
     let t_stop = F::from_f32(cfg.t_stop);
     let half = F::c(0.5);
+    let geom = cfg.geometry;
     let two = F::c(2.0);
     let wu = w as usize;
     let ce = ef.channels;
@@ -393,18 +394,22 @@ fn render_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
                     }
                     for ch in 0..3 {
                         a.color[ch] += wgt * col[ch];
-                        a.normal[ch] += wgt * s.normal[ch];
                     }
-                    a.depth += wgt * hit.z;
+                    if geom {
+                        for ch in 0..3 {
+                            a.normal[ch] += wgt * s.normal[ch];
+                        }
+                        a.depth += wgt * hit.z;
+                        if tcur > half {
+                            a.median = hit.z;
+                        }
+                    }
                     if DIST {
                         // 2DGS running-sum distortion: w_i (m_i^2 A_i + M2 - 2 m_i M1), A_i = 1 - T_i.
                         let m = m_scale * (F::ONE - near / hit.z);
                         a.dist += (m * m * (F::ONE - tcur) + a.m2 - two * m * a.m1) * wgt;
                         a.m1 += m * wgt;
                         a.m2 += m * m * wgt;
-                    }
-                    if tcur > half {
-                        a.median = hit.z;
                     }
                     a.t = test;
                     a.ncon = local;

@@ -382,6 +382,8 @@ struct Composite<'a, S: Lanes> {
     nrm: [S; 3],
     /// The entry's 1-based index in the tile (what `n_contrib` records).
     local: S,
+    /// Accumulate normal, depth and median depth ([`crate::RasterConfig::geometry`]).
+    geom: bool,
     cf: &'a FeatView<'a, f32>,
     ef: &'a FeatView<'a, f32>,
     colv: &'a FeatLanes<S>,
@@ -430,9 +432,14 @@ impl<S: Lanes> Composite<'_, S> {
         }
         for ch in 0..3 {
             add(COL + ch, comp, wgt.mul(col[ch]));
-            add(NRM + ch, comp, wgt.mul(self.nrm[ch]));
         }
-        add(DEP, comp, wgt.mul(ev.z));
+        if self.geom {
+            for ch in 0..3 {
+                add(NRM + ch, comp, wgt.mul(self.nrm[ch]));
+            }
+            add(DEP, comp, wgt.mul(ev.z));
+            set(MED, S::and(comp, tcur.gt(sp(0.5))), ev.z);
+        }
         if DIST {
             // As the scalar kernel: w_i (m_i^2 A_i + M2 - 2 m_i M1), A_i = 1 - T_i.
             let m = sp(self.m_scale).mul(sp(1.0).sub(sp(self.near).div(ev.z)));
@@ -442,7 +449,6 @@ impl<S: Lanes> Composite<'_, S> {
             gr.store::<S, PACKED>(a(M1), S::select(comp, m1.add(m.mul(wgt)), m1));
             gr.store::<S, PACKED>(a(M2), S::select(comp, m2.add(m.mul(m).mul(wgt)), m2));
         }
-        set(MED, S::and(comp, tcur.gt(sp(0.5))), ev.z);
         set(T, comp, test);
         set(NCON, comp, self.local);
         *ws = ws.add(S::select(comp, wgt, sp(0.0)));
@@ -512,6 +518,7 @@ unsafe fn band<S: Lanes, const DIST: bool, const FEAT: bool>(
                 col1: s.color.map(sp),
                 nrm: s.normal.map(sp),
                 local: sp((e - r0 as usize + 1) as f32),
+                geom: cfg.geometry,
                 cf,
                 ef,
                 colv: &colv,

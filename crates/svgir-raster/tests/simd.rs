@@ -127,7 +127,7 @@ fn colors<T>(data: &[T], cm: usize) -> ColorSourceOf<'_, T> {
 /// One scene rendered and differentiated on the scalar path, in f64, and on every SIMD path of
 /// this CPU: images bit-identical, gradients as close to f64 as the scalar f32 ones. Returns the
 /// number of SIMD paths checked.
-fn check_scene(seed: u64, n: usize, res: u32, tile: u32, dist: bool, feat: Option<Feat>) -> usize {
+fn check_scene(seed: u64, n: usize, res: u32, tile: u32, dist: bool, geometry: bool, feat: Option<Feat>) -> usize {
     let paths: Vec<Simd> = Simd::available().into_iter().filter(|&p| p != Simd::Scalar).collect();
     let surfels = scene(seed, n);
     let camera = bench_camera(res, res);
@@ -154,7 +154,7 @@ fn check_scene(seed: u64, n: usize, res: u32, tile: u32, dist: bool, feat: Optio
         extra: (ce > 0).then_some(FeaturesOf { data: &extf, vertices: me, channels: ce }),
         background: Background::Color([0.3, 0.6, 0.1]),
     };
-    let cfg = RasterConfig { tile, distortion: dist, simd: Simd::Scalar, ..Default::default() };
+    let cfg = RasterConfig { tile, distortion: dist, geometry, simd: Simd::Scalar, ..Default::default() };
     let (out0, st0) = render(&input, &cfg);
     let g0 = backward(&input, &cfg, &st0, &out0, &grads);
     let p64 = P64::from_surfels(&surfels);
@@ -199,13 +199,15 @@ fn check_scene(seed: u64, n: usize, res: u32, tile: u32, dist: bool, feat: Optio
 fn simd_paths_match_scalar() {
     eprintln!("SIMD paths on this CPU: {:?}", Simd::available());
     let mut checked = 0;
-    for (seed, n, res, tile, dist) in [
-        (1u64, 3000usize, 64u32, 16u32, true),
-        (2, 6000, 97, 16, false),
-        (3, 2000, 50, 7, true),
-        (4, 4000, 80, 32, true),
+    for (seed, n, res, tile, dist, geometry) in [
+        (1u64, 3000usize, 64u32, 16u32, true, true),
+        (2, 6000, 97, 16, false, true),
+        (3, 2000, 50, 7, true, true),
+        (4, 4000, 80, 32, true, true),
+        (5, 3000, 64, 16, false, false),
+        (6, 2500, 71, 16, true, false),
     ] {
-        checked += check_scene(seed, n, res, tile, dist, None);
+        checked += check_scene(seed, n, res, tile, dist, geometry, None);
     }
     if svgir_raster::simd::best_available() != Simd::Scalar {
         assert!(checked > 0);
@@ -217,15 +219,68 @@ fn simd_paths_match_scalar() {
 #[test]
 fn simd_feature_paths_match_scalar() {
     let mut checked = 0;
-    for (seed, n, res, cm, me, ce, dist) in [
-        (11u64, 3000usize, 64u32, 4usize, 4usize, 7usize, false),
-        (12, 2500, 57, 2, 1, 3, true),
-        (13, 2000, 48, 6, 6, 2, true),
-        (14, 2000, 48, 1, 4, 5, false),
+    for (seed, n, res, cm, me, ce, dist, geometry) in [
+        (11u64, 3000usize, 64u32, 4usize, 4usize, 7usize, false, true),
+        (12, 2500, 57, 2, 1, 3, true, true),
+        (13, 2000, 48, 6, 6, 2, true, true),
+        (14, 2000, 48, 1, 4, 5, false, true),
+        (15, 2000, 48, 4, 4, 3, true, false),
     ] {
-        checked += check_scene(seed, n, res, 16, dist, Some(Feat { cm, me, ce }));
+        checked += check_scene(seed, n, res, 16, dist, geometry, Some(Feat { cm, me, ce }));
     }
     if svgir_raster::simd::best_available() != Simd::Scalar {
         assert!(checked > 0);
+    }
+}
+
+/// `RasterConfig::geometry = false` on every path: colour, alpha, distortion, weights and
+/// contributor counts keep their bits, depth, median depth and normal stay 0, and the gradients
+/// equal those of the full render given zero depth and normal gradients (whatever gradients are
+/// passed for the skipped outputs).
+#[test]
+fn geometry_off_changes_only_the_geometry_outputs() {
+    let (n, res) = (3000, 64u32);
+    let surfels = scene(21, n);
+    let camera = bench_camera(res, res);
+    let npx = (res * res) as usize;
+    let g3: Vec<f32> = (0..npx * 3).map(|i| ((i * 7919 % 1000) as f32 - 500.0) * 1e-5).collect();
+    let g1: Vec<f32> = (0..npx).map(|i| ((i * 104_729 % 1000) as f32 - 300.0) * 1e-5).collect();
+    let (z3, z1) = (vec![0.0f32; npx * 3], vec![0.0f32; npx]);
+    let input = RenderInput {
+        surfels: &surfels,
+        camera: &camera,
+        colors: ColorSourceOf::Sh,
+        extra: None,
+        background: Background::Color([0.3, 0.6, 0.1]),
+    };
+    let upstream = |depth: &'static str| {
+        let (d, nrm) = if depth == "zero" { (&z1, &z3) } else { (&g1, &g3) };
+        OutputGrads {
+            color: Some(&g3),
+            alpha: Some(&g1),
+            depth: Some(d),
+            normal: Some(nrm),
+            distortion: Some(&g1),
+            extra: None,
+        }
+    };
+    for path in Simd::available() {
+        let on = RasterConfig { simd: path, ..Default::default() };
+        let off = RasterConfig { geometry: false, ..on };
+        let (a, sa) = render(&input, &on);
+        let (b, sb) = render(&input, &off);
+        let what = path.name();
+        assert_eq!(a.color, b.color, "{what}: colour");
+        assert_eq!(a.alpha, b.alpha, "{what}: alpha");
+        assert_eq!(a.distortion, b.distortion, "{what}: distortion");
+        assert_eq!(a.accum_weight, b.accum_weight, "{what}: weights");
+        assert!(a.depth.iter().any(|&d| d > 0.0) && a.normal.iter().any(|&v| v != 0.0));
+        assert!(b.depth.iter().chain(&b.median_depth).chain(&b.normal).all(|&v| v == 0.0), "{what}: geometry");
+        let ga = backward(&input, &on, &sa, &a, &upstream("zero"));
+        let gb = backward(&input, &off, &sb, &b, &upstream("given"));
+        for ((name, x), (_, y)) in grad_arrays(&ga).iter().zip(grad_arrays(&gb).iter()) {
+            assert!(x.iter().any(|&v| v != 0.0) || name.contains("features"), "{what}: {name} all zero");
+            assert_eq!(x, y, "{what}: {name}");
+        }
     }
 }

@@ -10,7 +10,7 @@ use crate::config::{Stage1Config, ViewOrder};
 use crate::densify::{densify_and_prune, reset_opacity, DensifyReport, DensifyStats, Groups};
 use crate::exposure::{self, ExposureCorrection};
 use crate::losses::mask;
-use crate::losses::objective::{stage1_objective, ObjectiveInput, ObjectiveTarget};
+use crate::losses::objective::{depth_normal_weight, stage1_objective, ObjectiveInput, ObjectiveTarget};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 use svgir_core::{Camera, Dataset, Image, Rng, Surfels};
@@ -200,18 +200,22 @@ impl Stage1 {
             extra: None,
             background: Background::Color(bg),
         };
-        let (out, state) = render(&input, &self.raster);
+        let t_frac = (it as f32 / cfg.iterations as f32).min(1.0);
+        let weights = cfg.weights_at(it);
+        // Depth and normal feed only the depth-normal loss: without it (3DGS's loss) the
+        // rasterizer skips them.
+        let raster = RasterConfig { geometry: depth_normal_weight(&weights, t_frac) != 0.0, ..self.raster };
+        let (out, state) = render(&input, &raster);
         let t1 = Instant::now();
 
         let (w, h) = (view.camera.width() as usize, view.camera.height() as usize);
         let npix = w * h;
         let target = &self.targets[view_idx];
-        let t_frac = (it as f32 / cfg.iterations as f32).min(1.0);
         // The loss sees the photo's colour correction applied to the render.
         let corrected = self.exposure.as_ref().map(|e| exposure::apply(&e.params[view_idx], &out.color));
         let color = corrected.as_deref().unwrap_or(&out.color);
         let mut obj = stage1_objective(
-            &cfg.weights_at(it),
+            &weights,
             t_frac,
             cfg.use_mask,
             &ObjectiveInput {
@@ -234,7 +238,7 @@ impl Stage1 {
 
         let grads = backward(
             &input,
-            &self.raster,
+            &raster,
             &state,
             &out,
             &OutputGrads {

@@ -51,6 +51,11 @@ pub struct Objective {
     pub v_distortion: Option<Vec<f32>>,
 }
 
+/// The weight of SPEC 2's depth-normal term at training progress `t_frac` (it ramps linearly).
+pub fn depth_normal_weight(w: &LossWeights, t_frac: f32) -> f32 {
+    w.normal_start + w.normal_ramp * t_frac.clamp(0.0, 1.0)
+}
+
 /// SPEC 2's loss at training progress `t_frac` in [0, 1] (the depth-normal weight ramps with it).
 /// `use_mask` switches the mask and entropy losses on (datasets with a meaningful alpha).
 pub fn stage1_objective(
@@ -78,7 +83,7 @@ pub fn stage1_objective(
         loss += w.mask * mask::mask_loss(out.alpha, target.dilated, w.mask, &mut v_alpha);
         loss += w.entropy * mask::entropy_loss(out.alpha, target.alpha, w.entropy, &mut v_alpha);
     }
-    let w_dn = w.normal_start + w.normal_ramp * t_frac.clamp(0.0, 1.0);
+    let w_dn = depth_normal_weight(w, t_frac);
     let (v_depth, v_normal) = if w_dn == 0.0 {
         // A switched-off term costs nothing (it is the loss phase's second largest).
         (vec![0.0; npix], vec![0.0; 3 * npix])
