@@ -13,6 +13,9 @@
 //! pixel-inner as in the forward; gradients go to a per-entry buffer (one slot per (Gaussian,
 //! tile) pair, owned by that tile), then each Gaussian sums its entries in a fixed order. No
 //! atomics, no racy `+=`, bit-reproducible for a given input (SPEC 9.4, 9.9).
+//!
+//! With [`crate::RasterConfig::geometry`] off, `gD` and `gN` are read as zero whatever is passed
+//! (the SIMD kernels then skip their terms).
 
 use crate::forward::{background_at, split_lens, FeatView};
 use crate::interp::{normalised_coord, weight_grads, weights, MAX_VERTICES};

@@ -13,6 +13,9 @@
 //! the number of tile-list entries up to the last composited one, and the distortion moments
 //! `M1 = sum w m`, `M2 = sum w m^2`. Per-Gaussian accumulated weights are summed per entry and then
 //! reduced per Gaussian in entry order (deterministic).
+//!
+//! With [`crate::RasterConfig::geometry`] off, the normal, depth and median-depth accumulators
+//! are skipped (those outputs stay 0) and everything else keeps its bits.
 
 use crate::interp::{normalised_coord, weights, MAX_VERTICES};
 use crate::phases::Stopwatch;
