@@ -55,8 +55,8 @@ pub struct RasterConfig {
     pub distortion: bool,
     /// Compute the depth, median-depth and normal outputs. When false they are left at 0 and
     /// gradients given for them are ignored; colour, alpha and distortion are unchanged to the
-    /// bit. The f32 tile kernels then skip those accumulators (2-3% of a forward+backward on a
-    /// trained lego): for a loss that reads colour alone (3DGS's, the `views` profile).
+    /// bit. The f32 tile kernels then skip those accumulators (about 5% of a forward+backward
+    /// on a trained lego): for a loss that reads colour alone (3DGS's, the `views` profile).
     pub geometry: bool,
     /// Which f32 tile kernels run ([`Simd::Auto`]: `SVGIR_SIMD` or the best the CPU has). The
     /// choice changes no image bit, and gradients only by the rounding of per-Gaussian sums.
