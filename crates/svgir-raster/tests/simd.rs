@@ -284,3 +284,66 @@ fn geometry_off_changes_only_the_geometry_outputs() {
         }
     }
 }
+
+/// Colours and `ce` extra channels from `m` vertices.
+fn features<'a>(c: &'a [f32], e: &'a [f32], m: usize, ce: usize) -> (ColorSourceOf<'a, f32>, FeaturesOf<'a, f32>) {
+    (
+        ColorSourceOf::Features(FeaturesOf { data: c, vertices: m, channels: 3 }),
+        FeaturesOf { data: e, vertices: m, channels: ce },
+    )
+}
+
+/// What stage 2 relies on to shade only the Gaussians a view blends: a Gaussian whose
+/// `accum_weight` is 0 has its features never read (or only times a zero weight), so replacing
+/// them changes no output and no gradient, on every path; and its feature gradients are 0.
+#[test]
+fn features_of_unweighted_gaussians_are_never_read() {
+    let (n, res, m, ce) = (3000, 64u32, 4usize, 3usize);
+    // A closed, opaque sphere of splats: its back half receives no weight.
+    let mut surfels = scene(31, n);
+    surfels.opacity_logits.iter_mut().for_each(|o| *o = 5.0);
+    surfels.log_scales.iter_mut().for_each(|s| *s += glam::Vec2::splat(1.5));
+    let camera = bench_camera(res, res);
+    let npx = (res * res) as usize;
+    let mut rng = svgir_core::Rng::new(31);
+    let colf: Vec<f32> = (0..n * m * 3).map(|_| rng.uniform()).collect();
+    let extf: Vec<f32> = (0..n * m * ce).map(|_| rng.normal()).collect();
+    let g3: Vec<f32> = (0..npx * 3).map(|i| ((i * 7919 % 1000) as f32 - 500.0) * 1e-5).collect();
+    let ge: Vec<f32> = (0..npx * ce).map(|i| ((i * 6151 % 1000) as f32 - 450.0) * 1e-5).collect();
+    let grads = OutputGrads { color: Some(&g3), extra: Some(&ge), ..Default::default() };
+    for path in Simd::available() {
+        let cfg = RasterConfig { simd: path, ..Default::default() };
+        let (c0, e0) = features(&colf, &extf, m, ce);
+        let in0 = RenderInput {
+            surfels: &surfels,
+            camera: &camera,
+            colors: c0,
+            extra: Some(e0),
+            background: Background::Color([0.3, 0.6, 0.1]),
+        };
+        let (a, sa) = render(&in0, &cfg);
+        let unweighted: Vec<usize> = (0..n).filter(|&i| a.accum_weight[i] == 0.0).collect();
+        let seen_unweighted = unweighted.iter().filter(|&&i| a.max_radius[i] > 0.0).count();
+        assert!(seen_unweighted > 50, "{}: only {seen_unweighted} hidden Gaussians in the frustum", path.name());
+        let (mut colb, mut extb) = (colf.clone(), extf.clone());
+        for &i in &unweighted {
+            colb[i * m * 3..(i + 1) * m * 3].fill(1e4);
+            extb[i * m * ce..(i + 1) * m * ce].fill(-1e4);
+        }
+        let (c1, e1) = features(&colb, &extb, m, ce);
+        let in1 = RenderInput { colors: c1, extra: Some(e1), ..in0 };
+        let (b, sb) = render(&in1, &cfg);
+        let what = path.name();
+        assert_eq!(a.color, b.color, "{what}: colour");
+        assert_eq!(a.extra, b.extra, "{what}: extra");
+        let ga = backward(&in0, &cfg, &sa, &a, &grads);
+        let gb = backward(&in1, &cfg, &sb, &b, &grads);
+        for ((name, x), (_, y)) in grad_arrays(&ga).iter().zip(grad_arrays(&gb).iter()) {
+            assert_eq!(x, y, "{what}: {name}");
+        }
+        for &i in &unweighted {
+            assert!(ga.v_color_features[i * m * 3..(i + 1) * m * 3].iter().all(|&g| g == 0.0), "{what}: Gaussian {i}");
+            assert!(ga.v_extra[i * m * ce..(i + 1) * m * ce].iter().all(|&g| g == 0.0), "{what}: Gaussian {i}");
+        }
+    }
+}

@@ -4,14 +4,14 @@
 //! what the backward needs.
 
 use super::objective::{extra_features, EXTRA_CHANNELS, MIN_OPACITY};
-use super::Stage2;
+use super::{visible_of, weighted, Stage2};
 use crate::composite::pbr_composite;
 use glam::Vec3;
 use svgir_core::Camera;
 use svgir_pbr::{
     negated, shade_sides_into, DirectionCache, Indirect, PbrError, ShadeInputs, ShadeOutput, ShadeParams, Side,
 };
-use svgir_raster::{render, Background, ColorSource, Features, RenderInput};
+use svgir_raster::{render, Background, ColorSource, Features, RasterConfig, RenderInput};
 use svgir_trace::VertexMaterials;
 use svgir_trace::{BrightLights, MicroBuffer};
 
@@ -121,8 +121,19 @@ impl Stage2 {
         for (i, a) in act.albedo.iter_mut().enumerate() {
             *a *= albedo_scale[i % 3];
         }
-        let all = vec![true; self.surfels.len()];
-        let (front_vis, back_vis) = self.sides(camera, &all, shading.back.is_some());
+        // A colour-only pass finds the Gaussians this view blends; only they are shaded
+        // (`weighted`): a raster forward costs less than shading the rest, most of all at
+        // relighting's K = 384.
+        let probe = RenderInput {
+            surfels: &self.surfels,
+            camera,
+            colors: ColorSource::Sh,
+            extra: None,
+            background: Background::Color([0.0; 3]),
+        };
+        let (seen, _) = render(&probe, &RasterConfig { geometry: false, ..self.raster });
+        let blended = weighted(&visible_of(&seen.max_radius), &seen.accum_weight);
+        let (front_vis, back_vis) = self.sides(camera, &blended, shading.back.is_some());
         let back_normals = shading.back.as_ref().map(|_| negated(&act.normals));
         let front = Side {
             inputs: ShadeInputs {
