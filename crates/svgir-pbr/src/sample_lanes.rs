@@ -7,10 +7,12 @@
 //! that are directional lights, reads and clamps the environment, and decodes the traced
 //! radiance: about 200 cycles of scalar work, done for the forward and again for the backward
 //! (a fifth of a stage-2 iteration on the shipped scene, docs/performance.md). Here the
-//! direction, the visibility, the taps, the env reads (gathers) and the clamp run over eight
-//! samples at once with the scalar operations in the scalar order (no FMA), so every value is
-//! the scalar one bit for bit; the light mask, the f16 decode and the skip of samples that carry
-//! nothing stay scalar per lane, and the samples come out in the scalar order.
+//! direction, the visibility, the taps, the env reads (gathers), the clamp and the f16 decode of
+//! the traced radiance run over eight samples at once with the scalar operations in the scalar
+//! order (no FMA), so every value is the scalar one bit for bit; the light mask and the skip of
+//! samples that carry nothing stay scalar per lane, and the samples come out in the scalar
+//! order. [`Samples8::write_rows`] hands them to the shading's rows, eight at a time when all
+//! eight are samples.
 //!
 //! Work split: one call per (Gaussian, 8 directions); nothing is allocated or saved.
 
@@ -18,7 +20,9 @@
 // inside the micro-buffer -- so the operations inside need no block of their own.
 #![allow(unsafe_op_in_unsafe_fn)]
 
-use crate::shade::{half_to_f32, FibTable, Frame, Indirect, Sample, ShadeInputs};
+#[cfg(test)]
+use crate::shade::half_to_f32;
+use crate::shade::{FibTable, Frame, Indirect, Sample, ShadeInputs};
 use core::arch::x86_64::*;
 use svgir_core::envmap::Taps;
 use svgir_trace::DirectionCache;
@@ -36,8 +40,9 @@ pub(crate) struct Samples8 {
     live: [[f32; LANES]; 3],
     index: [[u32; LANES]; 4],
     weight: [[f32; LANES]; 4],
-    traced: [[f32; LANES]; 3],
-    ind: [[f32; LANES]; 3],
+    /// Sample-major (lane l's three channels together): decoded in place, read per lane.
+    traced: [[f32; 3]; LANES],
+    ind: [[f32; 3]; LANES],
 }
 
 impl Samples8 {
@@ -45,7 +50,43 @@ impl Samples8 {
     #[inline(always)]
     pub(crate) fn rows(&self, l: usize) -> ([f32; 3], [f32; 3], [f32; 3]) {
         let g = |a: &[[f32; LANES]; 3]| [a[0][l], a[1][l], a[2][l]];
-        (g(&self.dir), g(&self.direct), g(&self.ind))
+        (g(&self.dir), g(&self.direct), self.ind[l])
+    }
+
+    /// Writes the direction, direct and indirect light of the lanes that are samples, in lane
+    /// order, to rows `n..` of `dir`, `direct` and `ind` (which hold at least `n + 8`); returns
+    /// the next free row. All eight (the common case) are copied as whole rows.
+    #[inline(always)]
+    pub(crate) fn write_rows(
+        &self,
+        dir: &mut [Vec<f32>; 3],
+        direct: &mut [Vec<f32>; 3],
+        ind: &mut [Vec<f32>; 3],
+        n: usize,
+    ) -> usize {
+        if self.yields == (1 << LANES) - 1 {
+            for c in 0..3 {
+                dir[c][n..n + LANES].copy_from_slice(&self.dir[c]);
+                direct[c][n..n + LANES].copy_from_slice(&self.direct[c]);
+                for l in 0..LANES {
+                    ind[c][n + l] = self.ind[l][c];
+                }
+            }
+            return n + LANES;
+        }
+        let mut n = n;
+        let mut y = self.yields;
+        while y != 0 {
+            let l = y.trailing_zeros() as usize;
+            y &= y - 1;
+            for c in 0..3 {
+                dir[c][n] = self.dir[c][l];
+                direct[c][n] = self.direct[c][l];
+                ind[c][n] = self.ind[l][c];
+            }
+            n += 1;
+        }
+        n
     }
 
     /// Lane l as the scalar [`Sample`].
@@ -58,7 +99,7 @@ impl Samples8 {
             direct,
             live: [0, 1, 2].map(|c| self.live[c][l] != 0.0),
             taps: Taps { index: self.index.map(|t| t[l]), weight: self.weight.map(|t| t[l]) },
-            traced: [self.traced[0][l], self.traced[1][l], self.traced[2][l]],
+            traced: self.traced[l],
             ind,
         }
     }
@@ -93,8 +134,8 @@ pub(crate) unsafe fn samples8(
         live: [[0.0; LANES]; 3],
         index: [[0; LANES]; 4],
         weight: [[0.0; LANES]; 4],
-        traced: [[0.0; LANES]; 3],
-        ind: [[0.0; LANES]; 3],
+        traced: [[0.0; 3]; LANES],
+        ind: [[0.0; 3]; LANES],
     };
 
     // The direction (`HemiFrame::dir`): c = c_k cx - s_k sx, s = s_k cx + c_k sx,
@@ -194,27 +235,44 @@ pub(crate) unsafe fn samples8(
         _mm256_storeu_si256(out.index[t].as_mut_ptr() as *mut __m256i, ix);
     }
 
-    // Traced radiance (f16, scalar per lane) and which lanes carry anything.
-    let rho = match inp.indirect {
-        Indirect::Traced { rho } => Some(rho),
-        _ => None,
-    };
-    for l in 0..LANES {
-        if let Some(rho) = rho {
-            let h = mb.radiance[s0 + l];
-            for ch in 0..3 {
-                let x = half_to_f32(h[ch]);
-                out.traced[ch][l] = x;
-                out.ind[ch][l] = x * rho;
-            }
+    // Traced radiance: the eight samples' 24 halves decoded in place (the decode and the
+    // product with rho are per element, so the interleaved order needs no shuffle).
+    if let Indirect::Traced { rho } = inp.indirect {
+        let src = mb.radiance[s0..s0 + LANES].as_ptr() as *const __m128i;
+        let traced = out.traced.as_mut_ptr() as *mut f32;
+        let ind = out.ind.as_mut_ptr() as *mut f32;
+        for q in 0..3 {
+            let x = half_lanes(_mm256_cvtepu16_epi32(_mm_loadu_si128(src.add(q))));
+            _mm256_storeu_ps(traced.add(8 * q), x);
+            _mm256_storeu_ps(ind.add(8 * q), _mm256_mul_ps(x, _mm256_set1_ps(rho)));
         }
-        let traced = [out.traced[0][l], out.traced[1][l], out.traced[2][l]];
-        let ind = [out.ind[0][l], out.ind[1][l], out.ind[2][l]];
-        if !(out.vis[l] <= 0.0 && traced == [0.0; 3] && ind == [0.0; 3]) {
+    }
+    // Which lanes carry anything (the scalar `sample`'s test).
+    for l in 0..LANES {
+        if !(out.vis[l] <= 0.0 && out.traced[l] == [0.0; 3] && out.ind[l] == [0.0; 3]) {
             out.yields |= 1 << l;
         }
     }
     out
+}
+
+/// [`crate::shade::half_to_f32`] of eight halves held as u32 lanes, the same operations: exponent and
+/// mantissa shifted into place and rescaled by 2^112, Inf / NaN selected.
+#[inline(always)]
+unsafe fn half_lanes(h: __m256i) -> __m256 {
+    let sign = _mm256_slli_epi32::<16>(_mm256_and_si256(h, _mm256_set1_epi32(0x8000)));
+    let mag = _mm256_and_si256(h, _mm256_set1_epi32(0x7fff));
+    let scaled = _mm256_mul_ps(
+        _mm256_castsi256_ps(_mm256_slli_epi32::<13>(mag)),
+        _mm256_castsi256_ps(_mm256_set1_epi32((127 + 112) << 23)),
+    );
+    let special = _mm256_or_si256(
+        _mm256_set1_epi32(0x7f80_0000),
+        _mm256_slli_epi32::<13>(_mm256_and_si256(mag, _mm256_set1_epi32(0x3ff))),
+    );
+    let is_special = _mm256_cmpgt_epi32(mag, _mm256_set1_epi32(0x7bff));
+    let body = _mm256_blendv_epi8(_mm256_castps_si256(scaled), special, is_special);
+    _mm256_castsi256_ps(_mm256_or_si256(sign, body))
 }
 
 #[cfg(test)]
@@ -238,6 +296,30 @@ mod tests {
             v
         };
         bits(a) == bits(b)
+    }
+
+    /// The lane decode is `half_to_f32` for every bit pattern, Inf and NaN included.
+    #[test]
+    fn lane_half_decode_is_the_scalar_one_for_every_bit_pattern() {
+        if !std::is_x86_feature_detected!("avx2") {
+            eprintln!("SKIPPED: this CPU has no AVX2, so the sample lanes cannot run here");
+            return;
+        }
+        #[target_feature(enable = "avx2")]
+        unsafe fn decode(h: &[u16; LANES]) -> [f32; LANES] {
+            let mut out = [0f32; LANES];
+            let x = half_lanes(_mm256_cvtepu16_epi32(_mm_loadu_si128(h.as_ptr() as *const __m128i)));
+            _mm256_storeu_ps(out.as_mut_ptr(), x);
+            out
+        }
+        for base in (0..=u16::MAX as u32).step_by(LANES) {
+            let h: [u16; LANES] = std::array::from_fn(|l| (base + l as u32) as u16);
+            // SAFETY: AVX2 checked above.
+            let got = unsafe { decode(&h) };
+            for l in 0..LANES {
+                assert_eq!(got[l].to_bits(), half_to_f32(h[l]).to_bits(), "{:#06x}", h[l]);
+            }
+        }
     }
 
     /// Every lane is `shade::sample` bit for bit (or both say "no sample"), with and without
