@@ -476,6 +476,13 @@ pub fn run(args: InverseArgs) -> Result<()> {
             1e3 * t.optimizer / its,
             1e3 * start.elapsed().as_secs_f64() / (s2.iteration - first_iteration).max(1) as f64,
         );
+        if let Some((ms1, threads1)) = stage1_iteration_ms(&args.run) {
+            let ms2 = 1e3 * (t.forward + t.loss + t.backward + t.optimizer) / its;
+            eprintln!(
+                "stage 2 / stage 1 per iteration: {:.1}x (stage 1: {ms1:.1} ms averaged over its run on {threads1} threads, RUN/timings.json)",
+                ms2 / ms1
+            );
+        }
     }
     checkpoint::save_stage2(&s2, &ckpt)?;
     if args.oracle_materials {
@@ -537,6 +544,16 @@ pub fn run(args: InverseArgs) -> Result<()> {
 }
 
 /// Replace the learned light by the dataset's training light (diagnostics; reads ground truth).
+/// Stage 1's mean time per iteration (all its phases) and thread count from `run`'s
+/// `timings.json`, `None` when the file is missing or lacks them (the ratio is then not
+/// printed; nothing else reads it).
+fn stage1_iteration_ms(run: &Path) -> Option<(f64, u64)> {
+    let text = std::fs::read_to_string(run.join("timings.json")).ok()?;
+    let v: serde_json::Value = serde_json::from_str(&text).ok()?;
+    let ms: f64 = v["ms_per_iteration"].as_object()?.values().filter_map(|x| x.as_f64()).sum();
+    (ms > 0.0).then_some((ms, v["threads"].as_u64().unwrap_or(0)))
+}
+
 fn set_true_light(s2: &mut Stage2, dataset: &Dataset) -> Result<()> {
     let light = dataset.train_light.as_ref().context("--oracle-light: the dataset names no training light")?;
     let path = light.envmap_path.as_ref().context("--oracle-light: the training light's map is not in the dataset")?;
