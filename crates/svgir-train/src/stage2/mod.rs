@@ -10,7 +10,7 @@
 //! One iteration on a random view:
 //! 1. SH pass: rasterise the SH colours (the SH image keeps training, SPEC 6 Eqn 15).
 //! 2. PBR pass: shade the vertices (SPEC 4) of every Gaussian the SH pass blended into some
-//!    pixel ([`weighted`]; the others' colours are never read), rasterise the vertex colours
+//!    pixel (`weighted`: the others' colours are never read), rasterise the vertex colours
 //!    plus albedo, roughness and shading normal as extra channels, divide by opacity, linear ->
 //!    sRGB, composite over the background.
 //! 3. Losses of Eqn 15 on both images plus L_rc, L_n, smoothness, |dN|^2 and env TV; backward
