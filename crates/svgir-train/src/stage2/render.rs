@@ -121,9 +121,8 @@ impl Stage2 {
         for (i, a) in act.albedo.iter_mut().enumerate() {
             *a *= albedo_scale[i % 3];
         }
-        // A colour-only pass finds the Gaussians this view blends; only they are shaded
-        // (`weighted`): a raster forward costs less than shading the rest, most of all at
-        // relighting's K = 384.
+        // A colour-only pass finds the Gaussians this view blends, and only they are shaded
+        // (`weighted`); the images equal those of shading every Gaussian.
         let probe = RenderInput {
             surfels: &self.surfels,
             camera,
