@@ -467,9 +467,9 @@ pub fn run(args: InverseArgs) -> Result<()> {
         // The iteration's phases, and the wall time per iteration including the light updates
         // and sun searches that run between iterations.
         let (t, its) = (&s2.times, s2.iteration.max(1) as f64);
+        let ms2 = 1e3 * (t.forward + t.loss + t.backward + t.optimizer) / its;
         eprintln!(
-            "stage 2: {:.1} ms per iteration (forward {:.1}, loss {:.1}, backward {:.1}, Adam {:.1}); {:.1} ms of wall time per iteration in this session",
-            1e3 * (t.forward + t.loss + t.backward + t.optimizer) / its,
+            "stage 2: {ms2:.1} ms per iteration (forward {:.1}, loss {:.1}, backward {:.1}, Adam {:.1}); {:.1} ms of wall time per iteration in this session",
             1e3 * t.forward / its,
             1e3 * t.loss / its,
             1e3 * t.backward / its,
@@ -477,7 +477,6 @@ pub fn run(args: InverseArgs) -> Result<()> {
             1e3 * start.elapsed().as_secs_f64() / (s2.iteration - first_iteration).max(1) as f64,
         );
         if let Some((ms1, threads1)) = stage1_iteration_ms(&args.run) {
-            let ms2 = 1e3 * (t.forward + t.loss + t.backward + t.optimizer) / its;
             eprintln!(
                 "stage 2 / stage 1 per iteration: {:.1}x (stage 1: {ms1:.1} ms averaged over its run on {threads1} threads, RUN/timings.json)",
                 ms2 / ms1
@@ -543,7 +542,6 @@ pub fn run(args: InverseArgs) -> Result<()> {
     Ok(())
 }
 
-/// Replace the learned light by the dataset's training light (diagnostics; reads ground truth).
 /// Stage 1's mean time per iteration (all its phases) and thread count from `run`'s
 /// `timings.json`, `None` when the file is missing or lacks them (the ratio is then not
 /// printed; nothing else reads it).
@@ -554,6 +552,7 @@ fn stage1_iteration_ms(run: &Path) -> Option<(f64, u64)> {
     (ms > 0.0).then_some((ms, v["threads"].as_u64().unwrap_or(0)))
 }
 
+/// Replace the learned light by the dataset's training light (diagnostics; reads ground truth).
 fn set_true_light(s2: &mut Stage2, dataset: &Dataset) -> Result<()> {
     let light = dataset.train_light.as_ref().context("--oracle-light: the dataset names no training light")?;
     let path = light.envmap_path.as_ref().context("--oracle-light: the training light's map is not in the dataset")?;
