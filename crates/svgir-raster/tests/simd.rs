@@ -95,6 +95,15 @@ fn same_grads(what: &str, simd: &Grads, scalar: &Grads, exact: &GradsOf<f64>) {
     }
 }
 
+/// Deterministic upstream gradients of both signs for `npx` pixels: 3 channels (colour, normal),
+/// one (alpha, depth, distortion) and `ce` extra channels.
+fn upstream_grads(npx: usize, ce: usize) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
+    let ramp = |len: usize, step: usize, offset: f32| -> Vec<f32> {
+        (0..len).map(|i| ((i * step % 1000) as f32 - offset) * 1e-5).collect()
+    };
+    (ramp(npx * 3, 7919, 500.0), ramp(npx, 104_729, 300.0), ramp(npx * ce, 6151, 450.0))
+}
+
 /// A scene with a few large, opaque splats in front (early stop, long rows) over the random
 /// object.
 fn scene(seed: u64, n: usize) -> Surfels {
@@ -136,9 +145,7 @@ fn check_scene(seed: u64, n: usize, res: u32, tile: u32, dist: bool, geometry: b
     let mut rng = svgir_core::Rng::new(seed);
     let colf: Vec<f32> = (0..n * cm * 3).map(|_| rng.uniform()).collect();
     let extf: Vec<f32> = (0..n * me * ce).map(|_| rng.normal()).collect();
-    let g3: Vec<f32> = (0..npx * 3).map(|i| ((i * 7919 % 1000) as f32 - 500.0) * 1e-5).collect();
-    let g1: Vec<f32> = (0..npx).map(|i| ((i * 104_729 % 1000) as f32 - 300.0) * 1e-5).collect();
-    let ge: Vec<f32> = (0..npx * ce).map(|i| ((i * 6151 % 1000) as f32 - 450.0) * 1e-5).collect();
+    let (g3, g1, ge) = upstream_grads(npx, ce);
     let grads = OutputGrads {
         color: Some(&g3),
         alpha: Some(&g1),
@@ -243,8 +250,7 @@ fn geometry_off_changes_only_the_geometry_outputs() {
     let surfels = scene(21, n);
     let camera = bench_camera(res, res);
     let npx = (res * res) as usize;
-    let g3: Vec<f32> = (0..npx * 3).map(|i| ((i * 7919 % 1000) as f32 - 500.0) * 1e-5).collect();
-    let g1: Vec<f32> = (0..npx).map(|i| ((i * 104_729 % 1000) as f32 - 300.0) * 1e-5).collect();
+    let (g3, g1, _) = upstream_grads(npx, 0);
     let (z3, z1) = (vec![0.0f32; npx * 3], vec![0.0f32; npx]);
     let input = RenderInput {
         surfels: &surfels,
@@ -308,8 +314,7 @@ fn features_of_unweighted_gaussians_are_never_read() {
     let mut rng = svgir_core::Rng::new(31);
     let colf: Vec<f32> = (0..n * m * 3).map(|_| rng.uniform()).collect();
     let extf: Vec<f32> = (0..n * m * ce).map(|_| rng.normal()).collect();
-    let g3: Vec<f32> = (0..npx * 3).map(|i| ((i * 7919 % 1000) as f32 - 500.0) * 1e-5).collect();
-    let ge: Vec<f32> = (0..npx * ce).map(|i| ((i * 6151 % 1000) as f32 - 450.0) * 1e-5).collect();
+    let (g3, _, ge) = upstream_grads(npx, ce);
     let grads = OutputGrads { color: Some(&g3), extra: Some(&ge), ..Default::default() };
     for path in Simd::available() {
         let cfg = RasterConfig { simd: path, ..Default::default() };
