@@ -361,7 +361,9 @@ impl Stage2 {
         let m = cfg.vertices;
         let t0 = Instant::now();
 
-        // 1. SH pass.
+        // 1. SH pass. Its loss reads colour alone, so it skips the depth and normal outputs
+        // (colour, alpha, weights and their gradients keep their bits).
+        let sh_raster = RasterConfig { geometry: false, ..self.raster };
         let sh_input = RenderInput {
             surfels: &self.surfels,
             camera: cam,
@@ -369,7 +371,7 @@ impl Stage2 {
             extra: None,
             background: Background::Color(bg),
         };
-        let (sh_out, sh_state) = render(&sh_input, &self.raster);
+        let (sh_out, sh_state) = render(&sh_input, &sh_raster);
         let visible = visible_of(&sh_out.max_radius);
         let (front_vis, back_vis) = self.sides(cam, &visible, self.back.is_some());
         // L_rc is estimated on a random subset of the Gaussians seen on their oriented side
@@ -486,7 +488,7 @@ impl Stage2 {
         );
         let g_sh = backward(
             &sh_input,
-            &self.raster,
+            &sh_raster,
             &sh_state,
             &sh_out,
             &OutputGrads { color: Some(&obj.v_sh_color), ..Default::default() },
