@@ -33,7 +33,7 @@ fn main() {
         let t0 = std::time::Instant::now();
         let (splats, _) = svgir_raster::preprocess::preprocess(surfels, &cam_f, &ColorSource::Sh, &cfg);
         let t1 = t0.elapsed();
-        let bins = svgir_raster::tiles::bin(&splats, w, h, 16);
+        let bins = svgir_raster::tiles::bin(&splats, w, h, cfg.tile);
         eprintln!(
             "preprocess {:.1} ms, bin {:.1} ms ({} pairs)",
             t1.as_secs_f64() * 1e3,

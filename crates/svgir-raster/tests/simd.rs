@@ -226,17 +226,78 @@ fn simd_paths_match_scalar() {
 #[test]
 fn simd_feature_paths_match_scalar() {
     let mut checked = 0;
-    for (seed, n, res, cm, me, ce, dist, geometry) in [
-        (11u64, 3000usize, 64u32, 4usize, 4usize, 7usize, false, true),
-        (12, 2500, 57, 2, 1, 3, true, true),
-        (13, 2000, 48, 6, 6, 2, true, true),
-        (14, 2000, 48, 1, 4, 5, false, true),
-        (15, 2000, 48, 4, 4, 3, true, false),
+    for (seed, n, res, tile, cm, me, ce, dist, geometry) in [
+        (11u64, 3000usize, 64u32, 32u32, 4usize, 4usize, 7usize, false, true),
+        (12, 2500, 57, 16, 2, 1, 3, true, true),
+        (13, 2000, 48, 16, 6, 6, 2, true, true),
+        (14, 2000, 48, 32, 1, 4, 5, false, true),
+        (15, 2000, 48, 32, 4, 4, 3, true, false),
     ] {
-        checked += check_scene(seed, n, res, 16, dist, geometry, Some(Feat { cm, me, ce }));
+        checked += check_scene(seed, n, res, tile, dist, geometry, Some(Feat { cm, me, ce }));
     }
     if svgir_raster::simd::best_available() != Simd::Scalar {
         assert!(checked > 0);
+    }
+}
+
+/// The tile side changes no image bit -- every pixel composites the same Gaussians in the same
+/// order -- on every path; gradients change only by the rounding of the per-entry sums, so each
+/// tile size's stay as close to the f64 oracle as the 16-px scalar ones.
+#[test]
+fn tile_size_changes_no_image_bit() {
+    let (n, res) = (3000, 97u32);
+    let surfels = scene(41, n);
+    let camera = bench_camera(res, res);
+    let npx = (res * res) as usize;
+    let (g3, g1, _) = upstream_grads(npx, 0);
+    let grads = OutputGrads {
+        color: Some(&g3),
+        alpha: Some(&g1),
+        depth: Some(&g1),
+        normal: Some(&g3),
+        distortion: Some(&g1),
+        extra: None,
+    };
+    let input = RenderInput {
+        surfels: &surfels,
+        camera: &camera,
+        colors: ColorSourceOf::Sh,
+        extra: None,
+        background: Background::Color([0.3, 0.6, 0.1]),
+    };
+    let base = RasterConfig { tile: 16, simd: Simd::Scalar, ..Default::default() };
+    let (out0, st0) = render(&input, &base);
+    let g0 = backward(&input, &base, &st0, &out0, &grads);
+    let p64 = P64::from_surfels(&surfels);
+    let f = |v: &[f32]| v.iter().map(|&x| f64::from(x)).collect::<Vec<f64>>();
+    let (a3, a1) = (f(&g3), f(&g1));
+    let input64 = RenderInputOf {
+        surfels: &p64,
+        camera: &camera,
+        colors: ColorSourceOf::Sh,
+        extra: None,
+        background: BackgroundOf::Color([0.3, 0.6, 0.1]),
+    };
+    let grads64 = OutputGradsOf {
+        color: Some(&a3[..]),
+        alpha: Some(&a1[..]),
+        depth: Some(&a1[..]),
+        normal: Some(&a3[..]),
+        distortion: Some(&a1[..]),
+        extra: None,
+    };
+    let (out64, st64) = render_generic(&input64, &base);
+    let g64 = backward_generic(&input64, &base, &st64, &out64, &grads64);
+    for path in Simd::available() {
+        for tile in [8u32, 32, 64] {
+            let what = format!("{} tile {tile}", path.name());
+            let cfg = RasterConfig { tile, simd: path, ..base };
+            let (out, st) = render(&input, &cfg);
+            same_images(&what, &out, &out0);
+            assert_ne!(st.num_tile_entries(), st0.num_tile_entries(), "{what}: the tiling did not change");
+            let g = backward(&input, &cfg, &st, &out, &grads);
+            same_grads(&what, &g, &g0, &g64);
+        }
     }
 }
 
