@@ -8,7 +8,89 @@ use svgir_core::Float;
 
 /// Loss value; accumulates `weight * dL/da` into `v_a`. `a` has `ca` channels, `img` has `ci`.
 /// Generic so the f64 instantiation checks the gradient by finite differences.
+///
+/// Work split: each edge's gradient is computed once, rows in parallel, and each element of
+/// `v_a` then adds its (up to) four edges in the order the serial loop
+/// ([`edge_aware_smoothness_serial`], the oracle) visits them, so `v_a` gets the same bits. The
+/// loss is summed per row in f64, which can differ from the serial sum in its last f64 bits.
+#[allow(clippy::too_many_arguments)]
 pub fn edge_aware_smoothness<F: Float>(
+    a: &[F],
+    ca: usize,
+    img: &[F],
+    ci: usize,
+    width: usize,
+    height: usize,
+    weight: F,
+    v_a: &mut [F],
+) -> F {
+    use rayon::prelude::*;
+    let n = F::from_f64((width * height * ca) as f64);
+    let two = F::from_f64(2.0);
+    let row = width * ca;
+    // gx[p * ca + c]: the gradient of the edge from p's left neighbour to p; gy: from the pixel
+    // above. Zero where there is no such neighbour.
+    let (mut gx, mut gy) = (vec![F::ZERO; a.len()], vec![F::ZERO; a.len()]);
+    let loss: f64 = gx
+        .par_chunks_mut(row)
+        .zip(gy.par_chunks_mut(row))
+        .enumerate()
+        .map(|(y, (gx, gy))| {
+            let mut loss = 0.0f64;
+            for x in 0..width {
+                let p = y * width + x;
+                for (q, g) in
+                    [(x > 0).then(|| (p - 1, &mut *gx)), (y > 0).then(|| (p - width, &mut *gy))].into_iter().flatten()
+                {
+                    let e = edge(img, ci, p, q);
+                    for c in 0..ca {
+                        let d = a[p * ca + c] - a[q * ca + c];
+                        loss += (e * d * d).to_f64();
+                        g[x * ca + c] = weight * two * e * d / n;
+                    }
+                }
+            }
+            loss
+        })
+        .collect::<Vec<f64>>()
+        .iter()
+        .sum();
+    v_a.par_chunks_mut(row).enumerate().for_each(|(y, out)| {
+        for (i, o) in out.iter_mut().enumerate() {
+            let (x, k) = (i / ca, y * row + i);
+            // The serial loop's order: this pixel's own edges, then its right and lower
+            // neighbours' edges towards it.
+            if x > 0 {
+                *o += gx[k];
+            }
+            if y > 0 {
+                *o += gy[k];
+            }
+            if x + 1 < width {
+                *o -= gx[k + ca];
+            }
+            if y + 1 < height {
+                *o -= gy[k + row];
+            }
+        }
+    });
+    F::from_f64(loss / n.to_f64())
+}
+
+/// `exp(-mean_c |img_p - img_q|)`.
+#[inline]
+fn edge<F: Float>(img: &[F], ci: usize, p: usize, q: usize) -> F {
+    let mut d = F::ZERO;
+    for c in 0..ci {
+        d += (img[p * ci + c] - img[q * ci + c]).abs();
+    }
+    (-(d / F::from_f64(ci as f64))).exp()
+}
+
+/// [`edge_aware_smoothness`] as one serial loop over pixels and their left and upper edges: the
+/// oracle of the parallel version.
+#[allow(clippy::too_many_arguments)]
+pub fn edge_aware_smoothness_serial<F: Float>(
     a: &[F],
     ca: usize,
     img: &[F],
@@ -20,19 +102,12 @@ pub fn edge_aware_smoothness<F: Float>(
 ) -> F {
     let n = F::from_f64((width * height * ca) as f64);
     let two = F::from_f64(2.0);
-    let edge = |p: usize, q: usize| {
-        let mut d = F::ZERO;
-        for c in 0..ci {
-            d += (img[p * ci + c] - img[q * ci + c]).abs();
-        }
-        (-(d / F::from_f64(ci as f64))).exp()
-    };
     let mut loss = 0.0f64;
     for y in 0..height {
         for x in 0..width {
             let p = y * width + x;
             for q in [(x > 0).then(|| p - 1), (y > 0).then(|| p - width)].into_iter().flatten() {
-                let e = edge(p, q);
+                let e = edge(img, ci, p, q);
                 for c in 0..ca {
                     let d = a[p * ca + c] - a[q * ca + c];
                     loss += (e * d * d).to_f64();
@@ -95,6 +170,26 @@ mod tests {
         let l_flat = edge_aware_smoothness(&a2, 1, &flat, 1, 2, 1, 1.0, &mut s);
         let l_edge = edge_aware_smoothness(&a2, 1, &edged, 1, 2, 1, 1.0, &mut s);
         assert!(l_edge < 0.4 * l_flat);
+    }
+
+    /// The parallel version adds the same edge gradients in the serial loop's order: the same
+    /// bits in `v_a` (which starts non-zero, as in the stage-2 objective), on odd sizes and
+    /// single rows or columns; the loss to f64 rounding.
+    #[test]
+    fn parallel_is_the_serial_loop() {
+        let mut rng = Rng::new(17);
+        for (w, h, ca, ci) in [(37usize, 23usize, 3usize, 3usize), (64, 9, 1, 3), (1, 11, 3, 1), (13, 1, 1, 1)] {
+            let a: Vec<f32> = (0..w * h * ca).map(|_| rng.uniform()).collect();
+            let img: Vec<f32> = (0..w * h * ci).map(|_| rng.uniform()).collect();
+            let start: Vec<f32> = (0..a.len()).map(|_| rng.normal()).collect();
+            let (mut par, mut ser) = (start.clone(), start.clone());
+            let lp = edge_aware_smoothness(&a, ca, &img, ci, w, h, 0.3, &mut par);
+            let ls = edge_aware_smoothness_serial(&a, ca, &img, ci, w, h, 0.3, &mut ser);
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+            assert_eq!(bits(&par), bits(&ser), "{w}x{h}x{ca}: gradients");
+            assert!(par != start || w * h == 1, "{w}x{h}: no gradient");
+            assert!((lp - ls).abs() <= 1e-6 * ls.abs(), "{w}x{h}: loss {lp} vs {ls}");
+        }
     }
 
     #[test]
