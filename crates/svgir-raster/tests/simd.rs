@@ -137,6 +137,22 @@ fn colors<T>(data: &[T], cm: usize) -> ColorSourceOf<'_, T> {
 /// this CPU: images bit-identical, gradients as close to f64 as the scalar f32 ones. Returns the
 /// number of SIMD paths checked.
 fn check_scene(seed: u64, n: usize, res: u32, tile: u32, dist: bool, geometry: bool, feat: Option<Feat>) -> usize {
+    check_scene_tiles(seed, n, res, tile, &[], dist, geometry, feat)
+}
+
+/// [`check_scene`], and also every path of this CPU (the scalar one included) at each tile side
+/// of `other_tiles`, against the scalar render at `tile`.
+#[allow(clippy::too_many_arguments)]
+fn check_scene_tiles(
+    seed: u64,
+    n: usize,
+    res: u32,
+    tile: u32,
+    other_tiles: &[u32],
+    dist: bool,
+    geometry: bool,
+    feat: Option<Feat>,
+) -> usize {
     let paths: Vec<Simd> = Simd::available().into_iter().filter(|&p| p != Simd::Scalar).collect();
     let surfels = scene(seed, n);
     let camera = bench_camera(res, res);
@@ -188,13 +204,14 @@ fn check_scene(seed: u64, n: usize, res: u32, tile: u32, dist: bool, geometry: b
     if ce > 0 {
         assert!(g0.v_extra.iter().any(|&x| x != 0.0), "seed {seed}: no extra-feature gradient");
     }
-    for &path in &paths {
-        let what = format!("seed {seed} {}", path.name());
-        let cfg = RasterConfig { simd: path, ..cfg };
+    let others = Simd::available().into_iter().flat_map(|p| other_tiles.iter().map(move |&t| (p, t)));
+    for (path, t) in paths.iter().map(|&p| (p, tile)).chain(others) {
+        let what = format!("seed {seed} {} tile {t}", path.name());
+        let cfg = RasterConfig { simd: path, tile: t, ..cfg };
         let (out, st) = render(&input, &cfg);
         same_images(&what, &out, &out0);
         assert_eq!(out.extra, out0.extra, "{what}: extra");
-        assert_eq!(st.num_tile_entries(), st0.num_tile_entries());
+        assert_eq!(st.num_tile_entries() == st0.num_tile_entries(), t == tile, "{what}: entries");
         let g = backward(&input, &cfg, &st, &out, &grads);
         same_grads(&what, &g, &g0, &g64);
     }
@@ -241,64 +258,11 @@ fn simd_feature_paths_match_scalar() {
 }
 
 /// The tile side changes no image bit -- every pixel composites the same Gaussians in the same
-/// order -- on every path; gradients change only by the rounding of the per-entry sums, so each
-/// tile size's stay as close to the f64 oracle as the 16-px scalar ones.
+/// order -- on every path, the scalar one included; gradients change only by the rounding of the
+/// per-entry sums, so each tile size's stay as close to the f64 oracle as the 16-px scalar ones.
 #[test]
 fn tile_size_changes_no_image_bit() {
-    let (n, res) = (3000, 97u32);
-    let surfels = scene(41, n);
-    let camera = bench_camera(res, res);
-    let npx = (res * res) as usize;
-    let (g3, g1, _) = upstream_grads(npx, 0);
-    let grads = OutputGrads {
-        color: Some(&g3),
-        alpha: Some(&g1),
-        depth: Some(&g1),
-        normal: Some(&g3),
-        distortion: Some(&g1),
-        extra: None,
-    };
-    let input = RenderInput {
-        surfels: &surfels,
-        camera: &camera,
-        colors: ColorSourceOf::Sh,
-        extra: None,
-        background: Background::Color([0.3, 0.6, 0.1]),
-    };
-    let base = RasterConfig { tile: 16, simd: Simd::Scalar, ..Default::default() };
-    let (out0, st0) = render(&input, &base);
-    let g0 = backward(&input, &base, &st0, &out0, &grads);
-    let p64 = P64::from_surfels(&surfels);
-    let f = |v: &[f32]| v.iter().map(|&x| f64::from(x)).collect::<Vec<f64>>();
-    let (a3, a1) = (f(&g3), f(&g1));
-    let input64 = RenderInputOf {
-        surfels: &p64,
-        camera: &camera,
-        colors: ColorSourceOf::Sh,
-        extra: None,
-        background: BackgroundOf::Color([0.3, 0.6, 0.1]),
-    };
-    let grads64 = OutputGradsOf {
-        color: Some(&a3[..]),
-        alpha: Some(&a1[..]),
-        depth: Some(&a1[..]),
-        normal: Some(&a3[..]),
-        distortion: Some(&a1[..]),
-        extra: None,
-    };
-    let (out64, st64) = render_generic(&input64, &base);
-    let g64 = backward_generic(&input64, &base, &st64, &out64, &grads64);
-    for path in Simd::available() {
-        for tile in [8u32, 32, 64] {
-            let what = format!("{} tile {tile}", path.name());
-            let cfg = RasterConfig { tile, simd: path, ..base };
-            let (out, st) = render(&input, &cfg);
-            same_images(&what, &out, &out0);
-            assert_ne!(st.num_tile_entries(), st0.num_tile_entries(), "{what}: the tiling did not change");
-            let g = backward(&input, &cfg, &st, &out, &grads);
-            same_grads(&what, &g, &g0, &g64);
-        }
-    }
+    check_scene_tiles(41, 3000, 97, 16, &[8, 32, 64], true, true, None);
 }
 
 /// `RasterConfig::geometry = false` on every path: colour, alpha, distortion, weights and
