@@ -42,7 +42,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         profile: train::ProfileArg::Auto,
         background: Some(train::Bg::Black),
         exposure: false,
-        view_order: train::ViewOrderArg::Epochs,
+        view_order: None,
         sh_degree: None,
         distortion_from: 0,
         init_ply: None,

@@ -127,7 +127,7 @@ fn train_reconstruction(args: &MasksArgs) -> Result<PathBuf> {
         profile: train::ProfileArg::Capture,
         background: None,
         exposure: false,
-        view_order: train::ViewOrderArg::Epochs,
+        view_order: None,
         sh_degree: None,
         distortion_from: 0,
         init_ply: None,

@@ -81,9 +81,10 @@ pub struct TrainArgs {
     #[arg(long)]
     pub exposure: bool,
     /// How each iteration's training view is drawn: each view once per epoch in a shuffled order
-    /// (3DGS), or independently at random.
-    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, value_enum, default_value_t = ViewOrderArg::Epochs)]
-    pub view_order: ViewOrderArg,
+    /// (3DGS), or independently at random. Default: the profile's (independent for `object`,
+    /// where it measured better after stage 2; by epoch for `views` and `capture`, as 3DGS).
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, value_enum)]
+    pub view_order: Option<ViewOrderArg>,
     /// Initial surfels from a point-cloud PLY instead of the dataset's points / a random box.
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub init_ply: Option<PathBuf>,
@@ -205,10 +206,12 @@ fn make_config(args: &TrainArgs, dataset: &Dataset) -> Result<(Stage1Config, &'s
         };
     }
     c.exposure = args.exposure;
-    c.view_order = match args.view_order {
-        ViewOrderArg::Epochs => ViewOrder::Epochs,
-        ViewOrderArg::Uniform => ViewOrder::Uniform,
-    };
+    if let Some(v) = args.view_order {
+        c.view_order = match v {
+            ViewOrderArg::Epochs => ViewOrder::Epochs,
+            ViewOrderArg::Uniform => ViewOrder::Uniform,
+        };
+    }
     c.distortion_from = args.distortion_from;
     if let Some(d) = args.sh_degree {
         c.max_sh_degree = d;
