@@ -52,6 +52,8 @@ pub fn edge_aware_smoothness<F: Float>(
             }
             loss
         })
+        // Row sums collected and added in row order: the same loss for any thread count
+        // (a rayon `sum` would depend on how the rows were split).
         .collect::<Vec<f64>>()
         .iter()
         .sum();
