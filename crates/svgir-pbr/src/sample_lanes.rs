@@ -21,8 +21,9 @@
 #![allow(unsafe_op_in_unsafe_fn)]
 
 #[cfg(test)]
-use crate::shade::half_to_f32;
-use crate::shade::{FibTable, Frame, Indirect, Sample, ShadeInputs};
+use crate::shade::{half_to_f32, Sample};
+use crate::shade::{FibTable, Frame, Indirect, ShadeInputs};
+use crate::shade_backward::light_grads;
 use core::arch::x86_64::*;
 use svgir_core::envmap::Taps;
 use svgir_trace::DirectionCache;
@@ -46,13 +47,6 @@ pub(crate) struct Samples8 {
 }
 
 impl Samples8 {
-    /// Lane l's direction, direct light and indirect light.
-    #[inline(always)]
-    pub(crate) fn rows(&self, l: usize) -> ([f32; 3], [f32; 3], [f32; 3]) {
-        let g = |a: &[[f32; LANES]; 3]| [a[0][l], a[1][l], a[2][l]];
-        (g(&self.dir), g(&self.direct), self.ind[l])
-    }
-
     /// Writes the direction, direct and indirect light of the lanes that are samples, in lane
     /// order, to rows `n..` of `dir`, `direct` and `ind` (which hold at least `n + 8`); returns
     /// the next free row. All eight (the common case) are copied as whole rows.
@@ -89,10 +83,38 @@ impl Samples8 {
         n
     }
 
-    /// Lane l as the scalar [`Sample`].
+    /// The light gradients of the lanes that are samples, in lane order, with `dL/dLin` from
+    /// rows `k..` of `v_lin` ([`light_grads`] per sample, as the scalar loop); returns the next
+    /// row. Reads the lanes in place instead of building each lane's [`Sample`].
+    #[inline(always)]
+    pub(crate) fn light_grads(
+        &self,
+        v_lin: &[Vec<f32>; 3],
+        k: usize,
+        scale: f32,
+        v_env: &mut [[f32; 3]],
+        v_rho: &mut f32,
+    ) -> usize {
+        let mut k = k;
+        let mut y = self.yields;
+        while y != 0 {
+            let l = y.trailing_zeros() as usize;
+            y &= y - 1;
+            let taps = Taps { index: self.index.map(|t| t[l]), weight: self.weight.map(|t| t[l]) };
+            let live = [0, 1, 2].map(|c| self.live[c][l] != 0.0);
+            let g = [v_lin[0][k], v_lin[1][k], v_lin[2][k]];
+            light_grads(self.vis[l], live, &taps, self.traced[l], g, scale, v_env, v_rho);
+            k += 1;
+        }
+        k
+    }
+
+    /// Lane l as the scalar [`Sample`] (the tests compare it with the scalar kernel's).
+    #[cfg(test)]
     #[inline(always)]
     pub(crate) fn sample(&self, l: usize) -> Sample<f32> {
-        let (dir, direct, ind) = self.rows(l);
+        let g = |a: &[[f32; LANES]; 3]| [a[0][l], a[1][l], a[2][l]];
+        let (dir, direct, ind) = (g(&self.dir), g(&self.direct), self.ind[l]);
         Sample {
             dir,
             vis: self.vis[l],

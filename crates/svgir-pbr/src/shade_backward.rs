@@ -82,17 +82,7 @@ fn backward_gaussian<F: Float>(
                 vn[mm][d] += cos * sg.v_n[d] * sum_gl + s.dir[d] * sum_glf;
             }
         }
-        if s.vis > F::ZERO {
-            for c in 0..3 {
-                if s.live[c] {
-                    let gv = scale * s.vis * v_lin[c];
-                    for t in 0..4 {
-                        v_env[s.taps.index[t] as usize][c] += F::from_f32(s.taps.weight[t]) * gv;
-                    }
-                }
-            }
-        }
-        *v_rho += scale * (v_lin[0] * s.traced[0] + v_lin[1] * s.traced[1] + v_lin[2] * s.traced[2]);
+        light_grads(s.vis, s.live, &s.taps, s.traced, v_lin, scale, v_env, v_rho);
     }
     for mm in 0..m {
         // Layered diffuse: `q = sum_c g_c a_c/pi E_c` times dt/dr and dt/d(n.v) w_o.
@@ -193,4 +183,32 @@ pub fn shade_backward_cached<F: Float>(
         grads.v_rho += v_rho;
     }
     Ok(grads)
+}
+
+/// One sample's share of the light gradients (SPEC 4): `dL/dLin` (`v_lin`, per channel) times
+/// V to the four env taps of the channels inside the clamp, and times the traced radiance to
+/// rho. The scalar and the lane kernels both call it, sample by sample in the scalar order.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn light_grads<F: Float>(
+    vis: F,
+    live: [bool; 3],
+    taps: &svgir_core::envmap::Taps,
+    traced: [F; 3],
+    v_lin: [F; 3],
+    scale: F,
+    v_env: &mut [[F; 3]],
+    v_rho: &mut F,
+) {
+    if vis > F::ZERO {
+        for c in 0..3 {
+            if live[c] {
+                let gv = scale * vis * v_lin[c];
+                for t in 0..4 {
+                    v_env[taps.index[t] as usize][c] += F::from_f32(taps.weight[t]) * gv;
+                }
+            }
+        }
+    }
+    *v_rho += scale * (v_lin[0] * traced[0] + v_lin[1] * traced[1] + v_lin[2] * traced[2]);
 }

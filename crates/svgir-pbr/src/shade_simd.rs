@@ -26,8 +26,9 @@
 // through `Simd::resolve`) -- so the operations inside need no block of their own.
 #![allow(unsafe_op_in_unsafe_fn)]
 
-use crate::sample_lanes::{samples8, serves, LANES};
+use crate::sample_lanes::{samples8, serves, Samples8, LANES};
 use crate::shade::{gaussian, light_samples, sample, samples, FibTable, Frame, Sample, ShadeInputs};
+use crate::shade_backward::light_grads;
 use svgir_core::simd::{Lanes, F8};
 use svgir_shading::split_lanes::{cdot, dot_l, lobe_l, spec_grad_lanes, spec_lanes};
 use svgir_shading::tri;
@@ -47,7 +48,9 @@ pub(crate) struct SampleRows {
     direct: [Vec<f32>; 3],
     ind: [Vec<f32>; 3],
     /// Backward only: the samples themselves (visibility, clamp, taps, traced radiance) for the
-    /// env-map and rho gradients, and `dL/dLin` per sample and channel.
+    /// env-map and rho gradients -- the lane blocks as they came, then the rest one by one --
+    /// and `dL/dLin` per sample and channel.
+    kept8: Vec<Samples8>,
     kept: Vec<Sample<f32>>,
     v_lin: [Vec<f32>; 3],
 }
@@ -67,6 +70,7 @@ impl SampleRows {
     ) {
         let frame = Frame::new(inp.mb.normals[i], inp.mb.xi[i]);
         self.kept.clear();
+        self.kept8.clear();
         for v in self.rows_mut() {
             v.clear();
         }
@@ -87,12 +91,7 @@ impl SampleRows {
                     let s8 = unsafe { samples8(inp, table, c, &frame, i, k0) };
                     n = s8.write_rows(&mut self.dir, &mut self.direct, &mut self.ind, n);
                     if keep {
-                        let mut y = s8.yields;
-                        while y != 0 {
-                            let l = y.trailing_zeros() as usize;
-                            y &= y - 1;
-                            self.kept.push(s8.sample(l));
-                        }
+                        self.kept8.push(s8);
                     }
                 }
                 for v in [&mut self.dir, &mut self.direct, &mut self.ind].into_iter().flatten() {
@@ -299,19 +298,14 @@ unsafe fn backward_gaussian<L: Lanes>(
         v_rough[mm] = scale * (vr.hsum() + q * dw.v_r);
     }
     // The light gradient per sample, to the env texels and rho (scalar, in sample order).
-    for (k, s) in rows.kept.iter().enumerate() {
+    let mut k = 0;
+    for b in &rows.kept8 {
+        k = b.light_grads(&rows.v_lin, k, scale, v_env, v_rho);
+    }
+    for s in &rows.kept {
         let v_lin = [rows.v_lin[0][k], rows.v_lin[1][k], rows.v_lin[2][k]];
-        if s.vis > 0.0 {
-            for c in 0..3 {
-                if s.live[c] {
-                    let gv = scale * s.vis * v_lin[c];
-                    for t in 0..4 {
-                        v_env[s.taps.index[t] as usize][c] += s.taps.weight[t] * gv;
-                    }
-                }
-            }
-        }
-        *v_rho += scale * (v_lin[0] * s.traced[0] + v_lin[1] * s.traced[1] + v_lin[2] * s.traced[2]);
+        light_grads(s.vis, s.live, &s.taps, s.traced, v_lin, scale, v_env, v_rho);
+        k += 1;
     }
 }
 

@@ -215,19 +215,37 @@ impl BrightLights {
     }
 
     /// The same lights (texels, directions, weights) seen from the hemispheres of other axes,
-    /// e.g. every Gaussian's back side `-n` (two-sided shading): every column traced again.
+    /// e.g. every Gaussian's back side `-n` (two-sided shading). `reuse` holds earlier lights
+    /// for the same axes, surfels and map size (e.g. the back sides' before a re-selection): a
+    /// light of the same texel and direction keeps its column, the others are traced.
     pub fn for_normals<S: HitSource + Sync>(
         &self,
         src: &S,
         surfels: &Surfels,
         normals: &[Vec3],
         p: &TraceParams,
+        reuse: Option<&BrightLights>,
     ) -> Result<Self, TraceError> {
-        if normals.len() != surfels.len() {
-            return Err(TraceError::SizeMismatch { what: "normals", got: normals.len(), want: surfels.len() });
+        let n = surfels.len();
+        if normals.len() != n {
+            return Err(TraceError::SizeMismatch { what: "normals", got: normals.len(), want: n });
         }
+        let reuse = reuse.filter(|r| (r.width, r.height) == (self.width, self.height));
         let mut out = self.clone();
-        out.vis = self.dirs.iter().map(|&d| trace_column(src, surfels, normals, d, p)).collect();
+        out.vis = self
+            .texels
+            .iter()
+            .zip(&self.dirs)
+            .map(|(&t, &d)| {
+                reuse
+                    .and_then(|r| {
+                        r.texels.iter().zip(&r.dirs).position(|(&rt, &rd)| (rt, rd) == (t, d)).map(|b| &r.vis[b])
+                    })
+                    .filter(|v| v.len() == n)
+                    .cloned()
+                    .unwrap_or_else(|| trace_column(src, surfels, normals, d, p))
+            })
+            .collect();
         Ok(out)
     }
 
@@ -444,7 +462,11 @@ mod tests {
         assert_eq!((kept.dirs[0], &kept.vis[0]), (d, &moved.vis[1]));
         // The back side sees the lights behind each Gaussian: the same march, the other horizon.
         let back_n: Vec<Vec3> = mb.normals.iter().map(|n| -*n).collect();
-        let back = moved.for_normals(&bvh, &s, &back_n, &p).unwrap();
+        let back = moved.for_normals(&bvh, &s, &back_n, &p, None).unwrap();
+        // Re-selected lights keep the back columns of the texels and directions they share.
+        let again = kept.for_normals(&bvh, &s, &back_n, &p, Some(&back)).unwrap();
+        assert_eq!(again, kept.for_normals(&bvh, &s, &back_n, &p, None).unwrap());
+        assert_eq!(again.vis[0], back.vis[1]);
         assert_eq!((&back.dirs, &back.texels, &back.solid_angle), (&moved.dirs, &moved.texels, &moved.solid_angle));
         let (mut lit_back, mut both) = (0, 0);
         for b in 0..back.len() {
@@ -461,7 +483,7 @@ mod tests {
             }
         }
         assert!(lit_back > 0 && both == 0, "a light lights one side at most: {lit_back} {both}");
-        assert!(moved.for_normals(&bvh, &s, &back_n[1..], &p).is_err());
+        assert!(moved.for_normals(&bvh, &s, &back_n[1..], &p, None).is_err());
         assert!(lights.with_direction(&bvh, &s, &mb.normals, 4, d, &p).is_err());
         assert!(lights.with_direction(&bvh, &s, &mb.normals, 0, Vec3::ZERO, &p).is_err());
         assert!(BrightLights::trace(&bvh, &s, &mb.normals, &geom, &[128], &p, None).is_err());

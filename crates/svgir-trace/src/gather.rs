@@ -602,7 +602,7 @@ mod tests {
         }
         let texels = brightest_texels(&env, 3);
         let front_lights = BrightLights::trace(&bvh, &surfels, &front.normals, &env, &texels, &tp, None).unwrap();
-        let back_lights = front_lights.for_normals(&bvh, &surfels, &back.normals, &tp).unwrap();
+        let back_lights = front_lights.for_normals(&bvh, &surfels, &back.normals, &tp, None).unwrap();
         let lit_front = HitSide {
             mb: &front,
             mats: VertexMaterials { m, albedo: &albedo, roughness: &roughness, normals: &normals },

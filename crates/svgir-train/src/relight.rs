@@ -118,7 +118,7 @@ impl Relighter {
         };
         let back_lights = match (&self.back, &self.bvh, &lights) {
             (Some((back, _)), Some(bvh), Some(l)) => {
-                Some(l.for_normals(bvh, &s2.surfels, &back.normals, &s2.config.trace_params())?)
+                Some(l.for_normals(bvh, &s2.surfels, &back.normals, &s2.config.trace_params(), None)?)
             }
             _ => None,
         };

@@ -193,7 +193,7 @@ impl Stage2 {
         }
         let bvh = self.bvh.get_or_insert_with(|| Bvh::build(occluders));
         let dir_cache = DirectionCache::new(&mb, &self.env.radiance())?;
-        let lights = self.lights.for_normals(bvh, occluders, &mb.normals, &self.config.trace_params())?;
+        let lights = self.lights.for_normals(bvh, occluders, &mb.normals, &self.config.trace_params(), None)?;
         self.back = Some(BackSide { mb, dir_cache, lights });
         Ok(())
     }
@@ -281,7 +281,7 @@ impl Stage2 {
         let p = self.config.trace_params();
         self.lights = BrightLights::trace(bvh, &occluders, &self.mb.normals, &geom, texels, &p, Some(&self.lights))?;
         if let Some(back) = &mut self.back {
-            back.lights = self.lights.for_normals(bvh, &occluders, &back.mb.normals, &p)?;
+            back.lights = self.lights.for_normals(bvh, &occluders, &back.mb.normals, &p, Some(&back.lights))?;
         }
         self.trace_seconds += t0.elapsed().as_secs_f64();
         Ok(())
