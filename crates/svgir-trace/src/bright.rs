@@ -173,12 +173,9 @@ impl BrightLights {
         let columns = texels
             .iter()
             .map(|&t| {
-                let reused = reuse
-                    .filter(|r| r.width == geom.width && r.height == geom.height)
-                    .and_then(|r| r.texels.iter().position(|&x| x == t).map(|b| (r.dirs[b], r.vis[b].clone())))
-                    .filter(|(_, v)| v.len() == n);
-                if let Some(c) = reused {
-                    return c;
+                let reused = reuse.and_then(|r| Some((r, r.reusable(geom.width, geom.height, t, None, n)?)));
+                if let Some((r, b)) = reused {
+                    return (r.dirs[b], r.vis[b].clone());
                 }
                 if t >= geom.width * geom.height {
                     return (Vec3::Z, Vec::new()); // rejected by `assemble`
@@ -230,7 +227,6 @@ impl BrightLights {
         if normals.len() != n {
             return Err(TraceError::SizeMismatch { what: "normals", got: normals.len(), want: n });
         }
-        let reuse = reuse.filter(|r| (r.width, r.height) == (self.width, self.height));
         let mut out = self.clone();
         out.vis = self
             .texels
@@ -238,15 +234,21 @@ impl BrightLights {
             .zip(&self.dirs)
             .map(|(&t, &d)| {
                 reuse
-                    .and_then(|r| {
-                        r.texels.iter().zip(&r.dirs).position(|(&rt, &rd)| (rt, rd) == (t, d)).map(|b| &r.vis[b])
-                    })
-                    .filter(|v| v.len() == n)
-                    .cloned()
+                    .and_then(|r| Some(r.vis[r.reusable(self.width, self.height, t, Some(d), n)?].clone()))
                     .unwrap_or_else(|| trace_column(src, surfels, normals, d, p))
             })
             .collect();
         Ok(out)
+    }
+
+    /// Which of these lights, made for a `width x height` map, is texel `t` (along `dir` when
+    /// given: a moved sun is another light) with a visibility column for `n` Gaussians.
+    fn reusable(&self, width: u32, height: u32, t: u32, dir: Option<Vec3>, n: usize) -> Option<usize> {
+        if (self.width, self.height) != (width, height) {
+            return None;
+        }
+        let b = self.texels.iter().zip(&self.dirs).position(|(&x, &d)| x == t && dir.is_none_or(|dir| d == dir))?;
+        (self.vis[b].len() == n).then_some(b)
     }
 
     /// Lights at `texels` with given visibility columns (`columns[b][j]` in [0, 1], e.g. from
