@@ -21,7 +21,9 @@ use crate::forward::{background_at, split_lens, FeatView};
 use crate::interp::{normalised_coord, weight_grads, weights, MAX_VERTICES};
 use crate::phases::Stopwatch;
 use crate::preprocess::Cam;
-use crate::preprocess_backward::{gaussian_backward, SplatGradSum};
+use crate::preprocess::Splat;
+use crate::preprocess_backward::{assume_init, gaussian_backward, uninit_vec, GradSlots, ParamGrad, SplatGradSum};
+use crate::preprocess_backward_simd::{gaussian_backward_block, Inputs, BLOCK};
 use crate::real::Real;
 use crate::splat::{eval_row, hit_from_row, intersect_backward, row_offsets, row_setup, RowEval, SplatGrad};
 use crate::tiles::{EntryBox, TileBins, TileRec};
@@ -126,45 +128,70 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     let mut sums = vec![[F::ZERO; OFF_COL + 3]; n];
     sums.par_iter_mut().enumerate().with_min_len(1024).for_each(|(g, acc)| sum_entries(g, 0, hi, &mut acc[..hi]));
     sw.lap("reduce");
-    // Zeroed by the allocator (calloc), not element by element: a serial fill of the 19 MB of SH
-    // rows cost as much as the parallel pass below.
-    let mut v_positions: Vec<F::V3> = bytemuck::zeroed_vec(n);
-    let mut v_rotations: Vec<F::Q> = bytemuck::zeroed_vec(n);
-    let mut v_log_scales: Vec<F::V2> = bytemuck::zeroed_vec(n);
-    let mut v_opacity_logits = vec![F::ZERO; n];
-    let mut v_sh: Vec<F::Sh> = bytemuck::zeroed_vec(n);
-    let mut v_mean2d_norm = vec![F::ZERO; n];
+    let mut v_positions = uninit_vec::<F::V3>(n);
+    let mut v_rotations = uninit_vec::<F::Q>(n);
+    let mut v_log_scales = uninit_vec::<F::V2>(n);
+    let mut v_opacity_logits = uninit_vec::<F>(n);
+    let mut v_sh = uninit_vec::<F::Sh>(n);
+    let mut v_mean2d_norm = uninit_vec::<F>(n);
+    // Eight Gaussians per block: the SIMD path runs them in lanes, the scalar one by one.
+    let path = if crate::simd::is_f32::<F>() { cfg.simd.resolve() } else { crate::Simd::Scalar };
     v_positions
-        .par_iter_mut()
-        .zip(v_rotations.par_iter_mut())
-        .zip(v_log_scales.par_iter_mut())
-        .zip(v_opacity_logits.par_iter_mut())
-        .zip(v_sh.par_iter_mut())
-        .zip(v_mean2d_norm.par_iter_mut())
+        .par_chunks_mut(BLOCK)
+        .zip(v_rotations.par_chunks_mut(BLOCK))
+        .zip(v_log_scales.par_chunks_mut(BLOCK))
+        .zip(v_opacity_logits.par_chunks_mut(BLOCK))
+        .zip(v_sh.par_chunks_mut(BLOCK))
+        .zip(v_mean2d_norm.par_chunks_mut(BLOCK))
         .enumerate()
-        .with_min_len(256)
-        .for_each(|(g, (((((vp, vr), vs), vo), vsh), vm))| {
-            let splat = &state.splats[g];
-            if !splat.visible() {
-                return;
+        .with_min_len(32)
+        .for_each(|(b, (((((position, rotation), log_scale), opacity_logit), sh), mean2d_norm))| {
+            let mut out = GradSlots::<F> { position, rotation, log_scale, opacity_logit, sh, mean2d_norm };
+            let (g0, m) = (b * BLOCK, out.len());
+            let splats = &state.splats[g0..g0 + m];
+            if path != crate::Simd::Scalar {
+                let x = Inputs::gather(input.surfels, splats, &sums[g0..g0 + m], sh_mode, g0);
+                // SAFETY: `path` is only a SIMD one when `F` is `f32` (above), so these are the
+                // same types.
+                let (cam32, splats32, out32) = unsafe {
+                    (
+                        &*(&cam as *const Cam<F> as *const Cam<f32>),
+                        &*(splats as *const [Splat<F>] as *const [Splat<f32>]),
+                        &mut *(&mut out as *mut GradSlots<F> as *mut GradSlots<f32>),
+                    )
+                };
+                if gaussian_backward_block(path, &x, cam32, splats32, out32) {
+                    return;
+                }
             }
-            let acc = &sums[g];
-            let mut sg = SplatGradSum::<F>::default();
-            sg.h.copy_from_slice(&acc[OFF_H..OFF_H + 9]);
-            sg.center.copy_from_slice(&acc[OFF_C..OFF_C + 2]);
-            sg.opacity = acc[OFF_OP];
-            sg.normal.copy_from_slice(&acc[OFF_N..OFF_N + 3]);
-            sg.color.copy_from_slice(&acc[OFF_COL..OFF_COL + 3]);
-            let pg = gaussian_backward(input.surfels, &cam, splat, &sg, sh_mode, g);
-            *vp = F::v3(pg.position);
-            *vr = F::quat(pg.rotation);
-            *vs = F::v2(pg.log_scale);
-            *vo = pg.opacity_logit;
-            if sh_mode {
-                *vsh = F::sh(&pg.sh);
+            for (l, splat) in splats.iter().enumerate() {
+                if !splat.visible() {
+                    out.put(l, &ParamGrad::default(), false);
+                    continue;
+                }
+                let g = g0 + l;
+                let acc = &sums[g];
+                let mut sg = SplatGradSum::<F>::default();
+                sg.h.copy_from_slice(&acc[OFF_H..OFF_H + 9]);
+                sg.center.copy_from_slice(&acc[OFF_C..OFF_C + 2]);
+                sg.opacity = acc[OFF_OP];
+                sg.normal.copy_from_slice(&acc[OFF_N..OFF_N + 3]);
+                sg.color.copy_from_slice(&acc[OFF_COL..OFF_COL + 3]);
+                out.put(l, &gaussian_backward(input.surfels, &cam, splat, &sg, sh_mode, g), sh_mode);
             }
-            *vm = pg.mean2d_norm;
         });
+    // SAFETY: every block wrote each of its slots once (`GradSlots::put`, or the lane kernel's
+    // stores, which also cover every slot).
+    let (v_positions, v_rotations, v_log_scales, v_opacity_logits, v_sh, v_mean2d_norm) = unsafe {
+        (
+            assume_init(v_positions),
+            assume_init(v_rotations),
+            assume_init(v_log_scales),
+            assume_init(v_opacity_logits),
+            assume_init(v_sh),
+            assume_init(v_mean2d_norm),
+        )
+    };
 
     sw.lap("gaussians");
     let feature_grads = |fv: &FeatView<F>, lo: usize| -> Vec<F> {

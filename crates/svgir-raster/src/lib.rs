@@ -23,6 +23,7 @@ pub mod interp;
 pub mod phases;
 pub mod preprocess;
 pub mod preprocess_backward;
+mod preprocess_backward_simd;
 pub mod real;
 pub mod reference;
 pub mod simd;
