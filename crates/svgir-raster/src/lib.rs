@@ -24,6 +24,7 @@ pub mod phases;
 pub mod preprocess;
 pub mod preprocess_backward;
 mod preprocess_backward_simd;
+mod preprocess_simd;
 pub mod real;
 pub mod reference;
 pub mod simd;

@@ -21,9 +21,11 @@
 // Negated comparisons are deliberate: they also reject NaN.
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
+use crate::preprocess_simd::BLOCK;
 use crate::real::{dot3, matvec, sub3, Real};
 use crate::{ColorSourceOf, GaussianParams, RasterConfig};
 use rayon::prelude::*;
+use std::mem::MaybeUninit;
 use svgir_core::Camera;
 
 /// Support cut-off in sigma units (SPEC 1).
@@ -148,6 +150,42 @@ pub fn preprocess<F: Real, P: GaussianParams<F> + ?Sized>(
 ) -> (Vec<Splat<F>>, Vec<[F; 3]>) {
     let n = params.count();
     let want_sh = matches!(colors, ColorSourceOf::Sh);
+    let path = if crate::simd::is_f32::<F>() { cfg.simd.resolve() } else { crate::Simd::Scalar };
+    if path != crate::Simd::Scalar {
+        // Eight Gaussians per block, in lanes, colours included.
+        let mut splats = uninit_vec::<Splat<F>>(n);
+        let mut colors = uninit_vec::<[F; 3]>(if want_sh { n } else { 0 });
+        // SAFETY: `path` is only a SIMD one when `F` is `f32` (above): the same type.
+        let cam32 = unsafe { &*(cam as *const Cam<F> as *const Cam<f32>) };
+        let run = |b: usize, out: &mut [MaybeUninit<Splat<F>>], rgb: Option<&mut [MaybeUninit<[F; 3]>]>| {
+            // SAFETY: `path` is only a SIMD one when `F` is `f32` (above), so these are the
+            // same types.
+            let done = unsafe {
+                crate::preprocess_simd::project_block(
+                    path,
+                    params,
+                    cam32,
+                    cfg,
+                    b * BLOCK,
+                    &mut *(out as *mut [MaybeUninit<Splat<F>>] as *mut [MaybeUninit<Splat<f32>>]),
+                    rgb.map(|c| &mut *(c as *mut [MaybeUninit<[F; 3]>] as *mut [MaybeUninit<[f32; 3]>])),
+                )
+            };
+            assert!(done, "a SIMD path without a lane preprocess");
+        };
+        if want_sh {
+            splats
+                .par_chunks_mut(BLOCK)
+                .zip(colors.par_chunks_mut(BLOCK))
+                .enumerate()
+                .with_min_len(128)
+                .for_each(|(b, (out, rgb))| run(b, out, Some(rgb)));
+        } else {
+            splats.par_chunks_mut(BLOCK).enumerate().with_min_len(128).for_each(|(b, out)| run(b, out, None));
+        }
+        // SAFETY: every block wrote each of its slots.
+        return unsafe { (assume_init(splats), assume_init(colors)) };
+    }
     let mut splats: Vec<Splat<F>> = (0..n)
         .into_par_iter()
         .with_min_len(1024)
@@ -312,4 +350,22 @@ pub fn sh_color<F: Real, P: GaussianParams<F> + ?Sized>(params: &P, cam: &Cam<F>
         }
     }
     (c, clamped)
+}
+
+/// A vector of `n` slots to be written once each (the per-Gaussian outputs of the preprocess and its backward), then [`assume_init`]ed.
+pub(crate) fn uninit_vec<T>(n: usize) -> Vec<MaybeUninit<T>> {
+    let mut v = Vec::with_capacity(n);
+    // SAFETY: `MaybeUninit` needs no initialisation, and the capacity is `n`.
+    unsafe { v.set_len(n) };
+    v
+}
+
+/// The vector of a [`uninit_vec`] whose every slot has been written.
+///
+/// # Safety
+/// Every element of `v` is initialised.
+pub(crate) unsafe fn assume_init<T>(v: Vec<MaybeUninit<T>>) -> Vec<T> {
+    let mut v = std::mem::ManuallyDrop::new(v);
+    // SAFETY: `MaybeUninit<T>` has `T`'s layout, and the caller vouches for the contents.
+    unsafe { Vec::from_raw_parts(v.as_mut_ptr() as *mut T, v.len(), v.capacity()) }
 }

@@ -204,21 +204,3 @@ impl<F: Real> GradSlots<'_, F> {
         self.mean2d_norm[l].write(pg.mean2d_norm);
     }
 }
-
-/// A vector of `n` slots to be written once each ([`GradSlots`]), then [`assume_init`]ed.
-pub(crate) fn uninit_vec<T>(n: usize) -> Vec<MaybeUninit<T>> {
-    let mut v = Vec::with_capacity(n);
-    // SAFETY: `MaybeUninit` needs no initialisation, and the capacity is `n`.
-    unsafe { v.set_len(n) };
-    v
-}
-
-/// The vector of a [`uninit_vec`] whose every slot has been written.
-///
-/// # Safety
-/// Every element of `v` is initialised.
-pub(crate) unsafe fn assume_init<T>(v: Vec<MaybeUninit<T>>) -> Vec<T> {
-    let mut v = std::mem::ManuallyDrop::new(v);
-    // SAFETY: `MaybeUninit<T>` has `T`'s layout, and the caller vouches for the contents.
-    unsafe { Vec::from_raw_parts(v.as_mut_ptr() as *mut T, v.len(), v.capacity()) }
-}

@@ -416,7 +416,8 @@ mod tests {
     use super::*;
     use crate::bench::{bench_camera, random_scene};
     use crate::preprocess::preprocess;
-    use crate::preprocess_backward::{assume_init, gaussian_backward, uninit_vec, SplatGradSum};
+    use crate::preprocess::{assume_init, uninit_vec};
+    use crate::preprocess_backward::{gaussian_backward, SplatGradSum};
     use crate::{ColorSourceOf, RasterConfig};
     use svgir_core::Rng;
 

@@ -101,8 +101,7 @@ impl RowConic {
             2.0 * dot(beta, gamma) / a,
             dot(beta, beta) / a,
         ];
-        let bounded = a > 0.0 && k.iter().all(|v| v.is_finite() && v.abs() < 1e30);
-        Self { k: k.map(|v| v as f32), disk_r2: (0.5 * rho_max) as f32, bounded }
+        Self::from_coefficients(k, rho_max, a > 0.0)
     }
 
     /// The pixels `[lo, hi)` of `[x0, x1)` on the row with centre `y` that can pass the cut, for
@@ -114,6 +113,14 @@ impl RowConic {
         }
         let (lo, hi) = self.chord(c, y);
         chord_pixels(lo, hi, x0, x1)
+    }
+
+    /// The record [`RowConic::new`] makes of its coefficients (`[B0, B1, C0, C1, C2] / A` in
+    /// f64), the cut and whether `A > 0`, for a lane version of it.
+    #[inline(always)]
+    pub(crate) fn from_coefficients(k: [f64; 5], rho_max: f64, a_positive: bool) -> Self {
+        let bounded = a_positive && k.iter().all(|v| v.is_finite() && v.abs() < 1e30);
+        Self { k: k.map(|v| v as f32), disk_r2: (0.5 * rho_max) as f32, bounded }
     }
 
     /// Whether the chords are bounded (else every pixel of the box may pass).
