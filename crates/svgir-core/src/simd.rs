@@ -175,6 +175,10 @@ pub trait Lanes: Copy {
     unsafe fn div(self, o: Self) -> Self;
     /// Correctly rounded square root (as `f32::sqrt`).
     unsafe fn sqrt(self) -> Self;
+    /// Rounded toward zero (as `f32::trunc`).
+    unsafe fn trunc(self) -> Self;
+    /// The lanes truncated to i32 (as `v as i32` for values in its range), stored to `p`.
+    unsafe fn store_i32(self, p: *mut i32);
     unsafe fn lt(self, o: Self) -> Self::M;
     unsafe fn le(self, o: Self) -> Self::M;
     unsafe fn gt(self, o: Self) -> Self::M;
@@ -288,6 +292,14 @@ mod x86 {
             #[inline(always)]
             unsafe fn sqrt(self) -> Self {
                 $t(_mm256_sqrt_ps(self.0))
+            }
+            #[inline(always)]
+            unsafe fn trunc(self) -> Self {
+                $t(_mm256_round_ps::<{ _MM_FROUND_TO_ZERO | _MM_FROUND_NO_EXC }>(self.0))
+            }
+            #[inline(always)]
+            unsafe fn store_i32(self, p: *mut i32) {
+                _mm256_storeu_si256(p as *mut __m256i, _mm256_cvttps_epi32(self.0))
             }
             #[inline(always)]
             unsafe fn hsum(self) -> f32 {

@@ -375,11 +375,11 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool>(
         let mut sm = Sums::<S>::zero();
         groups.list::<S>(s, &tr, row_act, stride);
         let mut any = false;
-        for gr in &groups.wide {
-            any |= k.group::<DIST, FEAT, false>(gr, &mut sm, &mut fsum);
+        for gr in groups.wide() {
+            any |= k.group::<DIST, FEAT, false>(&gr, &mut sm, &mut fsum);
         }
-        for gr in &groups.packed {
-            any |= k.group::<DIST, FEAT, true>(gr, &mut sm, &mut fsum);
+        for gr in groups.packed() {
+            any |= k.group::<DIST, FEAT, true>(&gr, &mut sm, &mut fsum);
         }
         if !any {
             continue;

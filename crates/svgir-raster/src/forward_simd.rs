@@ -175,16 +175,23 @@ impl Group {
     }
 }
 
-/// The lane groups of one entry: `wide` and `packed` (see [`Group`]). Every pixel of the entry
-/// lies in exactly one group, so the two lists may run in either order.
+/// The lane groups of one entry: `wide` and `packed` (see [`Group`]), as indices into the
+/// entry's row pieces; [`Groups::wide`] and [`Groups::packed`] build each group as it is used.
+/// Every pixel of the entry lies in exactly one group, so the two lists may run in either order.
 pub(crate) struct Groups {
-    pub wide: Vec<Group>,
-    pub packed: Vec<Group>,
-    /// The short pieces of the entry being listed, to be paired.
-    short: Vec<Piece>,
-    /// The row chords of the entry's box rows ([`chord_lanes`]).
-    lo: Vec<f32>,
-    hi: Vec<f32>,
+    /// The row pieces of the entry (at most `n` pixels each).
+    pieces: Vec<Piece>,
+    /// Pieces that are wide groups on their own.
+    wide: Vec<u16>,
+    /// Pairs of short pieces, each a packed group.
+    packed: Vec<[u16; 2]>,
+    /// The short pieces, to be paired.
+    short: Vec<u16>,
+    /// Lanes per group of the last listing.
+    n: usize,
+    /// The row chords' pixels `[xa, xb)` of the entry's box rows ([`chord_pixels_lanes`]).
+    xa: Vec<i32>,
+    xb: Vec<i32>,
 }
 
 impl Groups {
@@ -192,7 +199,33 @@ impl Groups {
     pub(crate) fn new(tile: usize) -> Self {
         // Chords are stored a whole lane group at a time.
         let len = tile + MAX_LANES;
-        Self { wide: Vec::new(), packed: Vec::new(), short: Vec::new(), lo: vec![0.0; len], hi: vec![0.0; len] }
+        Self {
+            pieces: Vec::new(),
+            wide: Vec::new(),
+            packed: Vec::new(),
+            short: Vec::new(),
+            n: 1,
+            xa: vec![0; len],
+            xb: vec![0; len],
+        }
+    }
+
+    /// The wide groups of the last listing.
+    #[inline(always)]
+    pub(crate) fn wide(&self) -> impl Iterator<Item = Group> + '_ {
+        self.wide.iter().map(|&i| self.pieces[i as usize].group(None, self.n))
+    }
+
+    /// The packed groups of the last listing.
+    #[inline(always)]
+    pub(crate) fn packed(&self) -> impl Iterator<Item = Group> + '_ {
+        self.packed.iter().map(|&[a, b]| self.pieces[a as usize].group(Some(&self.pieces[b as usize]), self.n))
+    }
+
+    /// How many packed groups the last listing made.
+    #[cfg(test)]
+    pub(crate) fn packed_len(&self) -> usize {
+        self.packed.len()
     }
 }
 
@@ -223,6 +256,27 @@ unsafe fn chord_lanes<S: Lanes>(conic: &crate::splat::RowConic, c: [f32; 2], y: 
     (lo, hi)
 }
 
+/// [`crate::splat::chord_pixels_or_empty`] lane by lane, for the box columns `[x0, x1)`: the
+/// same operations in f32, whose integers are exact here (below 2^24), then truncated to i32.
+#[inline(always)]
+unsafe fn chord_pixels_lanes<S: Lanes>(lo: S, hi: S, x0: usize, x1: usize) -> (S, S) {
+    let (fx0, fx1) = (S::splat(x0 as f32), S::splat(x1 as f32));
+    // `floor_clamped`: f32::max then f32::min (a NaN clamps to the low end), then truncation.
+    let clamp = |v: S| {
+        let c = S::select(v.gt(fx0), v, fx0);
+        S::select(c.lt(fx1), c, fx1).trunc()
+    };
+    let min = |a: S, b: S| S::select(b.lt(a), b, a);
+    let one = S::splat(1.0);
+    let a = lo.sub(S::splat(1.5));
+    let t = clamp(a);
+    let lo_px = min(S::select(t.lt(a), t.add(one), t), fx1);
+    let hi_px = min(clamp(hi.add(S::splat(0.5))).add(one), fx1);
+    let hi_px = S::select(lo_px.gt(hi_px), lo_px, hi_px);
+    let full = lo.le(hi);
+    (S::select(full, lo_px, fx0), S::select(full, hi_px, fx0))
+}
+
 /// One row piece of at most `n` pixels, before it is placed in a group.
 #[derive(Clone, Copy)]
 struct Piece {
@@ -247,6 +301,8 @@ impl Groups {
     #[inline(always)]
     pub(crate) unsafe fn list<S: Lanes>(&mut self, s: &TileRec<f32>, tr: &[u32; 4], live: &[u64], stride: usize) {
         let n = S::N;
+        self.n = n;
+        self.pieces.clear();
         self.wide.clear();
         self.packed.clear();
         self.short.clear();
@@ -255,30 +311,34 @@ impl Groups {
         let rows = bx.rows.clone();
         let bounded = s.conic.bounded();
         if bounded {
-            // The row chords, N rows at a time (the scalar chord's operations lane by lane).
+            // The row chords and their pixels, N rows at a time (the scalar operations lane by
+            // lane).
+            let (x0, x1) = bx.columns();
             let mut y = rows.start;
             while y < rows.end {
                 let yl = S::splat((y as f64 + 0.5) as f32).add(S::iota());
                 let (lo, hi) = chord_lanes(&s.conic, bx.center(), yl);
+                let (xa, xb) = chord_pixels_lanes(lo, hi, x0, x1);
                 let i = y - rows.start;
-                lo.store(self.lo.as_mut_ptr().add(i));
-                hi.store(self.hi.as_mut_ptr().add(i));
+                xa.store_i32(self.xa.as_mut_ptr().add(i));
+                xb.store_i32(self.xb.as_mut_ptr().add(i));
                 y += S::N;
             }
         }
         // At most one piece per `n` columns of the tile on every row, and one per empty row.
         let cap = rows.len() * ((tr[1] - tr[0]) as usize / n + 2);
+        self.pieces.reserve(cap);
         self.wide.reserve(cap);
         self.short.reserve(cap);
-        let (wide, short) = (self.wide.as_mut_ptr(), self.short.as_mut_ptr());
-        let (mut nw, mut ns) = (0usize, 0usize);
+        let (pieces, wide, short) = (self.pieces.as_mut_ptr(), self.wide.as_mut_ptr(), self.short.as_mut_ptr());
+        let (mut np, mut nw, mut ns) = (0usize, 0usize, 0usize);
         for y in rows.clone() {
             let ry = y - ty0;
             let lv = live[ry];
             let i = y - rows.start;
-            let chord = bounded.then(|| (self.lo[i], self.hi[i]));
+            let chord = bounded.then(|| (self.xa[i] as usize, self.xb[i] as usize));
             // `[xa, xb)`: the live span, empty (`xa == xb`) when the row has none.
-            let (xa, xb) = bx.chord_span_or_empty(chord, lv);
+            let (xa, xb) = bx.live_span_or_empty(chord, lv);
             let yf = (y as f64 + 0.5) as f32;
             let rs = row_setup(&s.h, yf);
             let mut k = xa;
@@ -287,11 +347,20 @@ impl Groups {
                 // The first pixel's centre as the scalar kernel takes it.
                 let x0 = (k as f64 + 0.5) as f32;
                 let lb = (lv >> c0) as u32 & ((1u64 << lanes) - 1) as u32;
-                let p = Piece { rs, yf, x0, at: (ry * stride + c0) as u32, ry: ry as u16, c0: c0 as u16, lb };
+                // SAFETY: at most `cap` pieces are written (see above), within the reserves.
+                pieces.add(np).write(Piece {
+                    rs,
+                    yf,
+                    x0,
+                    at: (ry * stride + c0) as u32,
+                    ry: ry as u16,
+                    c0: c0 as u16,
+                    lb,
+                });
+                wide.add(nw).write(np as u16);
+                short.add(ns).write(np as u16);
                 let (is_short, some) = (lanes <= n / 2, lb != 0);
-                // SAFETY: at most `cap` pieces are written (see above), within the reserve.
-                wide.add(nw).write(p.group(None, n));
-                short.add(ns).write(p);
+                np += some as usize;
                 nw += (some && !is_short) as usize;
                 ns += (some && is_short) as usize;
                 k += n;
@@ -300,14 +369,15 @@ impl Groups {
                 }
             }
         }
-        // SAFETY: the first `nw` / `ns` slots were written above.
+        // SAFETY: the first `np` / `nw` / `ns` slots were written above.
+        self.pieces.set_len(np);
         self.wide.set_len(nw);
         self.short.set_len(ns);
         // Short pieces in pairs, in order; an odd one out is a wide group.
         for pair in self.short.chunks(2) {
-            match pair {
-                [a, b] => self.packed.push(a.group(Some(b), n)),
-                [a] => self.wide.push(a.group(None, n)),
+            match *pair {
+                [a, b] => self.packed.push([a, b]),
+                [a] => self.wide.push(a),
                 _ => unreachable!(),
             }
         }
@@ -547,13 +617,13 @@ unsafe fn band<S: Lanes, const DIST: bool, const FEAT: bool>(
             };
             let mut ws = sp(0.0);
             // Branch-free: a group without stopping lanes clears nothing.
-            for gr in &groups.wide {
-                let sb = k.group::<DIST, FEAT, false>(gr, &mut ws);
+            for gr in groups.wide() {
+                let sb = k.group::<DIST, FEAT, false>(&gr, &mut ws);
                 gr.clear::<false>(&mut row_live, sb, S::N);
                 remaining -= sb.count_ones() as usize;
             }
-            for gr in &groups.packed {
-                let sb = k.group::<DIST, FEAT, true>(gr, &mut ws);
+            for gr in groups.packed() {
+                let sb = k.group::<DIST, FEAT, true>(&gr, &mut ws);
                 gr.clear::<true>(&mut row_live, sb, S::N);
                 remaining -= sb.count_ones() as usize;
             }
@@ -739,18 +809,62 @@ mod tests {
                         assert!(got.insert((y, x)), "pixel ({x}, {y}) in two groups");
                     }
                 };
-                for g in &groups.wide {
-                    lanes(g, false);
+                for g in groups.wide() {
+                    lanes(&g, false);
                 }
-                for g in &groups.packed {
+                for g in groups.packed() {
                     assert_ne!(g.ry[0], g.ry[1], "a packed group's halves share a row");
-                    lanes(g, true);
+                    lanes(&g, true);
                 }
-                packed += groups.packed.len();
+                packed += groups.packed_len();
                 pixels += want.len();
                 assert_eq!(got, want, "entry {} of tile {t}", s.id);
             }
         }
         assert!(pixels > 10_000 && packed > 1000, "too few pixels ({pixels}) or packed groups ({packed})");
+    }
+
+    /// The chord pixels in lanes are the scalar ones, row by row, empty chords and NaN included.
+    #[test]
+    fn chord_pixels_lanes_are_the_scalar_ones() {
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            eprintln!("no AVX2 on this CPU: lane chord pixels not checked");
+            return;
+        }
+        let mut rng = Rng::new(7);
+        let special = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -3.0, 0.0, 0.5, 31.5, 64.0, 1e9];
+        let mut value = |k: usize| {
+            if k.is_multiple_of(5) {
+                special[k / 5 % special.len()]
+            } else {
+                rng.uniform() * 80.0 - 10.0
+            }
+        };
+        let mut nonempty = 0;
+        for round in 0..4000 {
+            let lo: [f32; 8] = std::array::from_fn(|l| value(round * 8 + l));
+            let hi: [f32; 8] = std::array::from_fn(|l| value(round * 3 + l + 1));
+            let x0 = round % 40;
+            let x1 = x0 + round * 7 % 33;
+            let (mut xa, mut xb) = ([0i32; 8], [0i32; 8]);
+            unsafe {
+                let (a, b) = chord_pixels_lanes(F8::load(lo.as_ptr()), F8::load(hi.as_ptr()), x0, x1);
+                a.store_i32(xa.as_mut_ptr());
+                b.store_i32(xb.as_mut_ptr());
+            }
+            for l in 0..8 {
+                let want = crate::splat::chord_pixels(lo[l], hi[l], x0, x1);
+                let got = (xa[l] as usize, xb[l] as usize);
+                let what = format!("lo {} hi {} x0 {x0} x1 {x1}: {got:?} vs {want:?}", lo[l], hi[l]);
+                if want.0 == want.1 {
+                    // Empty: any empty span inside the box will do.
+                    assert!(got.0 == got.1 && (x0..=x1).contains(&got.0), "{what}");
+                } else {
+                    assert_eq!(got, want, "{what}");
+                    nonempty += 1;
+                }
+            }
+        }
+        assert!(nonempty > 10_000, "only {nonempty} non-empty chords");
     }
 }

@@ -176,18 +176,6 @@ pub fn chord_pixels(lo: f32, hi: f32, x0: usize, x1: usize) -> (usize, usize) {
     (lo_px, hi_px.max(lo_px))
 }
 
-/// [`chord_pixels`] without a branch: both ends are computed whatever the chord, and an empty
-/// one (`lo > hi`, or NaN) selects `(x0, x0)`.
-#[inline(always)]
-pub fn chord_pixels_or_empty(lo: f32, hi: f32, x0: usize, x1: usize) -> (usize, usize) {
-    let (fx0, fx1) = (x0 as f32, x1 as f32);
-    let lo_px = floor_clamped(lo - 1.5, fx0, fx1);
-    let lo_px = (lo_px + usize::from((lo_px as f32) < lo - 1.5)).min(x1);
-    let hi_px = (floor_clamped(hi + 0.5, fx0, fx1) + 1).min(x1).max(lo_px);
-    let empty = lo.partial_cmp(&hi).is_none_or(|o| o.is_gt());
-    (if empty { x0 } else { lo_px }, if empty { x0 } else { hi_px })
-}
-
 /// `floor(v)` clamped to `[lo, hi]` (both non-negative and below 2^24) as an index, without a
 /// libm call (baseline x86-64 has no SSE4.1 `round`) or the fix-ups of a saturating cast.
 #[inline(always)]
@@ -441,30 +429,5 @@ mod tests {
             assert_eq!(rho_limit(o), full(o), "o = {o}");
         }
         assert!(full(0.3494) < 9.0, "the cap starts above 0.3494: the shortcut is not the tightest");
-    }
-
-    /// The branch-free chord pixels are the branching ones, empty chords and NaN included.
-    #[test]
-    fn chord_pixels_or_empty_is_chord_pixels() {
-        let mut rng = svgir_core::Rng::new(7);
-        let special = [f32::NAN, f32::INFINITY, f32::NEG_INFINITY, -3.0, 0.0, 0.5, 31.5, 64.0, 1e9];
-        let mut checked = 0;
-        for i in 0..20_000 {
-            let mut v = |k: usize| {
-                if k.is_multiple_of(5) {
-                    special[k / 5 % special.len()]
-                } else {
-                    rng.uniform() * 80.0 - 10.0
-                }
-            };
-            let (lo, hi) = (v(i), v(i / 3 + 1));
-            let x0 = (rng.uniform() * 40.0) as usize;
-            let x1 = x0 + (rng.uniform() * 33.0) as usize;
-            let want = chord_pixels(lo, hi, x0, x1);
-            let got = chord_pixels_or_empty(lo, hi, x0, x1);
-            assert_eq!(got, want, "lo {lo} hi {hi} x0 {x0} x1 {x1}");
-            checked += usize::from(want.0 < want.1);
-        }
-        assert!(checked > 5000, "only {checked} non-empty chords");
     }
 }

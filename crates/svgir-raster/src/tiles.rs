@@ -310,19 +310,22 @@ impl EntryBox {
         Some((yf, xa, xb))
     }
 
-    /// [`EntryBox::row_span`]'s pixels `[xa, xb)` from a row chord computed elsewhere (`None`:
-    /// unbounded, the whole box row), without branches: `xa == xb` (at the tile's first column)
-    /// when nothing is left.
+    /// [`EntryBox::row_span`]'s pixels `[xa, xb)` from the chord's pixels computed elsewhere
+    /// (`None`: unbounded, the whole box row), without branches: `xa == xb` (at the tile's
+    /// first column) when nothing is left.
     #[inline(always)]
-    pub(crate) fn chord_span_or_empty(&self, chord: Option<(f32, f32)>, live: u64) -> (usize, usize) {
-        let (xa, xb) = match chord {
-            Some((lo, hi)) => crate::splat::chord_pixels_or_empty(lo, hi, self.x0, self.x1),
-            None => (self.x0, self.x1),
-        };
+    pub(crate) fn live_span_or_empty(&self, chord: Option<(usize, usize)>, live: u64) -> (usize, usize) {
+        let (xa, xb) = chord.unwrap_or((self.x0, self.x1));
         let m = live & columns_mask(xa - self.tx0, xb - self.tx0);
         // m == 0: 64 trailing and leading zeros, so `a = tx0 + 64 > b = tx0` and the min is tx0.
         let b = self.tx0 + 64 - m.leading_zeros() as usize;
         ((self.tx0 + m.trailing_zeros() as usize).min(b), b)
+    }
+
+    /// The box's columns `[x0, x1)` inside the tile.
+    #[inline(always)]
+    pub(crate) fn columns(&self) -> (usize, usize) {
+        (self.x0, self.x1)
     }
 
     /// The projected centre in f32, as the row chords take it.
