@@ -31,7 +31,11 @@ macro_rules! lane_op {
             type Output = V<T>;
             #[inline(always)]
             fn $f(self, o: V<T>) -> V<T> {
-                V(std::array::from_fn(|l| self.0[l] $op o.0[l]))
+                let mut r = self.0;
+                for l in 0..BLOCK {
+                    r[l] = self.0[l] $op o.0[l];
+                }
+                V(r)
             }
         }
     };
@@ -47,13 +51,28 @@ impl<T: Copy> V<T> {
         V([v; BLOCK])
     }
     #[inline(always)]
-    fn map<U>(self, f: impl Fn(T) -> U) -> V<U> {
-        V(self.0.map(f))
+    fn map<U: Copy>(self, f: impl Fn(T) -> U) -> V<U> {
+        V(each(&self.0, f))
     }
     #[inline(always)]
-    fn zip<U: Copy, R>(self, o: V<U>, f: impl Fn(T, U) -> R) -> V<R> {
-        V(std::array::from_fn(|l| f(self.0[l], o.0[l])))
+    fn zip<U: Copy, R: Copy>(self, o: V<U>, f: impl Fn(T, U) -> R) -> V<R> {
+        let mut r = [f(self.0[0], o.0[0]); BLOCK];
+        for l in 1..BLOCK {
+            r[l] = f(self.0[l], o.0[l]);
+        }
+        V(r)
     }
+}
+
+/// `a.map(f)` as a plain loop: `array::map` and `array::from_fn` on these arrays of lanes were
+/// not inlined (a closure call per element), which cost half the block's time.
+#[inline(always)]
+fn each<T: Copy, U: Copy, const K: usize>(a: &[T; K], f: impl Fn(T) -> U) -> [U; K] {
+    let mut r = [f(a[0]); K];
+    for i in 1..K {
+        r[i] = f(a[i]);
+    }
+    r
 }
 
 /// Per-lane mask.
@@ -75,7 +94,7 @@ fn dot3<T: Copy + Add<Output = T> + Mul<Output = T>>(a: [V<T>; 3], b: [V<T>; 3])
 /// `m v` for a row-major camera rotation ([`crate::real::matvec`]).
 #[inline(always)]
 fn matvec(m: &[[f32; 3]; 3], v: [V<f32>; 3]) -> [V<f32>; 3] {
-    m.map(|row| dot3(row.map(V::splat), v))
+    each(m, |row| dot3(each(&row, V::splat), v))
 }
 
 /// The splat records of Gaussians `g0..g0 + out.len()` (at most [`BLOCK`]) into `out` (culled
@@ -200,7 +219,7 @@ fn block(
     let q = x.q;
     let len = (dot3([q[0], q[1], q[2]], [q[0], q[1], q[2]]) + q[3] * q[3]).map(f32::sqrt);
     let mut keep: M = len.map(|v| v > 0.0);
-    let [qx, qy, qz, qw] = q.map(|v| v / len);
+    let [qx, qy, qz, qw] = each(&q, |v| v / len);
     let rot = [
         [one - two * (qy * qy + qz * qz), two * (qx * qy - qw * qz), two * (qx * qz + qw * qy)],
         [two * (qx * qy + qw * qz), one - two * (qx * qx + qz * qz), two * (qy * qz - qw * qx)],
@@ -216,8 +235,8 @@ fn block(
     keep = keep.and(a0[2].map(|z| z >= cfg.near));
     let col = |c: usize| [rot[0][c], rot[1][c], rot[2][c]];
     let (tu, tv, nrm) = (col(0), col(1), col(2));
-    let au = matvec(&cam.r, tu.map(|v| v * su));
-    let av = matvec(&cam.r, tv.map(|v| v * sv));
+    let au = matvec(&cam.r, each(&tu, |v| v * su));
+    let av = matvec(&cam.r, each(&tv, |v| v * sv));
     let (fx, fy, cx, cy) = (sp(cam.fx), sp(cam.fy), sp(cam.cx), sp(cam.cy));
     let h = [
         fx * au[0] + cx * au[2],
@@ -232,7 +251,7 @@ fn block(
     ];
     let center = [h[2] / h[8], h[5] / h[8]];
     // Double-sided: flip n to face the camera; an edge-on plane is invisible.
-    let cosv = dot3([0, 1, 2].map(|c| sp(cam.center[c]) - p[c]), nrm);
+    let cosv = dot3([sp(cam.center[0]) - p[0], sp(cam.center[1]) - p[1], sp(cam.center[2]) - p[2]], nrm);
     keep = keep.and(cosv.map(|v| v.abs() > 0.0));
     let flip = cosv.map(|v| if v > 0.0 { 1.0 } else { -1.0 });
     let o = one / (one + x.e);
@@ -243,9 +262,9 @@ fn block(
     // `sh_color`: `max(0, 0.5 + SH(normalize(p - cam)))` and its clamp bits.
     let mut c = [sp(0.5); 3];
     if colors.is_some() {
-        let dir: [V<f32>; 3] = std::array::from_fn(|c| p[c] - sp(cam.center[c]));
+        let dir = [p[0] - sp(cam.center[0]), p[1] - sp(cam.center[1]), p[2] - sp(cam.center[2])];
         let dlen = dot3(dir, dir).map(f32::sqrt);
-        let b = sh_basis(dir.map(|v| v / dlen));
+        let b = sh_basis(each(&dir, |v| v / dlen));
         for (k, row) in x.sh[..x.nk].iter().enumerate() {
             for ch in 0..3 {
                 c[ch] = c[ch] + b[k] * row[ch];
@@ -268,17 +287,17 @@ fn block(
                     rgb[ch] = v;
                 }
             }
-            let hl = h.map(|v| v.0[l]);
+            let hl = each(&h, |v| v.0[l]);
             let cl = [center[0].0[l], center[1].0[l]];
             s.write(Splat {
                 h: hl,
                 center: cl,
                 opacity: o.0[l],
                 depth: a0[2].0[l],
-                normal: nrm.map(|v| v.0[l] * flip.0[l]),
+                normal: each(&nrm, |v| v.0[l] * flip.0[l]),
                 flip: flip.0[l],
-                rect: rect.map(|v| v.0[l]),
-                conic: RowConic::from_coefficients(k.map(|v| v.0[l]), rho_max.0[l], a_pos.0[l]),
+                rect: each(&rect, |v| v.0[l]),
+                conic: RowConic::from_coefficients(each(&k, |v| v.0[l]), rho_max.0[l], a_pos.0[l]),
                 radius: radius.0[l],
                 clamped: if colors.is_some() { clamped } else { 0 },
             });
@@ -293,9 +312,12 @@ fn block(
 /// whether the splat survives (finite, a positive cut, a non-empty box).
 #[inline(always)]
 fn screen_box(h: &[V<f32>; 9], center: [V<f32>; 2], rho_max: V<f64>, w: u32, hh: u32) -> ([V<u32>; 4], V<f32>, M) {
-    let t: [V<f64>; 9] = h.map(|v| v.map(f64::from));
-    let c = center.map(|v| v.map(f64::from));
-    let finite = t.iter().chain(c.iter()).fold(V::splat(true), |m, v| m.and(v.map(f64::is_finite)));
+    let t: [V<f64>; 9] = each(h, |v| v.map(f64::from));
+    let c = each(&center, |v| v.map(f64::from));
+    let mut finite = V::splat(true);
+    for v in t.iter().chain(&c) {
+        finite = finite.and(v.map(f64::is_finite));
+    }
     let keep = finite.and(rho_max.map(|r| r > 0.0));
     // Filter disk: 2 d^2 <= R.
     let rf = (V::splat(0.5) * rho_max).map(f64::sqrt) + V::splat(1e-4);
@@ -325,8 +347,8 @@ fn screen_box(h: &[V<f32>; 9], center: [V<f32>; 2], rho_max: V<f64>, w: u32, hh:
 /// [`RowConic::new`]'s coefficients in f64 lanes, in its order, and whether `A > 0`.
 #[inline(always)]
 fn row_conic(h: &[V<f32>; 9], center: [V<f32>; 2], rho_max: V<f64>) -> ([V<f64>; 5], M) {
-    let t: [V<f64>; 9] = h.map(|v| v.map(f64::from));
-    let c = center.map(|v| v.map(f64::from));
+    let t: [V<f64>; 9] = each(h, |v| v.map(f64::from));
+    let c = each(&center, |v| v.map(f64::from));
     let cross = |a: [V<f64>; 3], b: [V<f64>; 3]| {
         [a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0]]
     };
@@ -334,7 +356,7 @@ fn row_conic(h: &[V<f32>; 9], center: [V<f32>; 2], rho_max: V<f64>) -> ([V<f64>;
     let alpha = cross(tv, tw);
     let beta = cross(tw, tu);
     let g0 = cross(tu, tv);
-    let gamma: [V<f64>; 3] = std::array::from_fn(|j| c[0] * alpha[j] + c[1] * beta[j] + g0[j]);
+    let gamma = each(&[0, 1, 2], |j| c[0] * alpha[j] + c[1] * beta[j] + g0[j]);
     let dot = |a: [V<f64>; 3], b: [V<f64>; 3]| a[0] * b[0] + a[1] * b[1] - rho_max * a[2] * b[2];
     let a = dot(alpha, alpha);
     let k = [
