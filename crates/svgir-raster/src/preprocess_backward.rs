@@ -95,8 +95,7 @@ pub fn gaussian_backward<F: Real, P: GaussianParams<F> + ?Sized>(
     let p = params.position(i);
     let q = params.rotation(i);
     let Some((_, _, rot)) = quat_to_rot(q) else { return out };
-    let ls = params.log_scale(i);
-    let (su, sv) = (ls[0].exp(), ls[1].exp());
+    let [su, sv] = splat.scale;
     let h = &splat.h;
 
     // Projected centre c = (H02 / H22, H12 / H22).

@@ -77,7 +77,7 @@ unsafe fn block_avx512(x: &Inputs, cam: &Cam<f32>, splats: &[Splat<f32>], out: &
 pub(crate) struct Inputs {
     p: [[f32; BLOCK]; 3],
     q: [[f32; BLOCK]; 4],
-    /// `exp` of the two log-scales.
+    /// The two scales (`exp` of the log-scales, from the splat record).
     s: [[f32; BLOCK]; 2],
     h: [[f32; BLOCK]; 9],
     opacity: [f32; BLOCK],
@@ -120,7 +120,7 @@ impl Inputs {
         };
         for (l, (sp, sg)) in splats.iter().zip(sums).enumerate() {
             let i = g0 + l;
-            let (p, q, ls) = (params.position(i), params.rotation(i), params.log_scale(i));
+            let (p, q) = (params.position(i), params.rotation(i));
             for c in 0..3 {
                 x.p[c][l] = p[c].to_f32();
             }
@@ -128,7 +128,7 @@ impl Inputs {
                 x.q[c][l] = q[c].to_f32();
             }
             for c in 0..2 {
-                x.s[c][l] = ls[c].to_f32().exp();
+                x.s[c][l] = sp.scale[c].to_f32();
             }
             for c in 0..9 {
                 x.h[c][l] = sp.h[c].to_f32();

@@ -293,6 +293,7 @@ fn block(
                 h: hl,
                 center: cl,
                 opacity: o.0[l],
+                scale: [su.0[l], sv.0[l]],
                 depth: a0[2].0[l],
                 normal: each(&nrm, |v| v.0[l] * flip.0[l]),
                 flip: flip.0[l],
