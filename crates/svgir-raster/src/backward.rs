@@ -145,41 +145,44 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
         .zip(v_mean2d_norm.par_chunks_mut(BLOCK))
         .enumerate()
         .with_min_len(32)
-        .for_each(|(b, (((((position, rotation), log_scale), opacity_logit), sh), mean2d_norm))| {
-            let mut out = GradSlots::<F> { position, rotation, log_scale, opacity_logit, sh, mean2d_norm };
-            let (g0, m) = (b * BLOCK, out.len());
-            let splats = &state.splats[g0..g0 + m];
-            if path != crate::Simd::Scalar {
-                let x = Inputs::gather(input.surfels, splats, &sums[g0..g0 + m], sh_mode, g0);
-                // SAFETY: `path` is only a SIMD one when `F` is `f32` (above), so these are the
-                // same types.
-                let (cam32, splats32, out32) = unsafe {
-                    (
-                        &*(&cam as *const Cam<F> as *const Cam<f32>),
-                        &*(splats as *const [Splat<F>] as *const [Splat<f32>]),
-                        &mut *(&mut out as *mut GradSlots<F> as *mut GradSlots<f32>),
-                    )
-                };
-                if gaussian_backward_block(path, &x, cam32, splats32, out32) {
-                    return;
+        .for_each_init(
+            Inputs::new,
+            |x, (b, (((((position, rotation), log_scale), opacity_logit), sh), mean2d_norm))| {
+                let mut out = GradSlots::<F> { position, rotation, log_scale, opacity_logit, sh, mean2d_norm };
+                let (g0, m) = (b * BLOCK, out.len());
+                let splats = &state.splats[g0..g0 + m];
+                if path != crate::Simd::Scalar {
+                    x.fill(input.surfels, splats, &sums[g0..g0 + m], sh_mode, g0);
+                    // SAFETY: `path` is only a SIMD one when `F` is `f32` (above), so these are the
+                    // same types.
+                    let (cam32, splats32, out32) = unsafe {
+                        (
+                            &*(&cam as *const Cam<F> as *const Cam<f32>),
+                            &*(splats as *const [Splat<F>] as *const [Splat<f32>]),
+                            &mut *(&mut out as *mut GradSlots<F> as *mut GradSlots<f32>),
+                        )
+                    };
+                    if gaussian_backward_block(path, x, cam32, splats32, out32) {
+                        return;
+                    }
                 }
-            }
-            for (l, splat) in splats.iter().enumerate() {
-                if !splat.visible() {
-                    out.put(l, &ParamGrad::default(), false);
-                    continue;
+                for (l, splat) in splats.iter().enumerate() {
+                    if !splat.visible() {
+                        out.put(l, &ParamGrad::default(), false);
+                        continue;
+                    }
+                    let g = g0 + l;
+                    let acc = &sums[g];
+                    let mut sg = SplatGradSum::<F>::default();
+                    sg.h.copy_from_slice(&acc[OFF_H..OFF_H + 9]);
+                    sg.center.copy_from_slice(&acc[OFF_C..OFF_C + 2]);
+                    sg.opacity = acc[OFF_OP];
+                    sg.normal.copy_from_slice(&acc[OFF_N..OFF_N + 3]);
+                    sg.color.copy_from_slice(&acc[OFF_COL..OFF_COL + 3]);
+                    out.put(l, &gaussian_backward(input.surfels, &cam, splat, &sg, sh_mode, g), sh_mode);
                 }
-                let g = g0 + l;
-                let acc = &sums[g];
-                let mut sg = SplatGradSum::<F>::default();
-                sg.h.copy_from_slice(&acc[OFF_H..OFF_H + 9]);
-                sg.center.copy_from_slice(&acc[OFF_C..OFF_C + 2]);
-                sg.opacity = acc[OFF_OP];
-                sg.normal.copy_from_slice(&acc[OFF_N..OFF_N + 3]);
-                sg.color.copy_from_slice(&acc[OFF_COL..OFF_COL + 3]);
-                out.put(l, &gaussian_backward(input.surfels, &cam, splat, &sg, sh_mode, g), sh_mode);
-            }
-        });
+            },
+        );
     // SAFETY: every block wrote each of its slots once (`GradSlots::put`, or the lane kernel's
     // stores, which also cover every slot).
     let (v_positions, v_rotations, v_log_scales, v_opacity_logits, v_sh, v_mean2d_norm) = unsafe {

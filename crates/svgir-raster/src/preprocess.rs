@@ -160,7 +160,10 @@ pub fn preprocess<F: Real, P: GaussianParams<F> + ?Sized>(
         let mut colors = uninit_vec::<[F; 3]>(if want_sh { n } else { 0 });
         // SAFETY: `path` is only a SIMD one when `F` is `f32` (above): the same type.
         let cam32 = unsafe { &*(cam as *const Cam<F> as *const Cam<f32>) };
-        let run = |b: usize, out: &mut [MaybeUninit<Splat<F>>], rgb: Option<&mut [MaybeUninit<[F; 3]>]>| {
+        let run = |x: &mut Box<crate::preprocess_simd::Inputs>,
+                   b: usize,
+                   out: &mut [MaybeUninit<Splat<F>>],
+                   rgb: Option<&mut [MaybeUninit<[F; 3]>]>| {
             // SAFETY: `path` is only a SIMD one when `F` is `f32` (above), so these are the
             // same types.
             let done = unsafe {
@@ -170,6 +173,7 @@ pub fn preprocess<F: Real, P: GaussianParams<F> + ?Sized>(
                     cam32,
                     cfg,
                     b * BLOCK,
+                    x,
                     &mut *(out as *mut [MaybeUninit<Splat<F>>] as *mut [MaybeUninit<Splat<f32>>]),
                     rgb.map(|c| &mut *(c as *mut [MaybeUninit<[F; 3]>] as *mut [MaybeUninit<[f32; 3]>])),
                 )
@@ -182,9 +186,13 @@ pub fn preprocess<F: Real, P: GaussianParams<F> + ?Sized>(
                 .zip(colors.par_chunks_mut(BLOCK))
                 .enumerate()
                 .with_min_len(128)
-                .for_each(|(b, (out, rgb))| run(b, out, Some(rgb)));
+                .for_each_init(crate::preprocess_simd::Inputs::new, |x, (b, (out, rgb))| run(x, b, out, Some(rgb)));
         } else {
-            splats.par_chunks_mut(BLOCK).enumerate().with_min_len(128).for_each(|(b, out)| run(b, out, None));
+            splats
+                .par_chunks_mut(BLOCK)
+                .enumerate()
+                .with_min_len(128)
+                .for_each_init(crate::preprocess_simd::Inputs::new, |x, (b, out)| run(x, b, out, None));
         }
         // SAFETY: every block wrote each of its slots.
         return unsafe { (assume_init(splats), assume_init(colors)) };

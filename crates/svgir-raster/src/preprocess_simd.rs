@@ -107,6 +107,7 @@ pub(crate) fn project_block<F: Real, P: GaussianParams<F> + ?Sized>(
     cam: &Cam<f32>,
     cfg: &RasterConfig,
     g0: usize,
+    x: &mut Inputs,
     out: &mut [MaybeUninit<Splat<f32>>],
     colors: Option<&mut [MaybeUninit<[f32; 3]>]>,
 ) -> bool {
@@ -114,14 +115,14 @@ pub(crate) fn project_block<F: Real, P: GaussianParams<F> + ?Sized>(
     if path == Simd::Scalar {
         return false;
     }
-    let x = Inputs::gather(params, g0, out.len(), colors.is_some());
+    x.fill(params, g0, out.len(), colors.is_some());
     #[cfg(target_arch = "x86_64")]
     {
         // SAFETY: `resolve` only returns a path whose features the CPU has.
         unsafe {
             match path {
-                Simd::Avx2 => block_avx2(&x, cam, cfg, out, colors),
-                Simd::Avx512 => block_avx512(&x, cam, cfg, out, colors),
+                Simd::Avx2 => block_avx2(x, cam, cfg, out, colors),
+                Simd::Avx512 => block_avx512(x, cam, cfg, out, colors),
                 _ => return false,
             }
         }
@@ -158,9 +159,9 @@ unsafe fn block_avx512(
     block(x, cam, cfg, out, c)
 }
 
-/// One block's parameters, one Gaussian per lane (lanes past the block's end hold a zero
-/// quaternion, which culls them).
-struct Inputs {
+/// One block's parameters, one Gaussian per lane (lanes past the block's end keep an earlier
+/// block's values; their results are never stored). One per task, reused block after block.
+pub(crate) struct Inputs {
     p: [V<f32>; 3],
     q: [V<f32>; 4],
     /// `exp` of the two log-scales.
@@ -174,12 +175,18 @@ struct Inputs {
 }
 
 impl Inputs {
+    /// Zeros, to be filled block after block ([`Inputs::fill`]).
+    pub(crate) fn new() -> Box<Self> {
+        let z = V::splat(0.0);
+        Box::new(Self { p: [z; 3], q: [z; 4], s: [z; 2], e: z, sh: [[z; 3]; 16], nk: 0 })
+    }
+
     /// The parameters of Gaussians `g0..g0 + m`, read in the scalar type `F` (which is `f32` on
     /// the SIMD paths, so `to_f32` is exact).
-    fn gather<F: Real, P: GaussianParams<F> + ?Sized>(params: &P, g0: usize, m: usize, sh: bool) -> Self {
-        let z = V::splat(0.0);
+    fn fill<F: Real, P: GaussianParams<F> + ?Sized>(&mut self, params: &P, g0: usize, m: usize, sh: bool) {
         let nk = if sh { svgir_core::sh::num_coeffs(params.sh_degree().min(3)) } else { 0 };
-        let mut x = Self { p: [z; 3], q: [z; 4], s: [z; 2], e: z, sh: [[z; 3]; 16], nk };
+        let x = self;
+        x.nk = nk;
         for l in 0..m {
             let i = g0 + l;
             let (p, q, ls) = (params.position(i), params.rotation(i), params.log_scale(i));
@@ -199,7 +206,6 @@ impl Inputs {
                 }
             }
         }
-        x
     }
 }
 
