@@ -112,21 +112,47 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     sw.lap("tiles");
     // Per-Gaussian reduction in entry order, then the preprocess backward.
     let sh_mode = matches!(input.colors, ColorSourceOf::Sh);
-    let sum_entries = |g: usize, lo: usize, hi: usize, out: &mut [F]| {
-        let (a, b) = (bins.entry_offsets[g] as usize, bins.entry_offsets[g + 1] as usize);
-        for &e in &bins.entries[a..b] {
-            let slot = &entry_grads[e as usize * dim..(e as usize + 1) * dim];
-            for (o, v) in out.iter_mut().zip(&slot[lo..hi]) {
-                *o += *v;
+    // Each Gaussian's entry slots, columns `lo..hi`, summed in entry order into its row (of
+    // `width` values, the first `hi - lo` written) of `out`. A pass of its own: the slots of one
+    // Gaussian are scattered over the tiles (cache misses), and this small loop keeps many loads
+    // in flight, where the per-Gaussian backward would stall on each; the slots of the Gaussian
+    // `AHEAD` places on are prefetched, since the hardware prefetcher cannot guess them.
+    const AHEAD: usize = 8;
+    const CHUNK: usize = 1024;
+    let reduce = |out: &mut [F], width: usize, lo: usize, hi: usize| {
+        let prefetch = |g: usize| {
+            if g < n {
+                let (a, b) = (bins.entry_offsets[g] as usize, bins.entry_offsets[g + 1] as usize);
+                for &e in &bins.entries[a..b] {
+                    // Both ends of the slot (it may span two cache lines).
+                    let slot = &entry_grads[e as usize * dim..(e as usize + 1) * dim];
+                    prefetch_read(slot.as_ptr());
+                    prefetch_read(&slot[dim - 1]);
+                }
             }
-        }
+        };
+        out.par_chunks_mut(CHUNK * width).enumerate().for_each(|(c, rows)| {
+            let g0 = c * CHUNK;
+            for g in g0..(g0 + AHEAD).min(n) {
+                prefetch(g);
+            }
+            for (j, row) in rows.chunks_exact_mut(width).enumerate() {
+                let g = g0 + j;
+                prefetch(g + AHEAD);
+                let (a, b) = (bins.entry_offsets[g] as usize, bins.entry_offsets[g + 1] as usize);
+                for &e in &bins.entries[a..b] {
+                    let slot = &entry_grads[e as usize * dim..(e as usize + 1) * dim];
+                    for (o, v) in row.iter_mut().zip(&slot[lo..hi]) {
+                        *o += *v;
+                    }
+                }
+            }
+        });
     };
-    // Gathered in a pass of its own: the entry slots of one Gaussian are scattered over the
-    // tiles (cache misses), and a small loop body lets many of those loads be in flight at once,
-    // where the per-Gaussian backward below would stall on each.
     let hi = if sh_mode { OFF_COL + 3 } else { OFF_COL };
-    let mut sums = vec![[F::ZERO; OFF_COL + 3]; n];
-    sums.par_iter_mut().enumerate().with_min_len(1024).for_each(|(g, acc)| sum_entries(g, 0, hi, &mut acc[..hi]));
+    let mut sums = vec![F::ZERO; n * (OFF_COL + 3)];
+    reduce(&mut sums, OFF_COL + 3, 0, hi);
+    let (sums, _) = sums.as_chunks::<{ OFF_COL + 3 }>();
     sw.lap("reduce");
     let mut v_positions = uninit_vec::<F::V3>(n);
     let mut v_rotations = uninit_vec::<F::Q>(n);
@@ -201,7 +227,7 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
         let len = fv.vertices * fv.channels;
         let mut v = vec![F::ZERO; n * len];
         if len > 0 {
-            v.par_chunks_mut(len).enumerate().with_min_len(256).for_each(|(g, row)| sum_entries(g, lo, lo + len, row));
+            reduce(&mut v, len, lo, lo + len);
         }
         v
     };
@@ -237,6 +263,18 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
         v_mean2d_norm,
         phases: sw.finish(),
     }
+}
+
+/// A hint to load the cache line at `p` (x86-64; nothing elsewhere).
+#[inline(always)]
+fn prefetch_read<T>(p: *const T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: a prefetch never faults, whatever the address.
+    unsafe {
+        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(p as *const i8)
+    };
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = p;
 }
 
 pub(crate) struct Ctx<'a, F: Real> {
