@@ -26,7 +26,7 @@ use crate::preprocess_backward::{gaussian_backward, GradSlots, ParamGrad, SplatG
 use crate::preprocess_backward_simd::{gaussian_backward_block, Inputs, BLOCK};
 use crate::real::Real;
 use crate::splat::{eval_row, hit_from_row, intersect_backward, row_offsets, row_setup, RowEval, SplatGrad};
-use crate::tiles::{EntryBox, TileBins, TileRec};
+use crate::tiles::{prefetch_read, EntryBox, TileBins, TileRec};
 use crate::{
     BackgroundOf, ColorSourceOf, ForwardStateOf, GaussianParams, GradsOf, OutputGradsOf, RasterConfig, RenderInputOf,
     RenderOutputOf,
@@ -263,18 +263,6 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
         v_mean2d_norm,
         phases: sw.finish(),
     }
-}
-
-/// A hint to load the cache line at `p` (x86-64; nothing elsewhere).
-#[inline(always)]
-fn prefetch_read<T>(p: *const T) {
-    #[cfg(target_arch = "x86_64")]
-    // SAFETY: a prefetch never faults, whatever the address.
-    unsafe {
-        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(p as *const i8)
-    };
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = p;
 }
 
 pub(crate) struct Ctx<'a, F: Real> {
