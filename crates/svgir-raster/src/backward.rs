@@ -26,7 +26,7 @@ use crate::preprocess_backward::{gaussian_backward, GradSlots, ParamGrad, SplatG
 use crate::preprocess_backward_simd::{gaussian_backward_block, Inputs, BLOCK};
 use crate::real::Real;
 use crate::splat::{eval_row, hit_from_row, intersect_backward, row_offsets, row_setup, RowEval, SplatGrad};
-use crate::tiles::{prefetch_read, EntryBox, TileBins, TileRec};
+use crate::tiles::{prefetch, EntryBox, TileBins, TileRec};
 use crate::{
     BackgroundOf, ColorSourceOf, ForwardStateOf, GaussianParams, GradsOf, OutputGradsOf, RasterConfig, RenderInputOf,
     RenderOutputOf,
@@ -120,25 +120,25 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     const AHEAD: usize = 8;
     const CHUNK: usize = 1024;
     let reduce = |out: &mut [F], width: usize, lo: usize, hi: usize| {
-        let prefetch = |g: usize| {
+        let prefetch_slots = |g: usize| {
             if g < n {
                 let (a, b) = (bins.entry_offsets[g] as usize, bins.entry_offsets[g + 1] as usize);
                 for &e in &bins.entries[a..b] {
                     // Both ends of the slot (it may span two cache lines).
                     let slot = &entry_grads[e as usize * dim..(e as usize + 1) * dim];
-                    prefetch_read(slot.as_ptr());
-                    prefetch_read(&slot[dim - 1]);
+                    prefetch::<false, _>(slot.as_ptr());
+                    prefetch::<false, _>(&slot[dim - 1]);
                 }
             }
         };
         out.par_chunks_mut(CHUNK * width).enumerate().for_each(|(c, rows)| {
             let g0 = c * CHUNK;
             for g in g0..(g0 + AHEAD).min(n) {
-                prefetch(g);
+                prefetch_slots(g);
             }
             for (j, row) in rows.chunks_exact_mut(width).enumerate() {
                 let g = g0 + j;
-                prefetch(g + AHEAD);
+                prefetch_slots(g + AHEAD);
                 let (a, b) = (bins.entry_offsets[g] as usize, bins.entry_offsets[g + 1] as usize);
                 for &e in &bins.entries[a..b] {
                     let slot = &entry_grads[e as usize * dim..(e as usize + 1) * dim];
@@ -294,7 +294,7 @@ struct Scratch<F> {
     /// The SIMD kernel's per-pixel arrays ([`crate::backward_simd`]).
     lanes: Vec<f32>,
     /// The SIMD kernel's lane groups of the current entry.
-    groups: crate::forward_simd::Groups,
+    groups: crate::lane_groups::Groups,
 }
 
 impl<F: Real> Scratch<F> {
@@ -308,7 +308,7 @@ impl<F: Real> Scratch<F> {
             by_ncon: Vec::with_capacity(tp),
             row_act: vec![0; tile],
             lanes: Vec::new(),
-            groups: crate::forward_simd::Groups::new(tile),
+            groups: crate::lane_groups::Groups::new(tile),
         }
     }
 }

@@ -18,8 +18,9 @@
 use crate::backward::{Ctx, OFF_C, OFF_COL, OFF_H, OFF_N, OFF_OP};
 use crate::forward::background_at;
 use crate::forward::FeatView;
-use crate::forward_simd::{eval_lanes, feat_weights, FeatLanes, Group, Groups};
+use crate::forward_simd::{eval_lanes, feat_weights, FeatLanes};
 use crate::interp::{normalised_coord_lanes, weight_grads_lanes, weights_lanes, MAX_VERTICES};
+use crate::lane_groups::{Group, Groups};
 use crate::simd::{Lanes, Simd};
 use crate::splat::SplatGrad;
 use crate::tiles::TileRec;

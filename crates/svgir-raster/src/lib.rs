@@ -20,6 +20,7 @@ pub mod bench;
 pub mod forward;
 mod forward_simd;
 pub mod interp;
+mod lane_groups;
 pub mod phases;
 pub mod preprocess;
 pub mod preprocess_backward;

@@ -61,18 +61,18 @@ pub fn gather_records<F: Real>(bins: &TileBins, splats: &[Splat<F>], colors: Opt
     // The slots of the Gaussian `AHEAD` places on are prefetched for writing: they are scattered
     // over the tiles, so the hardware prefetcher cannot guess them.
     const AHEAD: usize = 8;
-    let prefetch = |g: usize| {
+    let prefetch_slots = |g: usize| {
         if g < splats.len() {
             let (a, b) = (bins.entry_offsets[g] as usize, bins.entry_offsets[g + 1] as usize);
             for &pos in &bins.entries[a..b] {
                 let p = out.at(pos as usize);
-                prefetch_write(p);
-                prefetch_write((p as *const u8).wrapping_add(std::mem::size_of::<TileRec<F>>() - 1));
+                prefetch::<true, _>(p);
+                prefetch::<true, _>((p as *const u8).wrapping_add(std::mem::size_of::<TileRec<F>>() - 1));
             }
         }
     };
     splats.par_iter().enumerate().with_min_len(1024).for_each(|(g, s)| {
-        prefetch(g + AHEAD);
+        prefetch_slots(g + AHEAD);
         let (a, b) = (bins.entry_offsets[g] as usize, bins.entry_offsets[g + 1] as usize);
         if a == b {
             return;
@@ -178,7 +178,7 @@ pub fn bin<F: Real>(splats: &[Splat<F>], width: u32, height: u32, tile: u32) -> 
             for (i, &key) in ks.iter().enumerate() {
                 // The keys are in depth order, so their spans are read at random: prefetched.
                 if let Some(&k) = ks.get(i + AHEAD) {
-                    prefetch_read(&spans[(k & 0xffff_ffff) as usize]);
+                    prefetch::<false, _>(&spans[(k & 0xffff_ffff) as usize]);
                 }
                 let r = spans[(key & 0xffff_ffff) as usize];
                 for ty in r[2]..r[3] {
@@ -210,8 +210,8 @@ pub fn bin<F: Real>(splats: &[Splat<F>], width: u32, height: u32, tile: u32) -> 
             for (i, &key) in ks.iter().enumerate() {
                 if let Some(&k) = ks.get(i + AHEAD) {
                     let g = (k & 0xffff_ffff) as usize;
-                    prefetch_read(&spans[g]);
-                    prefetch_read(&entry_offsets[g]);
+                    prefetch::<false, _>(&spans[g]);
+                    prefetch::<false, _>(&entry_offsets[g]);
                 }
                 let g = (key & 0xffff_ffff) as usize;
                 let r = spans[g];
@@ -267,25 +267,18 @@ pub fn radix_sort_high(mut keys: Vec<u64>) -> Vec<u64> {
     keys
 }
 
-/// A hint to fetch the cache line at `p` for reading (x86-64; nothing elsewhere).
+/// A hint to fetch the cache line at `p`, for writing when `WRITE` (x86-64; nothing elsewhere).
 #[inline(always)]
-pub(crate) fn prefetch_read<T>(p: *const T) {
+pub(crate) fn prefetch<const WRITE: bool, T>(p: *const T) {
     #[cfg(target_arch = "x86_64")]
     // SAFETY: a prefetch never faults, whatever the address.
     unsafe {
-        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_T0 }>(p as *const i8)
-    };
-    #[cfg(not(target_arch = "x86_64"))]
-    let _ = p;
-}
-
-/// A hint to fetch the cache line at `p` for writing (x86-64; nothing elsewhere).
-#[inline(always)]
-pub(crate) fn prefetch_write<T>(p: *const T) {
-    #[cfg(target_arch = "x86_64")]
-    // SAFETY: a prefetch never faults, whatever the address.
-    unsafe {
-        std::arch::x86_64::_mm_prefetch::<{ std::arch::x86_64::_MM_HINT_ET0 }>(p as *const i8)
+        use std::arch::x86_64::{_mm_prefetch, _MM_HINT_ET0, _MM_HINT_T0};
+        if WRITE {
+            _mm_prefetch::<_MM_HINT_ET0>(p as *const i8)
+        } else {
+            _mm_prefetch::<_MM_HINT_T0>(p as *const i8)
+        }
     };
     #[cfg(not(target_arch = "x86_64"))]
     let _ = p;
