@@ -116,13 +116,14 @@ pub(crate) fn project_block<F: Real, P: GaussianParams<F> + ?Sized>(
         return false;
     }
     x.fill(params, g0, out.len(), colors.is_some());
+    let job = Job { x, cam, cfg, out, colors };
     #[cfg(target_arch = "x86_64")]
     {
         // SAFETY: `resolve` only returns a path whose features the CPU has.
         unsafe {
             match path {
-                Simd::Avx2 => block_avx2(x, cam, cfg, out, colors),
-                Simd::Avx512 => block_avx512(x, cam, cfg, out, colors),
+                Simd::Avx2 => block_avx2(job),
+                Simd::Avx512 => block_avx512(job),
                 _ => return false,
             }
         }
@@ -130,33 +131,30 @@ pub(crate) fn project_block<F: Real, P: GaussianParams<F> + ?Sized>(
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
-        let _ = (x, cam, cfg, out, colors);
+        let _ = job;
         false
     }
 }
 
+/// What one block reads and writes.
+struct Job<'a> {
+    x: &'a Inputs,
+    cam: &'a Cam<f32>,
+    cfg: &'a RasterConfig,
+    out: &'a mut [MaybeUninit<Splat<f32>>],
+    colors: Option<&'a mut [MaybeUninit<[f32; 3]>]>,
+}
+
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn block_avx2(
-    x: &Inputs,
-    cam: &Cam<f32>,
-    cfg: &RasterConfig,
-    out: &mut [MaybeUninit<Splat<f32>>],
-    c: Option<&mut [MaybeUninit<[f32; 3]>]>,
-) {
-    block(x, cam, cfg, out, c)
+unsafe fn block_avx2(job: Job) {
+    block(job)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512vl,avx2,fma")]
-unsafe fn block_avx512(
-    x: &Inputs,
-    cam: &Cam<f32>,
-    cfg: &RasterConfig,
-    out: &mut [MaybeUninit<Splat<f32>>],
-    c: Option<&mut [MaybeUninit<[f32; 3]>]>,
-) {
-    block(x, cam, cfg, out, c)
+unsafe fn block_avx512(job: Job) {
+    block(job)
 }
 
 /// One block's parameters, one Gaussian per lane (lanes past the block's end keep an earlier
@@ -211,13 +209,8 @@ impl Inputs {
 
 /// The scalar functions' operations, lane by lane (see the module docs).
 #[inline(always)]
-fn block(
-    x: &Inputs,
-    cam: &Cam<f32>,
-    cfg: &RasterConfig,
-    out: &mut [MaybeUninit<Splat<f32>>],
-    colors: Option<&mut [MaybeUninit<[f32; 3]>]>,
-) {
+fn block(job: Job) {
+    let Job { x, cam, cfg, out, colors } = job;
     let sp = V::<f32>::splat;
     let (one, two) = (sp(1.0), sp(2.0));
 
