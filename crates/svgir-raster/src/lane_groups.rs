@@ -241,10 +241,10 @@ impl Groups {
     /// where `live[row]` marks the tile's live columns and a tile row is `stride` apart. Pieces
     /// of at most `n/2` pixels are paired into packed groups; an unpaired one is a wide group.
     ///
-    /// Branch-free per row (about a third of the tile kernels' time went to listing while its
-    /// branches decided, row by row, whether a piece was empty, wide or the first or second half
-    /// of a packed group): an empty row gives one empty piece; every piece is written to both
-    /// lists and counted in the one it belongs to. Only a row longer than `n` pixels loops.
+    /// Listing was a third of the tile kernels' time, so it is kept lean: the chord pixels of
+    /// `N` rows at a time in lanes, then per row no branch (an empty row gives one empty piece;
+    /// every piece index goes to both lists and is counted in the one it belongs to; only a row
+    /// longer than `n` pixels loops), and groups are built from pieces only as they run.
     #[inline(always)]
     pub(crate) unsafe fn list<S: Lanes>(&mut self, s: &TileRec<f32>, tr: &[u32; 4], live: &[u64], stride: usize) {
         let n = S::N;
