@@ -364,7 +364,8 @@ pub fn sh_color<F: Real, P: GaussianParams<F> + ?Sized>(params: &P, cam: &Cam<F>
     (c, clamped)
 }
 
-/// A vector of `n` slots to be written once each (the per-Gaussian outputs of the preprocess and its backward), then [`assume_init`]ed.
+/// A vector of `n` slots to be written once each (the per-Gaussian outputs of the preprocess
+/// and its backward), then [`assume_init`]ed.
 pub(crate) fn uninit_vec<T>(n: usize) -> Vec<MaybeUninit<T>> {
     let mut v = Vec::with_capacity(n);
     // SAFETY: `MaybeUninit` needs no initialisation, and the capacity is `n`.

@@ -79,7 +79,8 @@ pub(crate) struct Inputs {
     q: [[f32; BLOCK]; 4],
     /// The two scales (`exp` of the log-scales, from the splat record).
     s: [[f32; BLOCK]; 2],
-    h: [[f32; BLOCK]; 9],
+    /// H's last column `(H02, H12, H22)`, all the projected centre's gradient reads of H.
+    hc: [[f32; BLOCK]; 3],
     opacity: [f32; BLOCK],
     flip: [f32; BLOCK],
     depth: [f32; BLOCK],
@@ -101,7 +102,7 @@ impl Inputs {
             p: [z; 3],
             q: [z; 4],
             s: [z; 2],
-            h: [z; 9],
+            hc: [z; 3],
             opacity: z,
             flip: z,
             depth: z,
@@ -140,8 +141,8 @@ impl Inputs {
             for c in 0..2 {
                 x.s[c][l] = sp.scale[c].to_f32();
             }
-            for c in 0..9 {
-                x.h[c][l] = sp.h[c].to_f32();
+            for (c, &k) in [2, 5, 8].iter().enumerate() {
+                x.hc[c][l] = sp.h[k].to_f32();
             }
             for (c, v) in sg.iter().enumerate() {
                 x.g[c][l] = v.to_f32();
@@ -223,15 +224,15 @@ unsafe fn block<S: Lanes>(x: &Inputs, cam: &Cam<f32>, splats: &[Splat<f32>], out
         ],
     ];
     let (su, sv) = (ld::<S>(&x.s[0]), ld::<S>(&x.s[1]));
-    let h: [S; 9] = std::array::from_fn(|c| ld(&x.h[c]));
+    let (h02, h12, h22) = (ld::<S>(&x.hc[0]), ld::<S>(&x.hc[1]), ld::<S>(&x.hc[2]));
 
     // Projected centre c = (H02 / H22, H12 / H22).
     let mut vh: [S; 9] = std::array::from_fn(g);
     let (gc0, gc1) = (g(9), g(10));
-    let inv = one.div(h[8]);
+    let inv = one.div(h22);
     vh[2] = vh[2].add(gc0.mul(inv));
     vh[5] = vh[5].add(gc1.mul(inv));
-    vh[8] = vh[8].sub(gc0.mul(h[2]).add(gc1.mul(h[5])).mul(inv).mul(inv));
+    vh[8] = vh[8].sub(gc0.mul(h02).add(gc1.mul(h12)).mul(inv).mul(inv));
 
     // H = K M with M = [a_u a_v a_0]: v_M = K^T v_H.
     let (fx, fy, cx, cy) = (sp(cam.fx), sp(cam.fy), sp(cam.cx), sp(cam.cy));

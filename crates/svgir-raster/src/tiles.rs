@@ -362,10 +362,7 @@ impl EntryBox {
     #[inline(always)]
     pub(crate) fn live_span_or_empty(&self, chord: Option<(usize, usize)>, live: u64) -> (usize, usize) {
         let (xa, xb) = chord.unwrap_or((self.x0, self.x1));
-        let m = live & columns_mask(xa - self.tx0, xb - self.tx0);
-        // m == 0: 64 trailing and leading zeros, so `a = tx0 + 64 > b = tx0` and the min is tx0.
-        let b = self.tx0 + 64 - m.leading_zeros() as usize;
-        ((self.tx0 + m.trailing_zeros() as usize).min(b), b)
+        live_span_or_empty(live, self.tx0, xa, xb)
     }
 
     /// The box's columns `[x0, x1)` inside the tile.
@@ -394,8 +391,17 @@ pub(crate) fn columns_mask(lo: usize, hi: usize) -> u64 {
 /// the pixels set in `live`; `None` when none is.
 #[inline(always)]
 pub(crate) fn live_span(live: u64, x0: usize, xa: usize, xb: usize) -> Option<(usize, usize)> {
+    let (a, b) = live_span_or_empty(live, x0, xa, xb);
+    (a < b).then_some((a, b))
+}
+
+/// [`live_span`] without a branch: the empty span `[x0, x0)` when no pixel is set.
+#[inline(always)]
+pub(crate) fn live_span_or_empty(live: u64, x0: usize, xa: usize, xb: usize) -> (usize, usize) {
     let m = live & columns_mask(xa - x0, xb - x0);
-    (m != 0).then(|| (x0 + m.trailing_zeros() as usize, x0 + 64 - m.leading_zeros() as usize))
+    // m == 0: 64 trailing and leading zeros, so `a = x0 + 64 > b = x0` and the min is x0.
+    let b = x0 + 64 - m.leading_zeros() as usize;
+    ((x0 + m.trailing_zeros() as usize).min(b), b)
 }
 
 #[cfg(test)]
@@ -453,5 +459,6 @@ mod tests {
         assert_eq!(live_span(live, 16, 19, 21), None);
         assert_eq!(live_span(live, 16, 22, 24), Some((22, 23)));
         assert_eq!(live_span(u64::MAX, 0, 60, 64), Some((60, 64)));
+        assert_eq!(live_span_or_empty(live, 16, 19, 21), (16, 16));
     }
 }
