@@ -320,6 +320,9 @@ struct Header2 {
     /// of stage 2's start, which keeps training, so they are saved rather than re-traced).
     #[serde(default)]
     has_back: bool,
+    /// The sun searches' schedule (absent in older checkpoints, whose runs had a fixed one).
+    #[serde(default)]
+    sun_schedule: crate::stage2::SunSchedule,
 }
 
 fn push_microbuffer<'a>(arrays: &mut Vec<(String, &'a [u8])>, prefix: &str, mb: &'a MicroBuffer) {
@@ -389,6 +392,7 @@ pub fn save_stage2(t: &Stage2, path: &Path) -> Result<(), CheckpointError> {
         light_dirs: t.lights.dirs.iter().map(|d| d.to_array()).collect(),
         has_trace_opacity: true,
         has_back: t.back.is_some(),
+        sun_schedule: t.sun_schedule,
     };
     write_container(path, &header, &arrays)
 }
@@ -423,6 +427,7 @@ pub fn load_stage2(path: &Path) -> Result<Stage2, CheckpointError> {
     t.iteration = h.iteration;
     t.rng = Rng::from_state(h.rng_state);
     t.times = h.times;
+    t.sun_schedule = h.sun_schedule;
     if let Some(o) = trace_opacity {
         t.trace_opacity = o;
     }

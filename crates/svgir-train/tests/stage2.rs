@@ -69,6 +69,8 @@ fn stage2_raises_pbr_psnr_and_resumes_bit_identically() {
         sun_at: 60,
         sun_search_views: 3,
         sun_search_every: 50,
+        // Spaced-out searches: the schedule (next search at 110) must come back with the checkpoint.
+        sun_search_settled_deg: 1e-3,
         ..spec.clone()
     };
     for cfg in [spec, lit] {
@@ -177,6 +179,7 @@ fn run_and_resume(ds: &Dataset, mut t: Stage2) {
     std::fs::remove_file(&path).ok();
     assert!(u.mb == t.mb, "{tag}: restored micro-buffers differ");
     assert!(u.lights == t.lights, "{tag}: restored lights differ");
+    assert_eq!(u.sun_schedule, t.sun_schedule, "{tag}: restored sun schedule differs");
     let back = |s: &Stage2| s.back.as_ref().map(|b| (b.mb.clone(), b.lights.clone()));
     assert_eq!(back(&t).is_some(), t.config.two_sided, "{tag}");
     assert!(back(&u) == back(&t), "{tag}: restored back sides differ");

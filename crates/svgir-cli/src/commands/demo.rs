@@ -98,6 +98,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         sun_search_views: None,
         sun_search_every: 300,
         sun_search_cone: 0.0,
+        sun_search_settled: None,
         lights: None,
         lights_every: 100,
         env_activation: None,

@@ -90,9 +90,10 @@ pub struct InverseArgs {
     /// Initial learned light: SPEC 4's per-texel random init, or a uniform grey at its mean.
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, value_enum, default_value_t = EnvInitArg::Random)]
     pub env_init: EnvInitArg,
-    /// Defaults of the eight advanced settings marked (profile) in `--help`: `measured`, the settings behind the
-    /// README's table (4 lights, exp light, sun at 400, sun search on 4 views, rho fixed,
-    /// materials from 500, layered diffuse, two-sided); `spec`, SPEC 6's literal ones.
+    /// Defaults of the nine advanced settings marked (profile) in `--help`: `measured`, the settings behind the
+    /// README's table (4 lights, exp light, sun at 400, sun search on 4 views, searches spaced
+    /// out once the sun settles, rho fixed, materials from 500, layered diffuse, two-sided);
+    /// `spec`, SPEC 6's literal ones.
     #[arg(long, value_enum, default_value_t = InverseProfile::Measured)]
     pub profile: InverseProfile,
     /// (profile) Learning rate of the indirect scale rho (SPEC 6: 0.01; 0 keeps rho = 1).
@@ -168,6 +169,11 @@ pub struct InverseArgs {
     /// sun on rings 15 degrees apart (0: compass search alone).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 0.0)]
     pub sun_search_cone: f32,
+    /// A sun search that moves the sun by less than this many degrees doubles the wait before
+    /// the next; a larger move restores --sun-search-every (0: a search every
+    /// --sun-search-every iterations). (profile)
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
+    pub sun_search_settled: Option<f32>,
     /// Tracing: continuation offset after a hit, world units (SPEC 5: 0.05, which lets light
     /// leak through surfaces made of overlapping surfels; see `DEFAULT_TRACE_EPS`).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = Stage2Config::default().trace_eps)]
@@ -296,6 +302,7 @@ struct Resolved {
     env_activation: EnvActivationArg,
     sun_at: u64,
     sun_search_views: usize,
+    sun_search_settled_deg: f32,
 }
 
 impl Resolved {
@@ -314,6 +321,7 @@ impl Resolved {
             }),
             sun_at: a.sun_at.unwrap_or(if m { 400 } else { 0 }),
             sun_search_views: a.sun_search_views.unwrap_or(if m { 4 } else { 0 }),
+            sun_search_settled_deg: a.sun_search_settled.unwrap_or(if m { 1.0 } else { 0.0 }),
         }
     }
 }
@@ -328,6 +336,11 @@ pub fn run(args: InverseArgs) -> Result<()> {
         args.visibility_alpha_gain.is_finite() && args.visibility_alpha_gain >= 1.0,
         "--visibility-alpha-gain {} must be at least 1",
         args.visibility_alpha_gain
+    );
+    anyhow::ensure!(
+        args.sun_search_settled.is_none_or(|d| d.is_finite() && d >= 0.0),
+        "--sun-search-settled {} is not an angle of 0 degrees or more",
+        args.sun_search_settled.unwrap_or(0.0)
     );
     anyhow::ensure!(
         args.light_colour_degree.is_none() || args.grey_light != GreyLightArg::Off,
@@ -395,6 +408,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         sun_search_views: p.sun_search_views,
         sun_search_every: args.sun_search_every,
         sun_search_cone_deg: args.sun_search_cone,
+        sun_search_settled_deg: p.sun_search_settled_deg,
         weights: super::loss_weights::<Stage2Weights>(&args.weights)?,
         ..Stage2Config::default()
     };

@@ -25,7 +25,7 @@ pub use crate::composite::Coverage;
 pub use config::{EnvInit, GreyLight, Stage2Config, Stage2Rates, Stage2Weights, DEFAULT_TRACE_EPS};
 pub use objective::EXTRA_CHANNELS;
 pub use render::{BackShading, PbrRender, Shading};
-pub use sun_search::SunSearch;
+pub use sun_search::{SunSchedule, SunSearch};
 
 use crate::adam::AdamGroup;
 use crate::orient::orient_normals;
@@ -104,6 +104,8 @@ pub struct Stage2 {
     colour: ColourProjector,
     /// Every Gaussian's back side, with `config.two_sided` ([`Stage2::trace_back_side`]).
     pub back: Option<BackSide>,
+    /// When the next sun search is due.
+    pub sun_schedule: SunSchedule,
 }
 
 /// The back side of every Gaussian for two-sided shading (`svgir_pbr::two_sided`): traced once,
@@ -265,6 +267,7 @@ impl Stage2 {
             trace_opacity: surfels_opacity,
             colour,
             back: None,
+            sun_schedule: SunSchedule::default(),
         })
     }
 
@@ -345,7 +348,10 @@ impl Stage2 {
             self.set_lights(&brightest_texels(&self.env.radiance(), cfg.lights))?;
         }
         // `search_sun` itself returns None without lights or views.
-        let sun_search = if cfg.sun_search_due(self.iteration) { self.search_sun(dataset)? } else { None };
+        let mut sun_search = if self.sun_schedule.due(&cfg, self.iteration) { self.search_sun(dataset)? } else { None };
+        if let Some(s) = &mut sun_search {
+            s.next_at = self.sun_schedule.searched(&cfg, self.iteration, s.moved_deg);
+        }
         let grey = cfg.grey_light.holds(self.iteration + 1, cfg.materials_from);
         if grey {
             self.colour.apply(&mut self.env.param)?;

@@ -18,7 +18,7 @@
 //! rings `CONE_SPACING_DEG` apart before the compass starts from the best of them.
 //! Deterministic: no random numbers, so a resumed run repeats it exactly.
 
-use super::{photo_coverage, Stage2};
+use super::{photo_coverage, Stage2, Stage2Config};
 use crate::stage1::target_rgb;
 use glam::Vec3;
 use serde::{Deserialize, Serialize};
@@ -49,6 +49,48 @@ pub struct SunSearch {
     pub loss_after: f32,
     /// Candidate directions scored, the start included.
     pub evaluations: usize,
+    /// Iteration of the next search (absent without one, and in older logs).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub next_at: Option<u64>,
+}
+
+/// When the next sun search is due (`Stage2Config::sun_search_settled_deg`); saved with the
+/// checkpoint, so a resumed run keeps its schedule.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+pub struct SunSchedule {
+    /// Iteration of the next search after the first (0: no search done yet).
+    pub next: u64,
+    /// Iterations from the last search to `next`.
+    pub wait: u64,
+}
+
+impl SunSchedule {
+    /// Is a search due before step `iteration` + 1? At `sun_at`, then: with
+    /// `sun_search_settled_deg` at `next`, else every `sun_search_every` iterations.
+    pub fn due(&self, cfg: &Stage2Config, iteration: u64) -> bool {
+        if cfg.sun_search_settled_deg <= 0.0 {
+            return cfg.sun_search_due(iteration);
+        }
+        cfg.sun_at > 0
+            && (iteration == cfg.sun_at
+                || (cfg.sun_search_every > 0 && self.next > cfg.sun_at && iteration == self.next))
+    }
+
+    /// After a search at `iteration` that moved the sun by `moved_deg`: a settled sun (a move
+    /// under `sun_search_settled_deg`) doubles the wait, a moving one restores
+    /// `sun_search_every`. Returns the next search's iteration (`None`: none).
+    pub fn searched(&mut self, cfg: &Stage2Config, iteration: u64, moved_deg: f32) -> Option<u64> {
+        let every = cfg.sun_search_every;
+        if every == 0 {
+            return None;
+        }
+        if cfg.sun_search_settled_deg <= 0.0 {
+            return Some(iteration + every);
+        }
+        self.wait = if moved_deg < cfg.sun_search_settled_deg { self.wait.max(every) * 2 } else { every };
+        self.next = iteration + self.wait;
+        Some(self.next)
+    }
 }
 
 impl Stage2 {
@@ -178,6 +220,56 @@ impl Stage2 {
             loss_before,
             loss_after: best_loss,
             evaluations,
+            next_at: None,
         }))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cfg(settled: f32) -> Stage2Config {
+        Stage2Config { sun_at: 400, sun_search_every: 300, sun_search_settled_deg: settled, ..Stage2Config::default() }
+    }
+
+    /// The searches a run of `n` iterations does, each moving the sun by `moved(iteration)`.
+    fn searches(c: &Stage2Config, n: u64, moved: impl Fn(u64) -> f32) -> Vec<u64> {
+        let mut s = SunSchedule::default();
+        let mut done = Vec::new();
+        for it in 0..n {
+            if s.due(c, it) {
+                done.push(it);
+                let next = s.searched(c, it, moved(it));
+                assert_eq!(next.is_some(), c.sun_search_every > 0);
+                assert!(next.is_none_or(|x| x > it), "the next search comes later");
+            }
+        }
+        done
+    }
+
+    #[test]
+    fn settled_searches_double_their_wait_and_a_move_restores_it() {
+        let c = cfg(1.0);
+        // Only the first search moves the sun: the waits double from 300.
+        assert_eq!(
+            searches(&c, 20_000, |it| if it == 400 { 10.0 } else { 0.0 }),
+            [400, 700, 1300, 2500, 4900, 9700, 19300]
+        );
+        // A move of 1 degree or more at 1300 restores the 300-iteration wait.
+        let moved = |it| if it == 400 || it == 1300 { 5.0 } else { 0.5 };
+        assert_eq!(searches(&c, 4000, moved), [400, 700, 1300, 1600, 2200, 3400]);
+        // A first search that settles at once waits twice the interval.
+        assert_eq!(searches(&c, 2000, |_| 0.0), [400, 1000]);
+    }
+
+    #[test]
+    fn without_a_settling_angle_the_interval_is_fixed() {
+        let c = cfg(0.0);
+        let fixed: Vec<u64> = (0..5000).filter(|it| c.sun_search_due(*it)).collect();
+        assert_eq!(fixed.len(), 16);
+        assert_eq!(searches(&c, 5000, |_| 0.0), fixed);
+        let once = Stage2Config { sun_search_every: 0, ..cfg(1.0) };
+        assert_eq!(searches(&once, 5000, |_| 0.0), [400]);
     }
 }
