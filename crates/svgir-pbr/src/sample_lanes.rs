@@ -132,6 +132,9 @@ pub(crate) fn serves(inp: &ShadeInputs<f32>) -> bool {
     matches!(inp.indirect, Indirect::Off | Indirect::Traced { .. })
 }
 
+/// Lights compared with the taps in lanes in [`samples8`]; beyond this, the mask lookup.
+const MAX_COMPARED_LIGHTS: usize = 16;
+
 /// Samples `(i, k0..k0 + 8)` of Gaussian i with frame `frame`.
 ///
 /// # Safety
@@ -212,17 +215,28 @@ pub(crate) unsafe fn samples8(
     for t in 0..4 {
         _mm256_storeu_si256(out.index[t].as_mut_ptr() as *mut __m256i, index[t]);
     }
-    // Taps on directional lights carry nothing (`BrightLights::mask_taps`).
+    // Taps on directional lights carry nothing (`BrightLights::mask_taps`): a few lights are
+    // compared with the taps' indices in lanes, more looked up in the mask lane by lane.
     if let Some(lights) = inp.lights.filter(|l| !l.is_empty()) {
-        for t in 0..4 {
-            let mut w = [0f32; LANES];
-            _mm256_storeu_ps(w.as_mut_ptr(), weight[t]);
-            for l in 0..LANES {
-                if lights.is_light(out.index[t][l]) {
-                    w[l] = 0.0;
+        if lights.texels.len() <= MAX_COMPARED_LIGHTS {
+            for t in 0..4 {
+                let mut hit = _mm256_setzero_si256();
+                for &texel in &lights.texels {
+                    hit = _mm256_or_si256(hit, _mm256_cmpeq_epi32(index[t], _mm256_set1_epi32(texel as i32)));
                 }
+                weight[t] = _mm256_andnot_ps(_mm256_castsi256_ps(hit), weight[t]);
             }
-            weight[t] = _mm256_loadu_ps(w.as_ptr());
+        } else {
+            for t in 0..4 {
+                let mut w = [0f32; LANES];
+                _mm256_storeu_ps(w.as_mut_ptr(), weight[t]);
+                for l in 0..LANES {
+                    if lights.is_light(out.index[t][l]) {
+                        w[l] = 0.0;
+                    }
+                }
+                weight[t] = _mm256_loadu_ps(w.as_ptr());
+            }
         }
     }
 
@@ -269,9 +283,19 @@ pub(crate) unsafe fn samples8(
             _mm256_storeu_ps(ind.add(8 * q), _mm256_mul_ps(x, _mm256_set1_ps(rho)));
         }
     }
-    // Which lanes carry anything (the scalar `sample`'s test).
+    // Which lanes carry anything (the scalar `sample`'s test, `!(V <= 0 && traced == 0 && ind
+    // == 0)`): bit 3l + c of `nonzero` says that channel c of lane l's traced or indirect
+    // radiance is not 0 (NaN included, as `==` reads it).
+    let dark = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LE_OQ>(vis, zero)) as u32;
+    let mut nonzero = 0u32;
+    for rows in [out.traced.as_ptr() as *const f32, out.ind.as_ptr() as *const f32] {
+        for part in 0..3 {
+            let x = _mm256_loadu_ps(rows.add(8 * part));
+            nonzero |= (_mm256_movemask_ps(_mm256_cmp_ps::<_CMP_NEQ_UQ>(x, zero)) as u32) << (8 * part);
+        }
+    }
     for l in 0..LANES {
-        if !(out.vis[l] <= 0.0 && out.traced[l] == [0.0; 3] && out.ind[l] == [0.0; 3]) {
+        if dark >> l & 1 == 0 || nonzero >> (3 * l) & 7 != 0 {
             out.yields |= 1 << l;
         }
     }
@@ -367,17 +391,23 @@ mod tests {
         }
         let act = synthetic_materials(n, 2, 3).activated(&mb.normals).unwrap();
         let cache = DirectionCache::new(&mb, &env).unwrap();
-        let texels = brightest_texels(&env, 3);
-        let cols: Vec<Vec<f32>> = texels.iter().map(|_| (0..n).map(|_| rng.uniform()).collect()).collect();
-        let lights = BrightLights::from_visibility(&env, &texels, &cols).unwrap();
+        // A few lights (compared in lanes) and more than MAX_COMPARED_LIGHTS (looked up).
+        let mut lights_of = |count| {
+            let texels = brightest_texels(&env, count);
+            let cols: Vec<Vec<f32>> = texels.iter().map(|_| (0..n).map(|_| rng.uniform()).collect()).collect();
+            BrightLights::from_visibility(&env, &texels, &cols).unwrap()
+        };
+        let (few, many) = (lights_of(3), lights_of(MAX_COMPARED_LIGHTS + 4));
+        assert_eq!(many.len(), MAX_COMPARED_LIGHTS + 4);
         let visible = vec![true; n];
         let table = FibTable::new(k);
         let (mut yielded, mut skipped) = (0, 0);
-        for (visibility, indirect, with_lights) in [
-            (true, Indirect::Traced { rho: 0.7 }, true),
-            (true, Indirect::Off, false),
-            (false, Indirect::Traced { rho: 1.3 }, false),
-            (true, Indirect::Traced { rho: 0.0 }, true),
+        for (visibility, indirect, lights) in [
+            (true, Indirect::Traced { rho: 0.7 }, Some(&few)),
+            (true, Indirect::Off, None),
+            (false, Indirect::Traced { rho: 1.3 }, None),
+            (true, Indirect::Traced { rho: 0.0 }, Some(&few)),
+            (true, Indirect::Traced { rho: 0.4 }, Some(&many)),
         ] {
             let inp = ShadeInputs {
                 mb: &mb,
@@ -389,7 +419,7 @@ mod tests {
                 env: &env.data,
                 indirect,
                 params: ShadeParams { visibility, ..ShadeParams::default() },
-                lights: with_lights.then_some(&lights),
+                lights,
             };
             assert!(serves(&inp));
             for i in 0..n {

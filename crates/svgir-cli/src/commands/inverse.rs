@@ -90,10 +90,10 @@ pub struct InverseArgs {
     /// Initial learned light: SPEC 4's per-texel random init, or a uniform grey at its mean.
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, value_enum, default_value_t = EnvInitArg::Random)]
     pub env_init: EnvInitArg,
-    /// Defaults of the nine advanced settings marked (profile) in `--help`: `measured`, the settings behind the
+    /// Defaults of the ten advanced settings marked (profile) in `--help`: `measured`, the settings behind the
     /// README's table (4 lights, exp light, sun at 400, sun search on 4 views, searches spaced
-    /// out once the sun settles, rho fixed, materials from 500, layered diffuse, two-sided);
-    /// `spec`, SPEC 6's literal ones.
+    /// out once the sun settles, rho fixed, materials from 500, layered diffuse, two-sided,
+    /// Gaussians blended under 0.01 pixels not shaded in training); `spec`, SPEC 6's literal ones.
     #[arg(long, value_enum, default_value_t = InverseProfile::Measured)]
     pub profile: InverseProfile,
     /// (profile) Learning rate of the indirect scale rho (SPEC 6: 0.01; 0 keeps rho = 1).
@@ -174,6 +174,11 @@ pub struct InverseArgs {
     /// --sun-search-every iterations). (profile)
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub sun_search_settled: Option<f32>,
+    /// Training shades only the Gaussians a view blends with a total weight of at least this
+    /// many pixels; fainter ones composite their SH colour instead, without material gradients
+    /// (0: shade every blended Gaussian). Evaluation always shades all. (profile)
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
+    pub shade_min_weight: Option<f32>,
     /// Tracing: continuation offset after a hit, world units (SPEC 5: 0.05, which lets light
     /// leak through surfaces made of overlapping surfels; see `DEFAULT_TRACE_EPS`).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = Stage2Config::default().trace_eps)]
@@ -303,6 +308,7 @@ struct Resolved {
     sun_at: u64,
     sun_search_views: usize,
     sun_search_settled_deg: f32,
+    shade_min_weight: f32,
 }
 
 impl Resolved {
@@ -322,6 +328,7 @@ impl Resolved {
             sun_at: a.sun_at.unwrap_or(if m { 400 } else { 0 }),
             sun_search_views: a.sun_search_views.unwrap_or(if m { 4 } else { 0 }),
             sun_search_settled_deg: a.sun_search_settled.unwrap_or(if m { 1.0 } else { 0.0 }),
+            shade_min_weight: a.shade_min_weight.unwrap_or(if m { 0.01 } else { 0.0 }),
         }
     }
 }
@@ -341,6 +348,11 @@ pub fn run(args: InverseArgs) -> Result<()> {
         args.sun_search_settled.is_none_or(|d| d.is_finite() && d >= 0.0),
         "--sun-search-settled {} is not an angle of 0 degrees or more",
         args.sun_search_settled.unwrap_or(0.0)
+    );
+    anyhow::ensure!(
+        args.shade_min_weight.is_none_or(|w| w.is_finite() && w >= 0.0),
+        "--shade-min-weight {} is not a weight of 0 or more",
+        args.shade_min_weight.unwrap_or(0.0)
     );
     anyhow::ensure!(
         args.light_colour_degree.is_none() || args.grey_light != GreyLightArg::Off,
@@ -409,6 +421,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         sun_search_every: args.sun_search_every,
         sun_search_cone_deg: args.sun_search_cone,
         sun_search_settled_deg: p.sun_search_settled_deg,
+        shade_min_weight: p.shade_min_weight,
         weights: super::loss_weights::<Stage2Weights>(&args.weights)?,
         ..Stage2Config::default()
     };

@@ -34,6 +34,7 @@ use glam::Vec3;
 use objective::{extra_features, extra_features_backward, stage2_objective, Stage2Outputs, Stage2Target};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
+use svgir_core::color::srgb_to_linear;
 use svgir_core::{Camera, Dataset, Image, Rng, Surfels};
 use svgir_pbr::{
     negated, radiance_consistency, radiance_consistency_backward, shade_sides_backward, shade_sides_into,
@@ -135,14 +136,45 @@ fn visible_of(max_radius: &[f32]) -> Vec<bool> {
     max_radius.iter().map(|r| *r > 0.0).collect()
 }
 
-/// The Gaussians of `visible` that a render blended into some pixel: `accum_weight` (that
-/// render's per-Gaussian sum of w_i) is positive. Every blended Gaussian has a positive weight
-/// w_i = alpha_i T_i, so the others' colours are never read (or only times a zero weight) by a
-/// render of the same surfels and camera, whatever its colours: shading only these gives the
-/// same image and gradients. On the shipped scene a fifth of the Gaussians in the frustum are
-/// hidden.
-pub(crate) fn weighted(visible: &[bool], accum_weight: &[f32]) -> Vec<bool> {
-    visible.iter().zip(accum_weight).map(|(v, w)| *v && *w > 0.0).collect()
+/// The Gaussians of `visible` that a render blended into some pixel with a total weight of at
+/// least `min_weight`: `accum_weight` (that render's per-Gaussian sum of w_i) is positive and at
+/// least `min_weight`. Every blended Gaussian has a positive weight w_i = alpha_i T_i, so the
+/// others' colours are never read (or only times a zero weight) by a render of the same surfels
+/// and camera, whatever its colours: with `min_weight` 0, shading only these gives the same
+/// image and gradients. On the shipped scene a fifth of the Gaussians in the frustum are hidden.
+pub(crate) fn weighted(visible: &[bool], accum_weight: &[f32], min_weight: f32) -> Vec<bool> {
+    visible.iter().zip(accum_weight).map(|(v, w)| *v && *w > 0.0 && *w >= min_weight).collect()
+}
+
+/// Stand-in colours for the Gaussians of `visible` blended with a total weight below
+/// `min_weight` (`Stage2Config::shade_min_weight`), which training does not shade: each vertex
+/// takes the Gaussian's SH colour towards `center` (as the SH pass composites it, clamped to
+/// [0, 1]) taken from sRGB to linear, the PBR image's space before its encoding. Both images fit
+/// the same photos, so the stand-in is close to the shaded colour; it is a constant (no
+/// gradients to the materials or the SH). Returns how many Gaussians stand in.
+pub(crate) fn stand_in_colours(
+    surfels: &Surfels,
+    center: Vec3,
+    visible: &[bool],
+    accum_weight: &[f32],
+    min_weight: f32,
+    m: usize,
+    color: &mut [f32],
+) -> usize {
+    let mut count = 0;
+    for (i, (v, w)) in visible.iter().zip(accum_weight).enumerate() {
+        if !(*v && *w > 0.0 && *w < min_weight) {
+            continue;
+        }
+        let dir = (surfels.positions[i] - center).normalize();
+        let sh = surfels.sh[i].eval(surfels.sh_degree.min(3), dir);
+        let lin = sh.map(|c| srgb_to_linear(c.clamp(0.0, 1.0)));
+        for px in color[i * m * 3..(i + 1) * m * 3].chunks_exact_mut(3) {
+            px.copy_from_slice(&lin);
+        }
+        count += 1;
+    }
+    count
 }
 
 impl Stage2 {
@@ -391,8 +423,9 @@ impl Stage2 {
         };
 
         // 2. PBR pass, shading only what the SH pass blended (same surfels and camera).
+        let min_w = cfg.shade_min_weight;
         let (front_shade, back_shade) =
-            (weighted(&front_vis, &sh_out.accum_weight), weighted(&back_vis, &sh_out.accum_weight));
+            (weighted(&front_vis, &sh_out.accum_weight, min_w), weighted(&back_vis, &sh_out.accum_weight, min_w));
         let act = self.materials.activated(&self.normals)?;
         let env_rad = self.env.radiance();
         let front = Side {
@@ -420,6 +453,10 @@ impl Stage2 {
         let back = render::back_side(&front, back_shading.as_ref(), &back_shade, back_normals.as_deref());
         let (mut shaded, mut scratch) = (ShadeOutput::new(), ShadeOutput::new());
         shade_sides_into(&front, back.as_ref(), &mut shaded, &mut scratch)?;
+        if min_w > 0.0 {
+            let center = cam.center();
+            stand_in_colours(&self.surfels, center, &visible, &sh_out.accum_weight, min_w, m, &mut shaded.color);
+        }
         let facing = self.facing(cam);
         let extra = extra_features(&act, &facing);
         let pbr_input = RenderInput {
@@ -556,5 +593,46 @@ impl Stage2 {
             rho: self.rho,
             sun_search,
         })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::{Quat, Vec2};
+    use svgir_core::sh::ShCoeffs;
+
+    /// Only the visible Gaussians blended under the threshold stand in, each vertex with the
+    /// linearised SH colour; the rest keep their shaded colours, and the shaded set is the
+    /// complement among the blended ones.
+    #[test]
+    fn faint_gaussians_stand_in_with_their_linear_sh_colour() {
+        let rgb = [[0.2, 0.5, 0.9], [1.4, -0.3, 0.5], [0.6, 0.6, 0.6], [0.1, 0.2, 0.3], [0.7, 0.1, 0.4]];
+        let n = rgb.len();
+        let surfels = Surfels {
+            positions: (0..n).map(|i| Vec3::new(i as f32, 0.0, 5.0)).collect(),
+            rotations: vec![Quat::IDENTITY; n],
+            log_scales: vec![Vec2::ZERO; n],
+            opacity_logits: vec![0.0; n],
+            sh: rgb.iter().map(|c| ShCoeffs::from_rgb(*c)).collect(),
+            sh_degree: 0,
+        };
+        let visible = [true, true, true, false, true];
+        let weight = [0.004, 0.009, 0.5, 0.001, 0.0];
+        let (m, shaded) = (4, 7.0);
+        let mut color = vec![shaded; n * m * 3];
+        let count = stand_in_colours(&surfels, Vec3::ZERO, &visible, &weight, 0.01, m, &mut color);
+        assert_eq!(count, 2);
+        for i in 0..n {
+            let want = if i < 2 { rgb[i].map(|c: f32| srgb_to_linear(c.clamp(0.0, 1.0))) } else { [shaded; 3] };
+            for v in 0..m {
+                let got = &color[(i * m + v) * 3..(i * m + v) * 3 + 3];
+                for c in 0..3 {
+                    assert!((got[c] - want[c]).abs() < 1e-5, "Gaussian {i} vertex {v}: {got:?} vs {want:?}");
+                }
+            }
+        }
+        assert_eq!(weighted(&visible, &weight, 0.01), [false, false, true, false, false]);
+        assert_eq!(weighted(&visible, &weight, 0.0), [true, true, true, false, false]);
     }
 }
