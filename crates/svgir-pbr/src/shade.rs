@@ -119,12 +119,21 @@ pub struct ShadeOutput<F = f32> {
     pub direct: Vec<F>,
     /// Indirect part of the colour per vertex.
     pub indirect: Vec<F>,
+    /// Whether [`shade_into`] fills `direct` and `indirect` (else they stay empty).
+    pub split: bool,
 }
 
 impl<F> ShadeOutput<F> {
     /// Empty buffers, to be filled (and reused across iterations) by [`shade_into`].
     pub fn new() -> Self {
-        Self { m: 0, color: Vec::new(), direct: Vec::new(), indirect: Vec::new() }
+        Self { m: 0, color: Vec::new(), direct: Vec::new(), indirect: Vec::new(), split: true }
+    }
+
+    /// [`ShadeOutput::new`] for the colour alone (training reads nothing else): the lane
+    /// kernel then sums each sample's direct and indirect light once instead of keeping two
+    /// sums per channel, and the direct and indirect buffers are neither zeroed nor written.
+    pub fn colour_only() -> Self {
+        Self { split: false, ..Self::new() }
     }
 }
 
@@ -437,36 +446,73 @@ pub fn shade_into_cached<F: Float>(
     let m = inp.mats.m;
     let len = inp.mb.len() * m * 3;
     out.m = m;
-    for buf in [&mut out.color, &mut out.direct, &mut out.indirect] {
+    let split_len = if out.split { len } else { 0 };
+    for (buf, len) in [(&mut out.color, len), (&mut out.direct, split_len), (&mut out.indirect, split_len)] {
         buf.clear();
         buf.resize(len, F::ZERO);
     }
     let table = FibTable::new(inp.mb.k);
     #[cfg(target_arch = "x86_64")]
     let lane = lane_kernels::<F>(inp.params.simd);
-    out.color
-        .par_chunks_mut(m * 3)
-        .zip(out.direct.par_chunks_mut(m * 3))
-        .zip(out.indirect.par_chunks_mut(m * 3))
-        .enumerate()
-        .with_min_len(MIN_TASK)
-        .for_each_init(LaneScratch::default, |rows, (i, ((c, d), ind))| {
-            if !inp.visible[i] {
-                return;
-            }
-            #[cfg(target_arch = "x86_64")]
-            if lane {
-                // SAFETY: `lane_kernels` checked that `F` is `f32` and that the CPU has AVX2.
-                unsafe {
-                    let (c, d, ind) = (as_f32_mut(c), as_f32_mut(d), as_f32_mut(ind));
-                    crate::shade_simd::shade_gaussian_avx2(as_f32_inputs(inp), &table, cache, rows, i, c, d, ind);
+    #[cfg(not(target_arch = "x86_64"))]
+    let lane = false;
+    // Without the split, the direct and indirect parts go to per-task scratch (scalar kernel)
+    // or are not formed (lane kernel).
+    if out.split {
+        out.color
+            .par_chunks_mut(m * 3)
+            .zip(out.direct.par_chunks_mut(m * 3))
+            .zip(out.indirect.par_chunks_mut(m * 3))
+            .enumerate()
+            .with_min_len(MIN_TASK)
+            .for_each_init(LaneScratch::default, |rows, (i, ((c, d), ind))| {
+                shade_one(inp, &table, cache, rows, lane, i, c, Some((d, ind)));
+            });
+    } else {
+        out.color.par_chunks_mut(m * 3).enumerate().with_min_len(MIN_TASK).for_each_init(
+            || (LaneScratch::default(), vec![F::ZERO; 2 * m * 3]),
+            |(rows, scratch), (i, c)| {
+                if lane {
+                    shade_one(inp, &table, cache, rows, true, i, c, None);
+                } else {
+                    let (d, ind) = scratch.split_at_mut(m * 3);
+                    shade_one(inp, &table, cache, rows, false, i, c, Some((d, ind)));
                 }
-                return;
-            }
-            let _ = &rows;
-            shade_gaussian(inp, &table, cache, i, c, d, ind);
-        });
+            },
+        );
+    }
     Ok(())
+}
+
+/// Gaussian i's vertex colours into `c`, with its direct and indirect parts into `parts` (the
+/// lane kernel may go without them; the scalar one needs them).
+#[allow(clippy::too_many_arguments)]
+#[inline(always)]
+fn shade_one<F: Float>(
+    inp: &ShadeInputs<F>,
+    table: &FibTable,
+    cache: Option<&DirectionCache>,
+    rows: &mut LaneScratch,
+    lane: bool,
+    i: usize,
+    c: &mut [F],
+    parts: Option<(&mut [F], &mut [F])>,
+) {
+    if !inp.visible[i] {
+        return;
+    }
+    #[cfg(target_arch = "x86_64")]
+    if lane {
+        // SAFETY: `lane_kernels` checked that `F` is `f32` and that the CPU has AVX2.
+        unsafe {
+            let parts = parts.map(|(d, ind)| (as_f32_mut(d), as_f32_mut(ind)));
+            crate::shade_simd::shade_gaussian_avx2(as_f32_inputs(inp), table, cache, rows, i, as_f32_mut(c), parts);
+        }
+        return;
+    }
+    let _ = (&rows, lane);
+    let (d, ind) = parts.expect("the scalar kernel writes the direct and indirect parts");
+    shade_gaussian(inp, table, cache, i, c, d, ind);
 }
 
 /// Per-task scratch of the lane kernels (none where there are none).

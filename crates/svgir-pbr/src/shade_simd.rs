@@ -16,7 +16,9 @@
 //! What differs from the scalar oracle: the sums over directions (E, P, and in the backward the
 //! roughness and normal gradients) are summed lane-wise and then across lanes, so they differ by
 //! rounding; per-sample quantities (the light gradient `v_lin`, summed over vertices in vertex
-//! order, and hence the env-map and rho gradients) are evaluated in the scalar order. The tests
+//! order, and hence the env-map and rho gradients) are evaluated in the scalar order. Asked for
+//! the colour alone (`ShadeOutput::colour_only`, training), the forward sums each sample's direct
+//! and indirect light once and keeps one E and one P per channel instead of two. The tests
 //! (`tests/shade_simd.rs`) hold both to the generic f32 kernels and to f64.
 //!
 //! Work split: as the scalar kernels (rayon over Gaussians forward, over fixed blocks backward);
@@ -30,7 +32,8 @@ use crate::sample_lanes::{samples8, serves, Samples8, LANES};
 use crate::shade::{gaussian, light_samples, sample, samples, FibTable, Frame, Sample, ShadeInputs};
 use crate::shade_backward::light_grads;
 use svgir_core::simd::{Lanes, F8};
-use svgir_shading::split_lanes::{cdot, dot_l, lobe_l, spec_grad_lanes, spec_lanes};
+use svgir_shading::split::Lobe;
+use svgir_shading::split_lanes::{cdot, dot_l, lobe_l, spec_grad_lanes, spec_lanes, LobeL};
 use svgir_shading::tri;
 use svgir_shading::F0;
 use svgir_trace::DirectionCache;
@@ -53,12 +56,16 @@ pub(crate) struct SampleRows {
     kept8: Vec<Samples8>,
     kept: Vec<Sample<f32>>,
     v_lin: [Vec<f32>; 3],
+    /// The backward's and the colour-only forward's `direct + ind` per sample and channel.
+    lin: [Vec<f32>; 3],
 }
 
 impl SampleRows {
     /// Gaussian i's samples (those `shade::samples` yields, in its order) with their half
-    /// vectors towards `wo`; `keep` also stores the samples for the backward.
+    /// vectors towards `wo`; `keep` also stores the samples for the backward, and `keep` or
+    /// `summed` forms `lin`.
     #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
     fn fill(
         &mut self,
         inp: &ShadeInputs<f32>,
@@ -67,6 +74,7 @@ impl SampleRows {
         i: usize,
         wo: [f32; 3],
         keep: bool,
+        summed: bool,
     ) {
         let frame = Frame::new(inp.mb.normals[i], inp.mb.xi[i]);
         self.kept.clear();
@@ -122,6 +130,13 @@ impl SampleRows {
             for v in &mut self.v_lin {
                 v.clear();
                 v.resize(padded, 0.0);
+            }
+        }
+        if keep || summed {
+            for c in 0..3 {
+                let lin = &mut self.lin[c];
+                lin.clear();
+                lin.extend(self.direct[c].iter().zip(&self.ind[c]).map(|(d, i)| d + i));
             }
         }
     }
@@ -181,7 +196,21 @@ unsafe fn load<L: Lanes>(row: &[f32], j: usize) -> L {
     L::load(row.as_ptr().add(j * L::N))
 }
 
-/// The forward of Gaussian i into its M x 3 slices (as `shade::shade_gaussian`).
+/// The lane weights of block `j` of the samples for a vertex with lobe `lb`: `max(0, n.l)`
+/// and the specular term times it, 0 below the horizon (the scalar kernel's test, as a select).
+#[inline(always)]
+unsafe fn block_weights<L: Lanes>(rows: &SampleRows, lb: &Lobe<f32>, ll: &LobeL<L>, j: usize) -> (L, L) {
+    let zero = L::splat(0.0);
+    let d = tri!(c => load::<L>(&rows.dir[c], j));
+    let h = tri!(c => load::<L>(&rows.h[c], j));
+    let cos = dot_l(lb.n, &d);
+    let sc = spec_lanes(ll, dot_l(lb.n, &h), load(&rows.fr, j), cos).mul(cos);
+    let live = cos.gt(zero);
+    (L::select(live, cos, zero), L::select(live, sc, zero))
+}
+
+/// The forward of Gaussian i into its M x 3 slices (as `shade::shade_gaussian`); `parts`: also
+/// its direct and indirect parts, else the colour alone from each sample's summed light.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 unsafe fn shade_gaussian<L: Lanes>(
@@ -191,29 +220,41 @@ unsafe fn shade_gaussian<L: Lanes>(
     rows: &mut SampleRows,
     i: usize,
     color: &mut [f32],
-    direct: &mut [f32],
-    indirect: &mut [f32],
+    parts: Option<(&mut [f32], &mut [f32])>,
 ) {
     let m = inp.mats.m;
     let g = gaussian(inp, i);
-    rows.fill(inp, table, cache, i, g.wo, false);
+    rows.fill(inp, table, cache, i, g.wo, false, parts.is_none());
     let scale = (std::f64::consts::TAU / inp.mb.k as f64) as f32;
     let inv_pi = std::f64::consts::FRAC_1_PI as f32;
     let zero = L::splat(0.0);
     let chunks = rows.fr.len() / L::N;
+    let Some((direct, indirect)) = parts else {
+        // E and P of the summed light per channel, lane-wise.
+        for mm in 0..m {
+            let ll = lobe_l::<L>(&g.lb[mm]);
+            let (mut e, mut p) = ([zero; 3], [zero; 3]);
+            for j in 0..chunks {
+                let (cw, sw) = block_weights(rows, &g.lb[mm], &ll, j);
+                for c in 0..3 {
+                    let lin = load::<L>(&rows.lin[c], j);
+                    e[c] = e[c].add(cw.mul(lin));
+                    p[c] = p[c].add(sw.mul(lin));
+                }
+            }
+            for c in 0..3 {
+                let kd = g.vx.a[mm][c] * inv_pi * g.dw[mm].value;
+                color[mm * 3 + c] = scale * (kd * e[c].hsum() + p[c].hsum());
+            }
+        }
+        return;
+    };
     for mm in 0..m {
-        let lb = &g.lb[mm];
-        let ll = lobe_l::<L>(lb);
+        let ll = lobe_l::<L>(&g.lb[mm]);
         // E and P (see `shade.rs`), direct and indirect, per channel, lane-wise.
         let (mut e_d, mut e_i, mut p_d, mut p_i) = ([zero; 3], [zero; 3], [zero; 3], [zero; 3]);
         for j in 0..chunks {
-            let d = tri!(c => load::<L>(&rows.dir[c], j));
-            let h = tri!(c => load::<L>(&rows.h[c], j));
-            let cos = dot_l(lb.n, &d);
-            let sc = spec_lanes(&ll, dot_l(lb.n, &h), load(&rows.fr, j), cos).mul(cos);
-            // The horizon test of the scalar kernel, as a select.
-            let live = cos.gt(zero);
-            let (cw, sw) = (L::select(live, cos, zero), L::select(live, sc, zero));
+            let (cw, sw) = block_weights(rows, &g.lb[mm], &ll, j);
             for c in 0..3 {
                 let (dl, il) = (load::<L>(&rows.direct[c], j), load::<L>(&rows.ind[c], j));
                 e_d[c] = e_d[c].add(cw.mul(dl));
@@ -252,7 +293,7 @@ unsafe fn backward_gaussian<L: Lanes>(
     let m = inp.mats.m;
     let ga = gaussian(inp, i);
     let wo = ga.wo;
-    rows.fill(inp, table, cache, i, wo, true);
+    rows.fill(inp, table, cache, i, wo, true, true);
     let scale = (std::f64::consts::TAU / inp.mb.k as f64) as f32;
     let inv_pi = std::f64::consts::FRAC_1_PI as f32;
     let zero = L::splat(0.0);
@@ -274,7 +315,7 @@ unsafe fn backward_gaussian<L: Lanes>(
             let sg = spec_grad_lanes(lb, &ll, &h, load(&rows.fr, j), wo, &d, cos);
             let (mut sum_gl, mut sum_glf) = (zero, zero);
             for c in 0..3 {
-                let lin = load::<L>(&rows.direct[c], j).add(load(&rows.ind[c], j));
+                let lin = load::<L>(&rows.lin[c], j);
                 let f = kd[c].add(sg.value);
                 let gl = L::splat(gm[c]).mul(lin);
                 sum_gl = sum_gl.add(gl);
@@ -322,10 +363,9 @@ pub(crate) unsafe fn shade_gaussian_avx2(
     rows: &mut SampleRows,
     i: usize,
     color: &mut [f32],
-    direct: &mut [f32],
-    indirect: &mut [f32],
+    parts: Option<(&mut [f32], &mut [f32])>,
 ) {
-    shade_gaussian::<F8>(inp, table, cache, rows, i, color, direct, indirect)
+    shade_gaussian::<F8>(inp, table, cache, rows, i, color, parts)
 }
 
 /// [`backward_gaussian`] compiled for AVX2.

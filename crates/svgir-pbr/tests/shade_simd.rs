@@ -144,8 +144,21 @@ fn lane_kernels_match_the_scalar_ones_and_f64() {
         };
         let (scalar, g_scalar) = run32(Simd::Scalar);
         let (lane, g_lane) = run32(Simd::Avx2);
+        // The colour alone (`ShadeOutput::colour_only`): the scalar kernel gives its split colour
+        // bit for bit, the lane kernel sums each sample's light first (rounding only), and the
+        // parts stay empty.
+        let colour_only = |simd| {
+            let inp = inputs(&c, m, mats32, &c.env.data, &c.given, mode, 0.7f32, p(simd));
+            let mut out = ShadeOutput::colour_only();
+            shade_into_cached(&inp, Some(&cache), &mut out).unwrap();
+            assert!(out.direct.is_empty() && out.indirect.is_empty(), "config {ci}");
+            out.color
+        };
+        assert_eq!(colour_only(Simd::Scalar), scalar.color, "config {ci}: scalar colour-only");
 
         let f = |v: &[f32]| v.iter().map(|&x| x as f64).collect::<Vec<f64>>();
+        let summed = colour_only(Simd::Avx2);
+        assert!(rel_err(&f(&summed), &f(&lane.color)) <= 5e-6, "config {ci}: lane colour-only vs split");
         let (a64, r64, n64) = (f(&c.albedo), f(&c.rough), f(&c.normals));
         let inp64 = inputs(&c, m, (&a64[..], &r64[..], &n64[..]), &c.env64, &c.given, mode, 0.7f64, p(Simd::Scalar));
         let mut oracle = ShadeOutput::new();

@@ -451,7 +451,7 @@ impl Stage2 {
         });
         let back_normals = back_shading.as_ref().map(|_| negated(&act.normals));
         let back = render::back_side(&front, back_shading.as_ref(), &back_shade, back_normals.as_deref());
-        let (mut shaded, mut scratch) = (ShadeOutput::new(), ShadeOutput::new());
+        let (mut shaded, mut scratch) = (ShadeOutput::colour_only(), ShadeOutput::colour_only());
         shade_sides_into(&front, back.as_ref(), &mut shaded, &mut scratch)?;
         if min_w > 0.0 {
             let center = cam.center();
