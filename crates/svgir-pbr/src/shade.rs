@@ -472,12 +472,8 @@ pub fn shade_into_cached<F: Float>(
         out.color.par_chunks_mut(m * 3).enumerate().with_min_len(MIN_TASK).for_each_init(
             || (LaneScratch::default(), vec![F::ZERO; 2 * m * 3]),
             |(rows, scratch), (i, c)| {
-                if lane {
-                    shade_one(inp, &table, cache, rows, true, i, c, None);
-                } else {
-                    let (d, ind) = scratch.split_at_mut(m * 3);
-                    shade_one(inp, &table, cache, rows, false, i, c, Some((d, ind)));
-                }
+                let parts = (!lane).then(|| scratch.split_at_mut(m * 3));
+                shade_one(inp, &table, cache, rows, lane, i, c, parts);
             },
         );
     }

@@ -262,6 +262,12 @@ pub struct ForwardStateOf<F> {
 pub type ForwardState = ForwardStateOf<f32>;
 
 impl<F> ForwardStateOf<F> {
+    /// The colour each Gaussian composited, `max(0, 0.5 + SH(view))`, for a render of
+    /// [`ColorSource::Sh`] (0 for culled Gaussians); empty for other colour sources.
+    pub fn sh_colors(&self) -> &[[F; 3]] {
+        &self.sh_colors
+    }
+
     /// Number of (Gaussian, tile) pairs this render binned.
     pub fn num_tile_entries(&self) -> usize {
         self.bins.ids.len()

@@ -148,13 +148,12 @@ pub(crate) fn weighted(visible: &[bool], accum_weight: &[f32], min_weight: f32) 
 
 /// Stand-in colours for the Gaussians of `visible` blended with a total weight below
 /// `min_weight` (`Stage2Config::shade_min_weight`), which training does not shade: each vertex
-/// takes the Gaussian's SH colour towards `center` (as the SH pass composites it, clamped to
-/// [0, 1]) taken from sRGB to linear, the PBR image's space before its encoding. Both images fit
-/// the same photos, so the stand-in is close to the shaded colour; it is a constant (no
-/// gradients to the materials or the SH). Returns how many Gaussians stand in.
+/// takes the colour the SH pass composited for the Gaussian (`sh_colors`, per Gaussian), clamped
+/// to [0, 1] and taken from sRGB to linear, the PBR image's space before its encoding. Both
+/// images fit the same photos, so the stand-in is close to the shaded colour; it is a constant
+/// (no gradients to the materials or the SH). Returns how many Gaussians stand in.
 pub(crate) fn stand_in_colours(
-    surfels: &Surfels,
-    center: Vec3,
+    sh_colors: &[[f32; 3]],
     visible: &[bool],
     accum_weight: &[f32],
     min_weight: f32,
@@ -162,12 +161,10 @@ pub(crate) fn stand_in_colours(
     color: &mut [f32],
 ) -> usize {
     let mut count = 0;
-    for (i, (v, w)) in visible.iter().zip(accum_weight).enumerate() {
+    for (i, ((v, w), sh)) in visible.iter().zip(accum_weight).zip(sh_colors).enumerate() {
         if !(*v && *w > 0.0 && *w < min_weight) {
             continue;
         }
-        let dir = (surfels.positions[i] - center).normalize();
-        let sh = surfels.sh[i].eval(surfels.sh_degree.min(3), dir);
         let lin = sh.map(|c| srgb_to_linear(c.clamp(0.0, 1.0)));
         for px in color[i * m * 3..(i + 1) * m * 3].chunks_exact_mut(3) {
             px.copy_from_slice(&lin);
@@ -454,8 +451,7 @@ impl Stage2 {
         let (mut shaded, mut scratch) = (ShadeOutput::colour_only(), ShadeOutput::colour_only());
         shade_sides_into(&front, back.as_ref(), &mut shaded, &mut scratch)?;
         if min_w > 0.0 {
-            let center = cam.center();
-            stand_in_colours(&self.surfels, center, &visible, &sh_out.accum_weight, min_w, m, &mut shaded.color);
+            stand_in_colours(sh_state.sh_colors(), &visible, &sh_out.accum_weight, min_w, m, &mut shaded.color);
         }
         let facing = self.facing(cam);
         let extra = extra_features(&act, &facing);
@@ -599,29 +595,19 @@ impl Stage2 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use glam::{Quat, Vec2};
-    use svgir_core::sh::ShCoeffs;
 
     /// Only the visible Gaussians blended under the threshold stand in, each vertex with the
     /// linearised SH colour; the rest keep their shaded colours, and the shaded set is the
     /// complement among the blended ones.
     #[test]
     fn faint_gaussians_stand_in_with_their_linear_sh_colour() {
-        let rgb = [[0.2, 0.5, 0.9], [1.4, -0.3, 0.5], [0.6, 0.6, 0.6], [0.1, 0.2, 0.3], [0.7, 0.1, 0.4]];
+        let rgb = [[0.2, 0.5, 0.9], [1.4, 0.0, 0.5], [0.6, 0.6, 0.6], [0.1, 0.2, 0.3], [0.7, 0.1, 0.4]];
         let n = rgb.len();
-        let surfels = Surfels {
-            positions: (0..n).map(|i| Vec3::new(i as f32, 0.0, 5.0)).collect(),
-            rotations: vec![Quat::IDENTITY; n],
-            log_scales: vec![Vec2::ZERO; n],
-            opacity_logits: vec![0.0; n],
-            sh: rgb.iter().map(|c| ShCoeffs::from_rgb(*c)).collect(),
-            sh_degree: 0,
-        };
         let visible = [true, true, true, false, true];
         let weight = [0.004, 0.009, 0.5, 0.001, 0.0];
         let (m, shaded) = (4, 7.0);
         let mut color = vec![shaded; n * m * 3];
-        let count = stand_in_colours(&surfels, Vec3::ZERO, &visible, &weight, 0.01, m, &mut color);
+        let count = stand_in_colours(&rgb, &visible, &weight, 0.01, m, &mut color);
         assert_eq!(count, 2);
         for i in 0..n {
             let want = if i < 2 { rgb[i].map(|c: f32| srgb_to_linear(c.clamp(0.0, 1.0))) } else { [shaded; 3] };
