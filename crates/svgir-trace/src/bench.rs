@@ -1,10 +1,11 @@
-//! Timing table for `svgir bench trace`: BVH build, ray throughput (all-hits march and first hit),
+//! Timing table for `svgir bench trace`: BVH build, ray throughput (all-hits march, the
+//! visibility-only march and first hit),
 //! K = 64 micro-buffer fill and the one-bounce gather over it (Eqn 13, M = 4, a constant map) on
 //! [`crate::scenes::object_scene`] scenes of 10k / 100k / 300k surfels, on 1 thread and on
 //! `threads` threads (each in its own rayon pool).
 
 use crate::scenes::object_scene;
-use crate::traverse::{march, HitSource, Ray, TraceParams};
+use crate::traverse::{march, march_visibility, HitSource, Ray, TraceParams};
 use crate::{gather_all, Bvh, GatherParams, MicroBuffer, VertexMaterials};
 use rayon::prelude::*;
 use std::fmt::Write;
@@ -36,12 +37,13 @@ pub fn bench_table_sizes(threads: usize, sizes: &[usize]) -> String {
     );
     let _ = writeln!(
         out,
-        "{:>8} {:>7} {:>10} {:>6} {:>12} {:>12} {:>10} {:>10} {:>9} {:>9}",
+        "{:>8} {:>7} {:>10} {:>6} {:>12} {:>12} {:>12} {:>10} {:>10} {:>9} {:>9}",
         "surfels",
         "threads",
         "build ms",
         "depth",
         "march Mray/s",
+        "V only Mray/s",
         "first Mray/s",
         "hits/ray",
         "mb fill s",
@@ -69,6 +71,10 @@ pub fn bench_table_sizes(threads: usize, sizes: &[usize]) -> String {
                 let hits: u64 = rays.par_iter().map(|r| march(&bvh, &s.sh, s.sh_degree, r, &p).hits as u64).sum();
                 let all = t0.elapsed().as_secs_f64();
                 let t0 = Instant::now();
+                let vis: f64 = rays.par_iter().map(|r| march_visibility(&bvh, r, &p).visibility as f64).sum();
+                let vis_only = t0.elapsed().as_secs_f64();
+                std::hint::black_box(vis);
+                let t0 = Instant::now();
                 let firsts = rays.par_iter().filter(|r| bvh.first_hit(r, &p).is_some()).count();
                 let first = t0.elapsed().as_secs_f64();
                 std::hint::black_box(firsts);
@@ -79,12 +85,13 @@ pub fn bench_table_sizes(threads: usize, sizes: &[usize]) -> String {
                 let gather = mb.as_ref().map(gather_seconds).unwrap_or(f64::NAN);
                 let _ = writeln!(
                     out,
-                    "{:>8} {:>7} {:>10.1} {:>6} {:>12.2} {:>12.2} {:>10.2} {:>10.2} {:>9.0} {:>9.2}",
+                    "{:>8} {:>7} {:>10.1} {:>6} {:>12.2} {:>12.2} {:>12.2} {:>10.2} {:>10.2} {:>9.0} {:>9.2}",
                     n,
                     t,
                     build * 1e3,
                     bvh.depth(),
                     RAYS as f64 / all / 1e6,
+                    RAYS as f64 / vis_only / 1e6,
                     RAYS as f64 / first / 1e6,
                     hits as f64 / RAYS as f64,
                     fill,

@@ -21,7 +21,7 @@
 //! Gaussians per light column; deterministic for any thread count.
 
 use crate::pack::{from_unorm16, unorm16};
-use crate::traverse::{march, HitSource, Ray, TraceParams};
+use crate::traverse::{march_visibility, HitSource, Ray, TraceParams};
 use crate::TraceError;
 use glam::Vec3;
 use rayon::prelude::*;
@@ -135,7 +135,7 @@ fn trace_column<S: HitSource + Sync>(
                 return 0;
             }
             let ray = Ray::from_gaussian(surfels, j, dir, p);
-            unorm16(march(src, &surfels.sh, surfels.sh_degree, &ray, p).visibility)
+            unorm16(march_visibility(src, &ray, p).visibility)
         })
         .collect()
 }
@@ -366,6 +366,7 @@ impl BrightLights {
 mod tests {
     use super::*;
     use crate::scenes::object_scene;
+    use crate::traverse::march;
     use crate::{Bvh, MicroBuffer};
 
     #[test]

@@ -39,7 +39,7 @@ pub use gather_backward::{gather_all_backward, gather_one_backward, gather_pairs
 pub use hit::{disks_of, Disk, Hit};
 pub use microbuffer::{MicroBuffer, NO_HIT};
 pub use reference::BruteForce;
-pub use traverse::{march, HitSource, MarchResult, Ray, TraceParams, NO_ID};
+pub use traverse::{march, march_visibility, HitSource, MarchResult, Occlusion, Ray, TraceParams, NO_ID};
 
 /// Everything the tracer can reject: invalid surfels, bad parameters, mismatched array sizes.
 #[derive(Debug, thiserror::Error, PartialEq)]

@@ -19,7 +19,7 @@
 //! the fill is race-free and, the march being deterministic, bit-identical for any thread count.
 
 use crate::pack::{f16_from_f32, f16_to_f32, from_unorm16, unorm16};
-use crate::traverse::{march, HitSource, Ray, TraceParams};
+use crate::traverse::{march, march_visibility, HitSource, Ray, TraceParams};
 use crate::TraceError;
 use glam::Vec3;
 use rayon::prelude::*;
@@ -77,6 +77,33 @@ impl MicroBuffer {
         seed: u64,
         p: &TraceParams,
     ) -> Result<Self, TraceError> {
+        Self::fill(src, surfels, normals, k, seed, p, true)
+    }
+
+    /// [`Self::trace_about`] without the traced radiance: V, I and U to the bit (each ray is
+    /// [`march_visibility`], which also stops once V is certain to be 0), L left at 0. For
+    /// relighting, whose indirect light is the one-bounce gather under the new map (SPEC 7)
+    /// and never reads L.
+    pub fn trace_occlusion_about<S: HitSource>(
+        src: &S,
+        surfels: &Surfels,
+        normals: Vec<Vec3>,
+        k: usize,
+        seed: u64,
+        p: &TraceParams,
+    ) -> Result<Self, TraceError> {
+        Self::fill(src, surfels, normals, k, seed, p, false)
+    }
+
+    fn fill<S: HitSource>(
+        src: &S,
+        surfels: &Surfels,
+        normals: Vec<Vec3>,
+        k: usize,
+        seed: u64,
+        p: &TraceParams,
+        with_radiance: bool,
+    ) -> Result<Self, TraceError> {
         surfels.check().map_err(TraceError::InvalidSurfels)?;
         if normals.len() != surfels.len() || normals.iter().any(|n| !n.is_finite()) {
             return Err(TraceError::InvalidParameter(format!(
@@ -106,10 +133,16 @@ impl MicroBuffer {
                 let ray0 = Ray::from_gaussian(surfels, j, Vec3::Z, p);
                 for kk in 0..k {
                     let ray = Ray { dir: hemisphere_dir(normals[j], kk, k, xi[j]), ..ray0 };
-                    let r = march(src, &surfels.sh, surfels.sh_degree, &ray, p);
-                    v[kk] = unorm16(r.visibility);
-                    l[kk] = r.radiance.map(f16_from_f32);
-                    if let Some(h) = r.first {
+                    let (visibility, first) = if with_radiance {
+                        let r = march(src, &surfels.sh, surfels.sh_degree, &ray, p);
+                        l[kk] = r.radiance.map(f16_from_f32);
+                        (r.visibility, r.first)
+                    } else {
+                        let o = march_visibility(src, &ray, p);
+                        (o.visibility, o.first)
+                    };
+                    v[kk] = unorm16(visibility);
+                    if let Some(h) = first {
                         i[kk] = h.id;
                         u[kk] = h.uv_normalised().map(unorm16);
                     }

@@ -368,3 +368,35 @@ pub fn march<S: HitSource>(src: &S, sh: &[ShCoeffs], degree: u32, ray: &Ray, p: 
         hits,
     }
 }
+
+/// What a visibility-only march finds: [`MarchResult::visibility`] and [`MarchResult::first`]
+/// of the same ray, to the bit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Occlusion {
+    /// Visibility V: the march's T with the visibility gain, or 0 when it falls below v_cut.
+    pub visibility: f32,
+    /// The first accepted hit, `None` if the ray escaped.
+    pub first: Option<Hit>,
+}
+
+/// [`march`] for a caller that needs V and the first hit but not the radiance (the directional
+/// lights' shadows, relighting's micro-buffers): no SH is evaluated, and the march also stops
+/// once the visibility transmittance falls below `v_cut`. That transmittance only decreases, so
+/// V is then 0 whatever follows, and both outputs equal [`march`]'s bit for bit, while the ray
+/// is done after the few hits that reach v_cut (0.2) rather than the many that reach t_stop
+/// (1e-3).
+pub fn march_visibility<S: HitSource>(src: &S, ray: &Ray, p: &TraceParams) -> Occlusion {
+    let mut t = 1.0f32;
+    let mut tv = 1.0f32;
+    let mut first = None;
+    src.for_each_hit(ray, p, |h| {
+        if first.is_none() {
+            first = Some(*h);
+        }
+        // The same products in the same order as `march`.
+        t *= 1.0 - h.alpha;
+        tv *= 1.0 - (h.alpha * p.visibility_alpha_gain).min(crate::hit::ALPHA_MAX);
+        t >= p.t_stop && tv >= p.v_cut
+    });
+    Occlusion { visibility: if tv < p.v_cut { 0.0 } else { tv }, first }
+}

@@ -3,7 +3,9 @@
 use glam::{Quat, Vec2, Vec3};
 use svgir_core::{surfel::logit, Rng, ShCoeffs, Surfels};
 use svgir_trace::scenes::{object_scene, random_scene};
-use svgir_trace::{march, BruteForce, Bvh, Hit, HitSource, MicroBuffer, Ray, TraceParams, NO_HIT, NO_ID};
+use svgir_trace::{
+    march, march_visibility, BruteForce, Bvh, Hit, HitSource, MicroBuffer, Ray, TraceParams, NO_HIT, NO_ID,
+};
 
 fn random_ray(rng: &mut Rng, s: &Surfels) -> Ray {
     let dir = Vec3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
@@ -100,6 +102,61 @@ fn micro_buffers_equal_brute_force_and_are_thread_independent() {
             assert!((a.uv(j, k)[0] - uv[0]).abs() < 2e-5 && (a.uv(j, k)[1] - uv[1]).abs() < 2e-5);
         }
     }
+}
+
+/// The visibility-only march stops once V is certain to be 0, yet reports the full march's V and
+/// first hit to the bit; it must also stop earlier than the full march on a good share of rays.
+#[test]
+fn visibility_march_equals_the_full_march() {
+    let s = object_scene(3000, 7);
+    let bvh = Bvh::build(&s);
+    let mut rng = Rng::new(8);
+    let (mut rays, mut zero, mut cut_short) = (0, 0, 0);
+    let params = param_sets().into_iter().chain([
+        TraceParams { visibility_alpha_gain: 3.0, ..TraceParams::default() },
+        TraceParams { v_cut: 0.5, ..TraceParams::default() },
+        TraceParams { v_cut: 0.0, ..TraceParams::default() },
+    ]);
+    for p in params {
+        for _ in 0..400 {
+            let j = rng.below(s.len());
+            let dir = Vec3::new(rng.normal(), rng.normal(), rng.normal()).normalize();
+            let ray = Ray::from_gaussian(&s, j, dir, &p);
+            let full = march(&bvh, &s.sh, s.sh_degree, &ray, &p);
+            let o = march_visibility(&bvh, &ray, &p);
+            assert_eq!(o.visibility.to_bits(), full.visibility.to_bits(), "{ray:?} {p:?}");
+            assert_eq!(o.first, full.first);
+            let mut consumed = 0;
+            let mut tv = 1.0f32;
+            bvh.for_each_hit(&ray, &p, |h| {
+                consumed += 1;
+                tv *= 1.0 - (h.alpha * p.visibility_alpha_gain).min(0.99);
+                tv >= p.v_cut
+            });
+            rays += 1;
+            zero += (full.visibility == 0.0) as usize;
+            cut_short += (consumed < full.hits) as usize;
+        }
+    }
+    assert!(
+        zero > rays / 10 && cut_short > rays / 20,
+        "weak test: {rays} rays, {zero} with V = 0, {cut_short} cut short"
+    );
+}
+
+/// Relighting's micro-buffers: V, I and U as the full trace's, L not traced.
+#[test]
+fn occlusion_micro_buffers_equal_the_full_ones_but_radiance() {
+    let s = object_scene(1500, 3);
+    let bvh = Bvh::build(&s);
+    let p = TraceParams::default();
+    let axes: Vec<Vec3> = (0..s.len()).map(|j| s.normal(j)).collect();
+    let full = MicroBuffer::trace(&bvh, &s, 16, 9, &p).unwrap();
+    let occ = MicroBuffer::trace_occlusion_about(&bvh, &s, axes, 16, 9, &p).unwrap();
+    assert_eq!((&occ.vis, &occ.first_hit, &occ.uv), (&full.vis, &full.first_hit, &full.uv));
+    assert_eq!((&occ.normals, &occ.xi, occ.k), (&full.normals, &full.xi, full.k));
+    assert!(occ.radiance.iter().all(|l| *l == [0; 3]));
+    assert!(full.radiance.iter().any(|l| *l != [0; 3]));
 }
 
 /// The back side of every Gaussian (two-sided shading): K directions over the hemisphere of -n,

@@ -48,7 +48,9 @@ pub struct RelightSampling {
 
 /// Micro-buffers for relighting a stage-2 model.
 pub struct Relighter {
-    /// Front-side micro-buffers traced for relighting.
+    /// Front-side micro-buffers for relighting: V, I and U. Traced here (K other than
+    /// training's), they hold no traced radiance (L = 0, `MicroBuffer::trace_occlusion_about`):
+    /// relighting's indirect light is the one-bounce gather under the new map (SPEC 7).
     pub mb: MicroBuffer,
     cache: DirectionCache,
     /// The back sides' micro-buffers and cache, for a model trained two-sided.
@@ -88,7 +90,10 @@ impl Relighter {
         let bvh = (directions != s2.mb.k || lights > 0).then(|| Bvh::build(&s2.surfels));
         let p = s2.config.trace_params();
         let mb = match &bvh {
-            Some(bvh) if directions != s2.mb.k => MicroBuffer::trace(bvh, &s2.surfels, directions, s2.config.seed, &p)?,
+            Some(bvh) if directions != s2.mb.k => {
+                let axes = (0..s2.surfels.len()).map(|j| s2.surfels.normal(j)).collect();
+                MicroBuffer::trace_occlusion_about(bvh, &s2.surfels, axes, directions, s2.config.seed, &p)?
+            }
             _ => s2.mb.clone(),
         };
         let cache = DirectionCache::new(&mb, &s2.env.radiance())?;
@@ -96,7 +101,7 @@ impl Relighter {
             (None, _) => None,
             (Some(b), Some(bvh)) if directions != b.mb.k => {
                 let axes = mb.normals.iter().map(|n| -*n).collect();
-                let back = MicroBuffer::trace_about(bvh, &s2.surfels, axes, directions, s2.config.seed, &p)?;
+                let back = MicroBuffer::trace_occlusion_about(bvh, &s2.surfels, axes, directions, s2.config.seed, &p)?;
                 let cache = DirectionCache::new(&back, &s2.env.radiance())?;
                 Some((back, cache))
             }

@@ -160,7 +160,15 @@ pub fn run(args: ViewArgs) -> Result<()> {
             let bvh = svgir_trace::Bvh::build(&s2.surfels);
             let axes = relighter.mb.normals.iter().map(|n| -*n).collect();
             let p = s2.config.trace_params();
-            Some(svgir_trace::MicroBuffer::trace_about(&bvh, &s2.surfels, axes, args.directions, s2.config.seed, &p)?)
+            // The viewer's indirect light is the one-bounce gather: no traced radiance needed.
+            Some(svgir_trace::MicroBuffer::trace_occlusion_about(
+                &bvh,
+                &s2.surfels,
+                axes,
+                args.directions,
+                s2.config.seed,
+                &p,
+            )?)
         }
         None => None,
     };
