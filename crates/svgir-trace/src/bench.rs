@@ -28,13 +28,7 @@ pub fn rays_for(s: &svgir_core::Surfels, p: &TraceParams, seed: u64) -> Vec<Ray>
         .collect()
 }
 
-/// One row per (surfel count, thread count); `sizes` defaults to 10k, 100k, 300k.
-pub fn bench_table_sizes(threads: usize, sizes: &[usize]) -> String {
-    let mut out = String::new();
-    let _ = writeln!(
-        out,
-        "svgir-trace: object_scene surfels, K = 64, default TraceParams (eps 0.05, start at own 3-sigma rim)"
-    );
+fn header(out: &mut String) {
     let _ = writeln!(
         out,
         "{:>8} {:>7} {:>10} {:>6} {:>12} {:>12} {:>12} {:>10} {:>10} {:>9} {:>9}",
@@ -50,57 +44,84 @@ pub fn bench_table_sizes(threads: usize, sizes: &[usize]) -> String {
         "mb MB",
         "gather s"
     );
+}
+
+/// One row per thread count (1 and `threads`) for the surfels `s`.
+fn scene_rows(out: &mut String, s: &svgir_core::Surfels, threads: usize) {
     let mut counts = vec![1usize];
     if threads > 1 {
         counts.push(threads);
     }
     let p = TraceParams::default();
-    for &n in sizes {
-        let s = object_scene(n, 1);
-        let rays = rays_for(&s, &p, 2);
-        for &t in &counts {
-            let pool = match rayon::ThreadPoolBuilder::new().num_threads(t).build() {
-                Ok(pool) => pool,
-                Err(e) => return format!("{out}cannot build a {t}-thread pool: {e}\n"),
-            };
-            pool.install(|| {
-                let t0 = Instant::now();
-                let bvh = Bvh::build(&s);
-                let build = t0.elapsed().as_secs_f64();
-                let t0 = Instant::now();
-                let hits: u64 = rays.par_iter().map(|r| march(&bvh, &s.sh, s.sh_degree, r, &p).hits as u64).sum();
-                let all = t0.elapsed().as_secs_f64();
-                let t0 = Instant::now();
-                let vis: f64 = rays.par_iter().map(|r| march_visibility(&bvh, r, &p).visibility as f64).sum();
-                let vis_only = t0.elapsed().as_secs_f64();
-                std::hint::black_box(vis);
-                let t0 = Instant::now();
-                let firsts = rays.par_iter().filter(|r| bvh.first_hit(r, &p).is_some()).count();
-                let first = t0.elapsed().as_secs_f64();
-                std::hint::black_box(firsts);
-                let t0 = Instant::now();
-                let mb = MicroBuffer::trace(&bvh, &s, 64, 3, &p);
-                let fill = t0.elapsed().as_secs_f64();
-                let mb_mb = mb.as_ref().map(|m| m.memory_bytes() as f64 / 1e6).unwrap_or(f64::NAN);
-                let gather = mb.as_ref().map(gather_seconds).unwrap_or(f64::NAN);
-                let _ = writeln!(
-                    out,
-                    "{:>8} {:>7} {:>10.1} {:>6} {:>12.2} {:>12.2} {:>12.2} {:>10.2} {:>10.2} {:>9.0} {:>9.2}",
-                    n,
-                    t,
-                    build * 1e3,
-                    bvh.depth(),
-                    RAYS as f64 / all / 1e6,
-                    RAYS as f64 / vis_only / 1e6,
-                    RAYS as f64 / first / 1e6,
-                    hits as f64 / RAYS as f64,
-                    fill,
-                    mb_mb,
-                    gather
-                );
-            });
-        }
+    let rays = rays_for(s, &p, 2);
+    for &t in &counts {
+        let pool = match rayon::ThreadPoolBuilder::new().num_threads(t).build() {
+            Ok(pool) => pool,
+            Err(e) => {
+                let _ = writeln!(out, "cannot build a {t}-thread pool: {e}");
+                return;
+            }
+        };
+        pool.install(|| {
+            let t0 = Instant::now();
+            let bvh = Bvh::build(s);
+            let build = t0.elapsed().as_secs_f64();
+            let t0 = Instant::now();
+            let hits: u64 = rays.par_iter().map(|r| march(&bvh, &s.sh, s.sh_degree, r, &p).hits as u64).sum();
+            let all = t0.elapsed().as_secs_f64();
+            let t0 = Instant::now();
+            let vis: f64 = rays.par_iter().map(|r| march_visibility(&bvh, r, &p).visibility as f64).sum();
+            let vis_only = t0.elapsed().as_secs_f64();
+            std::hint::black_box(vis);
+            let t0 = Instant::now();
+            let firsts = rays.par_iter().filter(|r| bvh.first_hit(r, &p).is_some()).count();
+            let first = t0.elapsed().as_secs_f64();
+            std::hint::black_box(firsts);
+            let t0 = Instant::now();
+            let mb = MicroBuffer::trace(&bvh, s, 64, 3, &p);
+            let fill = t0.elapsed().as_secs_f64();
+            let mb_mb = mb.as_ref().map(|m| m.memory_bytes() as f64 / 1e6).unwrap_or(f64::NAN);
+            let gather = mb.as_ref().map(gather_seconds).unwrap_or(f64::NAN);
+            let _ = writeln!(
+                out,
+                "{:>8} {:>7} {:>10.1} {:>6} {:>12.2} {:>12.2} {:>12.2} {:>10.2} {:>10.2} {:>9.0} {:>9.2}",
+                s.len(),
+                t,
+                build * 1e3,
+                bvh.depth(),
+                RAYS as f64 / all / 1e6,
+                RAYS as f64 / vis_only / 1e6,
+                RAYS as f64 / first / 1e6,
+                hits as f64 / RAYS as f64,
+                fill,
+                mb_mb,
+                gather
+            );
+        });
     }
+}
+
+/// One row per (surfel count, thread count); `sizes` defaults to 10k, 100k, 300k.
+pub fn bench_table_sizes(threads: usize, sizes: &[usize]) -> String {
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "svgir-trace: object_scene surfels, K = 64, default TraceParams (eps 0.05, start at own 3-sigma rim)"
+    );
+    header(&mut out);
+    for &n in sizes {
+        scene_rows(&mut out, &object_scene(n, 1), threads);
+    }
+    out
+}
+
+/// The same table for trained surfels (`svgir bench trace --ply`), labelled `label`: their
+/// rays meet the stacked, semi-transparent surfels of a real surface, where the random object
+/// scene's mostly escape.
+pub fn bench_table_scene(threads: usize, s: &svgir_core::Surfels, label: &str) -> String {
+    let mut out = format!("svgir-trace: {label} ({} surfels), K = 64, default TraceParams\n", s.len());
+    header(&mut out);
+    scene_rows(&mut out, s, threads);
     out
 }
 

@@ -100,6 +100,15 @@ impl Disk {
     /// The intersection of the ray `o + t d` with this disk (any t; callers filter the range).
     #[inline(always)]
     pub fn intersect(&self, o: Vec3, d: Vec3) -> Option<Hit> {
+        self.intersect_if(o, d, |_| true)
+    }
+
+    /// [`Self::intersect`] for a caller that will drop a hit at some plane distances anyway
+    /// (behind the traversal's cursor, beyond its buffer's last key): `keep(t)` is asked before
+    /// the tangent coordinates and the `exp`, and the hits it keeps are [`Self::intersect`]'s,
+    /// bit for bit.
+    #[inline(always)]
+    pub fn intersect_if(&self, o: Vec3, d: Vec3, keep: impl FnOnce(f32) -> bool) -> Option<Hit> {
         let n = Vec3::from_array(self.normal);
         let denom = n.dot(d);
         if denom.abs() < PARALLEL_EPS {
@@ -107,6 +116,9 @@ impl Disk {
         }
         let rel = o - Vec3::from_array(self.center);
         let t = -n.dot(rel) / denom;
+        if !keep(t) {
+            return None;
+        }
         let x = rel + t * d;
         let u = x.dot(Vec3::from_array(self.axis_u));
         let v = x.dot(Vec3::from_array(self.axis_v));

@@ -189,6 +189,15 @@ impl KBuffer {
         self.len == self.cap
     }
 
+    /// Whether [`Self::insert`] would keep a hit with key `(t, id)`.
+    #[inline(always)]
+    fn admits(&self, t: f32, id: u32) -> bool {
+        !self.full() || {
+            let last = &self.hits[self.len - 1];
+            (t, id) < (last.t, last.id)
+        }
+    }
+
     #[inline]
     fn insert(&mut self, h: Hit) {
         let key = (h.t, h.id);
@@ -248,10 +257,12 @@ impl Bvh {
                     if !may_hit(disk, ray, p) {
                         continue;
                     }
-                    if let Some(h) = disk.intersect(o, ray.dir) {
-                        if h.t < t_max && cursor.accepts(h.t, h.id) {
-                            buf.insert(h);
-                        }
+                    // The hit's key decides whether the buffer takes it; test that before the
+                    // tangent coordinates and the exp (restarts meet every hit before the cursor
+                    // again).
+                    let keep = |t: f32| t < t_max && cursor.accepts(t, disk.id) && buf.admits(t, disk.id);
+                    if let Some(h) = disk.intersect_if(o, ray.dir, keep) {
+                        buf.insert(h);
                     }
                 }
             } else {

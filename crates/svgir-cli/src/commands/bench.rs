@@ -22,9 +22,9 @@ pub enum Kernel {
 pub struct BenchArgs {
     #[arg(value_enum)]
     pub kernel: Kernel,
-    /// raster: time a trained scene instead of random ones (a 3DGS/2DGS/svgir PLY, e.g. a run's
-    /// point_cloud.ply), seen from the test cameras of --data.
-    #[arg(long, requires = "data")]
+    /// raster, trace: time a trained scene instead of random ones (a 3DGS/2DGS/svgir PLY, e.g.
+    /// a run's point_cloud.ply); raster views it from the test cameras of --data.
+    #[arg(long)]
     pub ply: Option<PathBuf>,
     /// raster: the dataset whose test cameras view --ply.
     #[arg(long, requires = "ply")]
@@ -86,6 +86,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let table = match args.kernel {
         Kernel::Raster => match (&args.ply, &args.data) {
             (Some(ply), Some(data)) => raster_scene(ply, data, args.views, args.background, threads)?,
+            (Some(ply), None) => anyhow::bail!("--ply {}: raster needs --data for the cameras", ply.display()),
             _ => {
                 let mut o = svgir_raster::bench::BenchOptions::full(threads);
                 if !args.size.is_empty() {
@@ -101,7 +102,13 @@ pub fn run(args: BenchArgs) -> Result<()> {
                 svgir_raster::bench::bench_table_with(&o)
             }
         },
-        Kernel::Trace => svgir_trace::bench::bench_table(threads),
+        Kernel::Trace => match &args.ply {
+            Some(ply) => {
+                let (surfels, _) = svgir_io::read_gaussians_ply(ply)?;
+                svgir_trace::bench::bench_table_scene(threads, &surfels, &ply.display().to_string())
+            }
+            None => svgir_trace::bench::bench_table(threads),
+        },
         Kernel::Pbr => svgir_pbr::bench::bench_table(threads),
         Kernel::Lpips => {
             let vgg = svgir_eval::lpips_weights::default_lpips_weights(svgir_metrics::Net::Vgg)
