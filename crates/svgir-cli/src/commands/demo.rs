@@ -100,6 +100,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         sun_search_cone: 0.0,
         sun_search_settled: None,
         shade_min_weight: None,
+        consistency_samples: None,
         lights: None,
         lights_every: 100,
         env_activation: None,
