@@ -15,6 +15,9 @@
 //!
 //! So 300k Gaussians x K = 64 take 307 MB (x K = 384: 1.8 GB; relighting may fill per chunk).
 //! Separate arrays let each consumer stream only what it reads (shading: V, L; gather: I, U).
+//! Relighting's buffers ([`MicroBuffer::trace_occlusion_about`]) skip L: their rays march for V
+//! and the first hit alone, and L stays 0.
+//!
 //! Work split: rayon over Gaussians (each task owns its K contiguous samples in every array), so
 //! the fill is race-free and, the march being deterministic, bit-identical for any thread count.
 

@@ -1,5 +1,6 @@
 //! Front-to-back traversal: every hit along a ray in (t, id) order, and the transmittance march
-//! of SPEC 5, Eqn 12, on top of it.
+//! of SPEC 5, Eqn 12, on top of it ([`march`]; [`march_visibility`] for callers that need V and
+//! the first hit alone, which may stop as soon as V is certain to be 0).
 //!
 //! Hit order is the total order on keys (t, id) -- never t alone -- so coincident hits resolve
 //! the same way in every traversal, thread count and in the brute-force reference.
