@@ -62,8 +62,8 @@ pub(crate) struct SampleRows {
 
 impl SampleRows {
     /// Gaussian i's samples (those `shade::samples` yields, in its order) with their half
-    /// vectors towards `wo`; `keep` also stores the samples for the backward, and `keep` or
-    /// `summed` forms `lin`.
+    /// vectors towards `wo`; `keep` also stores the samples for the backward, `summed` forms
+    /// `lin`.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     fn fill(
@@ -132,7 +132,7 @@ impl SampleRows {
                 v.resize(padded, 0.0);
             }
         }
-        if keep || summed {
+        if summed {
             for c in 0..3 {
                 let lin = &mut self.lin[c];
                 lin.clear();
