@@ -163,16 +163,23 @@ impl BenchOptions {
     }
 }
 
-/// The machine line of the tables: CPU model, threads, detected features, the `Auto` path.
+/// The machine line of the tables: CPU model (with its family, model number and nominal clock,
+/// which tell apart VMs whose model name is generic), threads, detected features, the `Auto` path.
 pub fn machine_line() -> String {
-    let cpu = std::fs::read_to_string("/proc/cpuinfo")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("model name"))
-                .map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string())
-        })
-        .unwrap_or_else(|| std::env::consts::ARCH.to_string());
+    let info = std::fs::read_to_string("/proc/cpuinfo").unwrap_or_default();
+    let field = |name: &str| {
+        info.lines()
+            .find(|l| l.split(':').next().is_some_and(|k| k.trim() == name))
+            .map(|l| l.split(':').nth(1).unwrap_or("").trim().to_string())
+            .filter(|v| !v.is_empty())
+    };
+    let mut cpu = field("model name").unwrap_or_else(|| std::env::consts::ARCH.to_string());
+    if let (Some(f), Some(m)) = (field("cpu family"), field("model")) {
+        cpu += &format!(" (family {f} model {m})");
+    }
+    if let Some(mhz) = field("cpu MHz").and_then(|v| v.parse::<f64>().ok()) {
+        cpu += &format!(" at {mhz:.0} MHz");
+    }
     format!(
         "{cpu}, {} threads available; features {}; default path {}",
         std::thread::available_parallelism().map_or(1, |n| n.get()),
