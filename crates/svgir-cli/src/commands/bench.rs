@@ -78,6 +78,9 @@ fn raster_scene(ply: &Path, data: &Path, views: usize, background: [f32; 3], thr
 }
 
 pub fn run(args: BenchArgs) -> Result<()> {
+    if let Some(ply) = args.ply.as_ref().filter(|_| !matches!(args.kernel, Kernel::Raster | Kernel::Trace)) {
+        anyhow::bail!("--ply {}: only the raster and trace tables time a trained scene", ply.display());
+    }
     // The rasterizer table prints its own machine line.
     if !matches!(args.kernel, Kernel::Raster) {
         println!("machine: {}", svgir_raster::bench::machine_line());
