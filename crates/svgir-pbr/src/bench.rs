@@ -143,11 +143,8 @@ pub fn bench_table_sizes(threads: usize, sizes: &[usize]) -> String {
         "{:>8} {:>7} {:>7} {:>7} {:>10} {:>11} {:>14}",
         "N", "threads", "cache", "path", "fwd ms", "fwd+bwd ms", "Msample/s fwd"
     );
-    // The scalar oracle and, where the CPU has it, the AVX2 lane kernels (`shade_simd`).
-    let mut paths = vec![Simd::Scalar];
-    if Simd::Avx2.resolve() != Simd::Scalar {
-        paths.push(Simd::Avx2);
-    }
+    // The scalar oracle and the lane kernels (`shade_simd`) this CPU has.
+    let paths = Simd::available();
     let mut counts = vec![1usize];
     if threads > 1 {
         counts.push(threads);

@@ -70,8 +70,9 @@ pub struct ShadeParams {
     pub env_max: f32,
     /// How the diffuse lobe combines with the specular one (SPEC 4: added).
     pub diffuse: Diffuse,
-    /// Which f32 kernels run (`Simd::Auto`: the lane kernels of `shade_simd` where the CPU has
-    /// AVX2, unless `SVGIR_SIMD=scalar`); f64 always runs the generic ones.
+    /// Which f32 kernels run (`Simd::Auto`: the lane kernels of `shade_simd` on the widest of
+    /// AVX-512F+VL and AVX2 the CPU has, unless `SVGIR_SIMD` says otherwise); f64 always runs
+    /// the generic ones.
     pub simd: Simd,
 }
 
@@ -452,10 +453,7 @@ pub fn shade_into_cached<F: Float>(
         buf.resize(len, F::ZERO);
     }
     let table = FibTable::new(inp.mb.k);
-    #[cfg(target_arch = "x86_64")]
     let lane = lane_kernels::<F>(inp.params.simd);
-    #[cfg(not(target_arch = "x86_64"))]
-    let lane = false;
     // Without the split, the direct and indirect parts go to per-task scratch (scalar kernel)
     // or are not formed (lane kernel).
     if out.split {
@@ -472,7 +470,7 @@ pub fn shade_into_cached<F: Float>(
         out.color.par_chunks_mut(m * 3).enumerate().with_min_len(MIN_TASK).for_each_init(
             || (LaneScratch::default(), vec![F::ZERO; 2 * m * 3]),
             |(rows, scratch), (i, c)| {
-                let parts = (!lane).then(|| scratch.split_at_mut(m * 3));
+                let parts = (lane == Simd::Scalar).then(|| scratch.split_at_mut(m * 3));
                 shade_one(inp, &table, cache, rows, lane, i, c, parts);
             },
         );
@@ -489,7 +487,7 @@ fn shade_one<F: Float>(
     table: &FibTable,
     cache: Option<&DirectionCache>,
     rows: &mut LaneScratch,
-    lane: bool,
+    lane: Simd,
     i: usize,
     c: &mut [F],
     parts: Option<(&mut [F], &mut [F])>,
@@ -498,11 +496,16 @@ fn shade_one<F: Float>(
         return;
     }
     #[cfg(target_arch = "x86_64")]
-    if lane {
-        // SAFETY: `lane_kernels` checked that `F` is `f32` and that the CPU has AVX2.
+    if lane != Simd::Scalar {
+        // SAFETY: `lane_kernels` checked that `F` is `f32` and that the CPU has the path's
+        // features.
         unsafe {
             let parts = parts.map(|(d, ind)| (as_f32_mut(d), as_f32_mut(ind)));
-            crate::shade_simd::shade_gaussian_avx2(as_f32_inputs(inp), table, cache, rows, i, as_f32_mut(c), parts);
+            let (inp, c) = (as_f32_inputs(inp), as_f32_mut(c));
+            match lane {
+                Simd::Avx512 => crate::shade_simd::shade_gaussian_avx512(inp, table, cache, rows, i, c, parts),
+                _ => crate::shade_simd::shade_gaussian_avx2(inp, table, cache, rows, i, c, parts),
+            }
         }
         return;
     }
@@ -539,10 +542,14 @@ pub(crate) unsafe fn as_f32_mut<T, U>(x: &mut [T]) -> &mut [U] {
     unsafe { std::slice::from_raw_parts_mut(x.as_mut_ptr() as *mut U, x.len()) }
 }
 
-/// Whether the f32 lane kernels (`shade_simd`) run for scalar type `F` under `simd`: f32 on an
-/// x86-64 CPU with AVX2, unless the scalar path is asked for.
-pub(crate) fn lane_kernels<F: 'static>(simd: Simd) -> bool {
-    cfg!(target_arch = "x86_64") && svgir_core::simd::is_f32::<F>() && simd.resolve() != Simd::Scalar
+/// Which f32 lane kernels (`shade_simd`) run for scalar type `F` under `simd`: the AVX-512 or
+/// AVX2 ones for f32 on an x86-64 CPU that has them, else `Simd::Scalar` (the generic kernels).
+pub(crate) fn lane_kernels<F: 'static>(simd: Simd) -> Simd {
+    if cfg!(target_arch = "x86_64") && svgir_core::simd::is_f32::<F>() {
+        simd.resolve()
+    } else {
+        Simd::Scalar
+    }
 }
 
 /// [`shade_into`] with fresh buffers.

@@ -22,6 +22,8 @@ use crate::shade::{as_f32_inputs, as_f32_mut, lane_kernels};
 use crate::shade::{gaussian, samples, FibTable, Frame, Gaussian, LaneScratch, ShadeInputs};
 use crate::{expect_len, PbrError};
 use rayon::prelude::*;
+#[cfg(target_arch = "x86_64")]
+use svgir_core::simd::Simd;
 use svgir_shading::float::dot;
 use svgir_shading::split::{half, spec_grad};
 use svgir_shading::{Float, MAX_VERTICES};
@@ -147,12 +149,17 @@ pub fn shade_backward_cached<F: Float>(
                     &mut nrm[li * m * 3..(li + 1) * m * 3],
                 );
                 #[cfg(target_arch = "x86_64")]
-                if lane {
-                    // SAFETY: `lane_kernels` checked that `F` is `f32` and that the CPU has AVX2.
+                if lane != Simd::Scalar {
+                    // SAFETY: `lane_kernels` checked that `F` is `f32` and that the CPU has the
+                    // path's features.
                     unsafe {
                         let g = std::slice::from_raw_parts(g.as_ptr() as *const f32, g.len());
                         let v_rho = &mut *(v_rho as *mut F as *mut f32);
-                        crate::shade_simd::backward_gaussian_avx2(
+                        let kernel = match lane {
+                            Simd::Avx512 => crate::shade_simd::backward_gaussian_avx512,
+                            _ => crate::shade_simd::backward_gaussian_avx2,
+                        };
+                        kernel(
                             as_f32_inputs(inp),
                             &table,
                             cache,
