@@ -1,5 +1,6 @@
 //! A multi-view dataset in memory, whatever layout it came from (NeRF/Blender, TensoIR, COLMAP,
-//! nerfstudio `transforms.json`). Loaders live in `svgir-io`; this is only the data.
+//! nerfstudio `transforms.json`). Loaders live in `svgir-io`; this is the data and its resizing
+//! ([`View::resized`], which `--downscale` and stage 1's half-size iterations share).
 //!
 //! Image encodings, fixed for all loaders:
 //! - `View::image`: RGBA as stored in the file, sRGB-encoded colour in [0, 1], straight (not
@@ -99,6 +100,69 @@ pub struct Dataset {
     pub world_rotation: glam::Mat3,
 }
 
+impl View {
+    /// The view at `w` x `h`: images, ground truth and intrinsics all scaled together.
+    pub fn resized(self, w: u32, h: u32) -> Self {
+        let alpha = alpha_of(&self.image);
+        let image = resize_rgba(&self.image, w, h);
+        let small_alpha = alpha_of(&image);
+        let normal = self.normal.map(|n| {
+            let mut n = resize_covered(&n, &alpha, w, h);
+            for (p, &a) in n.data.chunks_exact_mut(3).zip(&small_alpha) {
+                let m = if a > 0.0 { glam::Vec3::from_slice(p).normalize_or_zero() } else { glam::Vec3::ZERO };
+                p.copy_from_slice(&m.to_array());
+            }
+            n
+        });
+        Self {
+            name: self.name,
+            camera: self.camera.resized(w, h),
+            image,
+            albedo: self.albedo.map(|m| resize_covered(&m, &alpha, w, h)),
+            normal,
+            roughness: self.roughness.map(|m| resize_covered(&m, &alpha, w, h)),
+            relit: self.relit.into_iter().map(|(k, m)| (k, resize_rgba(&m, w, h))).collect(),
+        }
+    }
+}
+
+/// Alpha channel of an RGBA image (its last channel).
+fn alpha_of(img: &Image) -> Vec<f32> {
+    img.data.chunks_exact(img.channels as usize).map(|p| p[p.len() - 1]).collect()
+}
+
+/// Area-filters `map` to `w` x `h`, averaging over coverage `alpha` (full resolution):
+/// `out = filter(alpha * map) / filter(alpha)`, 0 where nothing is covered.
+fn resize_covered(map: &Image, alpha: &[f32], w: u32, h: u32) -> Image {
+    let c = map.channels as usize;
+    let mut pre = Image::new(map.width, map.height, map.channels + 1);
+    for ((src, dst), &a) in map.data.chunks_exact(c).zip(pre.data.chunks_exact_mut(c + 1)).zip(alpha) {
+        for k in 0..c {
+            dst[k] = src[k] * a;
+        }
+        dst[c] = a;
+    }
+    let small = pre.resize_area(w, h);
+    let data = small
+        .data
+        .chunks_exact(c + 1)
+        .flat_map(|p| {
+            let a = p[c];
+            (0..c).map(move |k| if a > 0.0 { p[k] / a } else { 0.0 })
+        })
+        .collect();
+    Image::from_data(w, h, map.channels, data)
+}
+
+/// Straight-alpha RGBA resized with coverage weighting; the alpha itself is box-filtered.
+fn resize_rgba(img: &Image, w: u32, h: u32) -> Image {
+    let alpha = alpha_of(img);
+    let rgb = resize_covered(&img.select_channels(0..3), &alpha, w, h);
+    let a = Image::from_data(img.width, img.height, 1, alpha).resize_area(w, h);
+    let data = rgb.data.chunks_exact(3).zip(&a.data).flat_map(|(p, &a)| [p[0], p[1], p[2], a]).collect();
+    Image::from_data(w, h, 4, data)
+}
+
 impl Dataset {
     /// True when the views' alpha channel is a foreground mask (see [`MaskSource`]).
     pub fn has_masks(&self) -> bool {
@@ -169,6 +233,14 @@ mod tests {
     use super::*;
     use crate::Intrinsics;
     use glam::{Mat3, Mat4, Quat};
+
+    #[test]
+    fn coverage_weighted_resize_keeps_edge_colour() {
+        // Left half opaque red, right half transparent black: the 2x -> 1x pixel stays red.
+        let img = Image::from_data(2, 1, 4, vec![1.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0]);
+        let small = resize_rgba(&img, 1, 1);
+        assert_eq!(small.data, vec![1.0, 0.0, 0.0, 0.5]);
+    }
 
     /// Cameras on a ring looking at the origin, in a world whose up is `up`.
     fn tilted_dataset(up: Vec3) -> Dataset {

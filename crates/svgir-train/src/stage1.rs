@@ -13,7 +13,7 @@ use crate::losses::mask;
 use crate::losses::objective::{depth_normal_weight, stage1_objective, ObjectiveInput, ObjectiveTarget};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
-use svgir_core::{Camera, Dataset, Image, Rng, Surfels};
+use svgir_core::{Camera, Dataset, Image, Rng, Surfels, View};
 use svgir_raster::{backward, render, Background, ColorSource, OutputGrads, RasterConfig, RenderInput, RenderOutput};
 
 /// Wall time per phase, summed over iterations (seconds).
@@ -58,6 +58,48 @@ struct Target {
     dilated: Vec<bool>,
 }
 
+impl Target {
+    fn of(image: &Image) -> Self {
+        let alpha = alpha_of(image);
+        let dilated = mask::dilated_mask(&alpha, image.width as usize, image.height as usize, 4);
+        Target { alpha, dilated }
+    }
+}
+
+/// The training views at half size and their targets, for the iterations up to
+/// [`Stage1Config::half_res_until`]: photo, alpha and intrinsics scaled as `--downscale 2` loads
+/// them ([`View::resized`] to the rounded half size), so such an iteration is the one a run on a
+/// half-size dataset would take.
+struct HalfRes {
+    views: Vec<View>,
+    targets: Vec<Target>,
+}
+
+impl HalfRes {
+    fn of(dataset: &Dataset) -> Self {
+        let views: Vec<View> = dataset
+            .train
+            .iter()
+            .map(|v| {
+                let photo = View {
+                    name: v.name.clone(),
+                    camera: v.camera,
+                    image: v.image.clone(),
+                    albedo: None,
+                    normal: None,
+                    roughness: None,
+                    relit: Default::default(),
+                };
+                // The loader's rounding (`svgir_io::load::target_size` with a factor of 2).
+                let half = |n: u32| ((n as f64 / 2.0).round() as u32).max(1);
+                photo.resized(half(v.image.width), half(v.image.height))
+            })
+            .collect();
+        let targets = views.iter().map(|v| Target::of(&v.image)).collect();
+        Self { views, targets }
+    }
+}
+
 /// The stage-1 trainer (SPEC 2): surfels, their Adam state and everything needed to resume.
 pub struct Stage1 {
     /// The run's configuration.
@@ -81,6 +123,8 @@ pub struct Stage1 {
     /// Per-photo colour corrections (`config.exposure`).
     pub exposure: Option<ExposureCorrection>,
     targets: Vec<Target>,
+    /// The half-size views while `iteration < config.half_res_until`.
+    half: Option<HalfRes>,
 }
 
 /// Adam groups for the five surfel attributes with the SPEC 2 learning rates.
@@ -140,15 +184,8 @@ impl Stage1 {
         let n = surfels.len();
         let groups = make_groups(&config, n, extent);
         let rng = Rng::new(config.seed).fork(1);
-        let targets = dataset
-            .train
-            .iter()
-            .map(|v| {
-                let alpha = alpha_of(&v.image);
-                let dilated = mask::dilated_mask(&alpha, v.image.width as usize, v.image.height as usize, 4);
-                Target { alpha, dilated }
-            })
-            .collect();
+        let targets = dataset.train.iter().map(|v| Target::of(&v.image)).collect();
+        let half = (config.half_res_until > 0).then(|| HalfRes::of(dataset));
         // The distortion output costs a division per composited pixel; only pay when it is in the loss.
         let raster = RasterConfig {
             distortion: config.loss.distortion > 0.0,
@@ -168,6 +205,7 @@ impl Stage1 {
             raster,
             exposure,
             targets,
+            half,
         }
     }
 
@@ -185,7 +223,12 @@ impl Stage1 {
             ViewOrder::Uniform => self.rng.below(dataset.train.len()),
             ViewOrder::Epochs => view_of_iteration(cfg.seed, it, dataset.train.len()),
         };
-        let view = &dataset.train[view_idx];
+        // Coarse to fine: the half-size photo until `half_res_until`, then the photo itself.
+        let half = self.half.as_ref().filter(|_| it <= cfg.half_res_until);
+        let (view, target) = match half {
+            Some(h) => (&h.views[view_idx], &h.targets[view_idx]),
+            None => (&dataset.train[view_idx], &self.targets[view_idx]),
+        };
         let bg = match cfg.background.fixed_color() {
             Some(c) => c,
             None => [self.rng.uniform(), self.rng.uniform(), self.rng.uniform()],
@@ -210,7 +253,6 @@ impl Stage1 {
 
         let (w, h) = (view.camera.width() as usize, view.camera.height() as usize);
         let npix = w * h;
-        let target = &self.targets[view_idx];
         // The loss sees the photo's colour correction applied to the render.
         let corrected = self.exposure.as_ref().map(|e| exposure::apply(&e.params[view_idx], &out.color));
         let color = corrected.as_deref().unwrap_or(&out.color);
@@ -291,6 +333,9 @@ impl Stage1 {
         }
         if it.is_multiple_of(cfg.sh_upgrade_interval) && self.surfels.sh_degree < cfg.max_sh_degree {
             self.surfels.sh_degree += 1;
+        }
+        if it >= cfg.half_res_until {
+            self.half = None;
         }
         let t5 = Instant::now();
         let secs = |a: Instant, b: Instant| (b - a).as_secs_f64();

@@ -72,3 +72,61 @@ fn resume_continues_bit_identically() {
     assert_eq!(a.surfels, b.surfels);
     assert_eq!(a.groups, b.groups);
 }
+
+/// `half_res_until`: the first iterations are those of a run on the photos resized to half
+/// size (`View::resized`, as `--downscale 2` loads them), the later ones those of a run on the
+/// photos themselves, and a run resumed inside the half-size part continues bit-identically.
+#[test]
+fn half_size_iterations_are_a_half_size_run_then_the_full_one() {
+    let Some(ds) = scene() else { return };
+    let (iterations, until) = (60, 20);
+    let half_size = |mut cfg: Stage1Config| {
+        cfg.half_res_until = until;
+        cfg
+    };
+    let with = |ds: &Dataset, f: &dyn Fn(Stage1Config) -> Stage1Config| {
+        let t = trainer(ds, iterations);
+        Stage1::new(f(t.config.clone()), t.surfels.clone(), ds)
+    };
+    let mut small = ds.clone();
+    for v in &mut small.train {
+        let (w, h) = (v.image.width / 2, v.image.height / 2);
+        *v = v.clone().resized(w, h);
+    }
+    assert_eq!(small.train[0].image.width, 32, "the scene loads at 64 px");
+
+    let mut a = with(&ds, &half_size);
+    let mut b = with(&small, &|c| c);
+    for _ in 0..until {
+        let (sa, sb) = (a.step(&ds), b.step(&small));
+        assert_eq!(sa.loss.to_bits(), sb.loss.to_bits(), "iteration {}: not the half-size run's", sa.iteration);
+    }
+    assert_eq!(a.surfels, b.surfels);
+    // The half-size run, saved and continued on the full-size photos, is what `a` now does.
+    let path = std::env::temp_dir().join(format!("svgir_half_{}.bin", std::process::id()));
+    checkpoint::save(&b, &path).unwrap();
+    let mut c = checkpoint::load(&path, &ds).unwrap();
+    let mut differs = false;
+    while !a.is_done() {
+        let (sa, sc) = (a.step(&ds), c.step(&ds));
+        assert_eq!(sa.loss.to_bits(), sc.loss.to_bits(), "iteration {}: not the full-size run's", sa.iteration);
+        differs |= sa.loss.to_bits() != b.step(&small).loss.to_bits();
+    }
+    assert!(differs, "after the switch the run should leave the half-size photos");
+    assert_eq!(a.surfels, c.surfels);
+
+    // Saved inside the half-size part and resumed: the same run.
+    let mut d = with(&ds, &half_size);
+    for _ in 0..until / 2 {
+        d.step(&ds);
+    }
+    checkpoint::save(&d, &path).unwrap();
+    let mut e = checkpoint::load(&path, &ds).unwrap();
+    std::fs::remove_file(&path).ok();
+    while !d.is_done() {
+        let (sd, se) = (d.step(&ds), e.step(&ds));
+        assert_eq!(sd.loss.to_bits(), se.loss.to_bits(), "resumed, iteration {}", sd.iteration);
+    }
+    assert_eq!(d.surfels, a.surfels, "resuming changed the run");
+    assert_eq!(d.surfels, e.surfels);
+}

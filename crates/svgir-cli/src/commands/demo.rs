@@ -45,6 +45,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         view_order: None,
         sh_degree: None,
         distortion_from: 0,
+        half_res_until: 0,
         init_ply: None,
         init_points: if args.quick { 5_000 } else { 20_000 },
         max_gaussians: Some(if args.quick { 5_000 } else { 15_000 }),

@@ -130,6 +130,7 @@ fn train_reconstruction(args: &MasksArgs) -> Result<PathBuf> {
         view_order: None,
         sh_degree: None,
         distortion_from: 0,
+        half_res_until: 0,
         init_ply: None,
         init_points: 100_000,
         max_gaussians: None,

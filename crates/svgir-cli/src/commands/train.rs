@@ -122,6 +122,11 @@ pub struct TrainArgs {
     /// Override the scaled schedule: reset opacities every N iterations while densifying (3DGS: 3000).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub opacity_reset_every: Option<u64>,
+    /// Train iterations 1..=N on the photos at half size, then on the photos themselves (coarse
+    /// to fine; 0: off). Those iterations cost about half as much: lego_400's 32 dB command uses
+    /// half the run (docs/experiments.md).
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 0)]
+    pub half_res_until: u64,
     /// Override the densification threshold on the mean view-space gradient (SPEC 2: 2.5e-4; 3DGS: 2e-4).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub densify_grad: Option<f32>,
@@ -213,6 +218,7 @@ fn make_config(args: &TrainArgs, dataset: &Dataset) -> Result<(Stage1Config, &'s
         };
     }
     c.distortion_from = args.distortion_from;
+    c.half_res_until = args.half_res_until;
     if let Some(d) = args.sh_degree {
         c.max_sh_degree = d;
     }
