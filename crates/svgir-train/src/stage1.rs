@@ -123,7 +123,7 @@ pub struct Stage1 {
     /// Per-photo colour corrections (`config.exposure`).
     pub exposure: Option<ExposureCorrection>,
     targets: Vec<Target>,
-    /// The half-size views while `iteration < config.half_res_until`.
+    /// The half-size views, for the iterations up to `config.half_res_until` (dropped after).
     half: Option<HalfRes>,
 }
 
