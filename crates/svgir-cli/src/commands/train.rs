@@ -125,7 +125,7 @@ pub struct TrainArgs {
     /// Train iterations 1..=N on the photos at half size, then on the photos themselves (coarse
     /// to fine; 0: off). Those iterations cost about half as much: lego_400's 32 dB command uses
     /// half the run (docs/experiments.md).
-    #[arg(long, default_value_t = 0)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 0)]
     pub half_res_until: u64,
     /// Override the densification threshold on the mean view-space gradient (SPEC 2: 2.5e-4; 3DGS: 2e-4).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
