@@ -100,6 +100,13 @@ pub struct Dataset {
     pub world_rotation: glam::Mat3,
 }
 
+/// A `w` x `h` image's size shrunk by `factor` (>= 1), each side rounded and at least 1: the
+/// size `--downscale` loads and stage 1's half-size iterations train on.
+pub fn downscaled_size(w: u32, h: u32, factor: f32) -> (u32, u32) {
+    let f = factor as f64;
+    (((w as f64 / f).round() as u32).max(1), ((h as f64 / f).round() as u32).max(1))
+}
+
 impl View {
     /// The view at `w` x `h`: images, ground truth and intrinsics all scaled together.
     pub fn resized(self, w: u32, h: u32) -> Self {
@@ -127,7 +134,7 @@ impl View {
 }
 
 /// Alpha channel of an RGBA image (its last channel).
-fn alpha_of(img: &Image) -> Vec<f32> {
+pub fn alpha_of(img: &Image) -> Vec<f32> {
     img.data.chunks_exact(img.channels as usize).map(|p| p[p.len() - 1]).collect()
 }
 

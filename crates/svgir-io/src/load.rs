@@ -9,6 +9,9 @@
 use crate::error::{ErrorKind, Result, WithPath};
 use crate::{colmap, nerf, tensoir, transforms};
 use std::path::Path;
+/// Alpha channel of an RGBA image (shared with `svgir-core`'s resizing).
+pub use svgir_core::dataset::alpha_of;
+use svgir_core::dataset::downscaled_size;
 use svgir_core::{Dataset, Image, View};
 
 /// How much of a dataset to load, and at what size.
@@ -149,9 +152,7 @@ fn check_options(opts: &LoadOptions) -> std::result::Result<(), ErrorKind> {
 pub fn target_size(opts: &LoadOptions, w: u32, h: u32) -> std::result::Result<Option<(u32, u32)>, ErrorKind> {
     let (tw, th) = match (opts.resolution, opts.downscale) {
         (Some(rw), _) => (rw, ((h as f64 * rw as f64 / w as f64).round() as u32).max(1)),
-        (None, Some(f)) => {
-            (((w as f64 / f as f64).round() as u32).max(1), ((h as f64 / f as f64).round() as u32).max(1))
-        }
+        (None, Some(f)) => downscaled_size(w, h, f),
         (None, None) => return Ok(None),
     };
     if tw > w || th > h {
@@ -201,21 +202,10 @@ pub fn decode_normals(img: &Image, alpha: &[f32]) -> Image {
     out
 }
 
-/// Alpha channel of an RGBA image.
-pub fn alpha_of(img: &Image) -> Vec<f32> {
-    img.data.chunks_exact(img.channels as usize).map(|p| p[p.len() - 1]).collect()
-}
-
-/// The view at `w` x `h`: images, ground truth and intrinsics all scaled together
-/// ([`View::resized`]).
-pub fn resize_view(v: View, w: u32, h: u32) -> View {
-    v.resized(w, h)
-}
-
 /// Applies `opts`' resizing to a loaded view.
 pub fn finish_view(v: View, opts: &LoadOptions, path: &Path) -> Result<View> {
     match target_size(opts, v.image.width, v.image.height).at(path)? {
-        Some((w, h)) => Ok(resize_view(v, w, h)),
+        Some((w, h)) => Ok(v.resized(w, h)),
         None => Ok(v),
     }
 }

@@ -13,6 +13,7 @@ use crate::losses::mask;
 use crate::losses::objective::{depth_normal_weight, stage1_objective, ObjectiveInput, ObjectiveTarget};
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
+use svgir_core::dataset::downscaled_size;
 use svgir_core::{Camera, Dataset, Image, Rng, Surfels, View};
 use svgir_raster::{backward, render, Background, ColorSource, OutputGrads, RasterConfig, RenderInput, RenderOutput};
 
@@ -90,9 +91,8 @@ impl HalfRes {
                     roughness: None,
                     relit: Default::default(),
                 };
-                // The loader's rounding (`svgir_io::load::target_size` with a factor of 2).
-                let half = |n: u32| ((n as f64 / 2.0).round() as u32).max(1);
-                photo.resized(half(v.image.width), half(v.image.height))
+                let (w, h) = downscaled_size(v.image.width, v.image.height, 2.0);
+                photo.resized(w, h)
             })
             .collect();
         let targets = views.iter().map(|v| Target::of(&v.image)).collect();
@@ -123,7 +123,8 @@ pub struct Stage1 {
     /// Per-photo colour corrections (`config.exposure`).
     pub exposure: Option<ExposureCorrection>,
     targets: Vec<Target>,
-    /// The half-size views, for the iterations up to `config.half_res_until` (dropped after).
+    /// The half-size views, made at the first iteration that needs them and dropped after
+    /// `config.half_res_until`.
     half: Option<HalfRes>,
 }
 
@@ -185,7 +186,6 @@ impl Stage1 {
         let groups = make_groups(&config, n, extent);
         let rng = Rng::new(config.seed).fork(1);
         let targets = dataset.train.iter().map(|v| Target::of(&v.image)).collect();
-        let half = (config.half_res_until > 0).then(|| HalfRes::of(dataset));
         // The distortion output costs a division per composited pixel; only pay when it is in the loss.
         let raster = RasterConfig {
             distortion: config.loss.distortion > 0.0,
@@ -205,7 +205,7 @@ impl Stage1 {
             raster,
             exposure,
             targets,
-            half,
+            half: None,
         }
     }
 
@@ -223,7 +223,11 @@ impl Stage1 {
             ViewOrder::Uniform => self.rng.below(dataset.train.len()),
             ViewOrder::Epochs => view_of_iteration(cfg.seed, it, dataset.train.len()),
         };
-        // Coarse to fine: the half-size photo until `half_res_until`, then the photo itself.
+        // Coarse to fine: the half-size photo until `half_res_until`, then the photo itself. The
+        // half-size views are made when first needed (a run resumed past them never makes them).
+        if it <= cfg.half_res_until && self.half.is_none() {
+            self.half = Some(HalfRes::of(dataset));
+        }
         let half = self.half.as_ref().filter(|_| it <= cfg.half_res_until);
         let (view, target) = match half {
             Some(h) => (&h.views[view_idx], &h.targets[view_idx]),
