@@ -15,7 +15,9 @@
 //! atomics, no racy `+=`, bit-reproducible for a given input (SPEC 9.4, 9.9).
 //!
 //! With [`crate::RasterConfig::geometry`] off, `gD` and `gN` are read as zero whatever is passed
-//! (the SIMD kernels then skip their terms).
+//! (the SIMD kernels then skip their terms). With [`crate::RasterConfig::geometry_grads`] off,
+//! the SIMD kernels compute only the opacity, colour and feature sums; either path then returns
+//! zero geometry gradients.
 
 use crate::forward::{background_at, split_lens, FeatView};
 use crate::interp::{normalised_coord, weight_grads, weights, MAX_VERTICES};
@@ -211,7 +213,7 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
         );
     // SAFETY: every block wrote each of its slots once (`GradSlots::put`, or the lane kernel's
     // stores, which also cover every slot).
-    let (v_positions, v_rotations, v_log_scales, v_opacity_logits, v_sh, v_mean2d_norm) = unsafe {
+    let (mut v_positions, mut v_rotations, mut v_log_scales, v_opacity_logits, v_sh, mut v_mean2d_norm) = unsafe {
         (
             assume_init(v_positions),
             assume_init(v_rotations),
@@ -222,6 +224,15 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
         )
     };
 
+    if !cfg.geometry_grads {
+        // Frozen geometry: the tile kernels left the H, centre and normal sums at zero, but the
+        // SH colour's view direction still reaches the position; the contract is zeros.
+        let z = F::ZERO;
+        v_positions.par_iter_mut().for_each(|v| *v = F::v3([z; 3]));
+        v_rotations.par_iter_mut().for_each(|v| *v = F::quat([z; 4]));
+        v_log_scales.par_iter_mut().for_each(|v| *v = F::v2([z; 2]));
+        v_mean2d_norm.par_iter_mut().for_each(|v| *v = z);
+    }
     sw.lap("gaussians");
     let feature_grads = |fv: &FeatView<F>, lo: usize| -> Vec<F> {
         let len = fv.vertices * fv.channels;

@@ -106,7 +106,7 @@ impl<S: Lanes> Entry<'_, S> {
     /// to `sm` and the feature sums to `fsum`; false when no lane of it composited the entry
     /// (then it changed nothing: every update is masked, so the loop needs no branch).
     #[inline(always)]
-    unsafe fn group<const DIST: bool, const FEAT: bool, const PACKED: bool>(
+    unsafe fn group<const DIST: bool, const FEAT: bool, const GEO: bool, const PACKED: bool>(
         &self,
         gr: &Group,
         sm: &mut Sums<S>,
@@ -138,7 +138,9 @@ impl<S: Lanes> Entry<'_, S> {
         // (adding exact zeros changes no bit but a zero's sign).
         let geom = self.geom;
         let (gn, gd) = if geom { ([ld(GN), ld(GN + 1), ld(GN + 2)], ld(GD)) } else { ([zero; 3], zero) };
-        // Interpolation weights and their derivatives at the hit (features only).
+        // Interpolation weights and their derivatives at the hit (features only). The
+        // derivatives, and every sum below that only feeds the hit's (u, v) and depth, reach
+        // positions, rotations and scales alone: skipped without `GEO`.
         let (ut, dut, vt, dvt) = if FEAT && interp {
             let (ut, dut) = normalised_coord_lanes(ev.u);
             let (vt, dvt) = normalised_coord_lanes(ev.v);
@@ -150,16 +152,20 @@ impl<S: Lanes> Entry<'_, S> {
         let wgt_m = S::select(m, wgt, zero);
         let col = if FEAT && ci {
             let wc = weights_lanes(cf.vertices, ut, vt);
-            let (wcu, wcv) = weight_grads_lanes(cf.vertices, ut, vt);
             for vtx in 0..cf.vertices {
-                let r = &colv.v[vtx * 3..vtx * 3 + 3];
-                let dot = gc[0].mul(r[0]).add(gc[1].mul(r[1])).add(gc[2].mul(r[2]));
                 let cw = wgt_m.mul(wc[vtx]);
                 for ch in 0..3 {
                     fsum[vtx * 3 + ch] = cw.mul_add(gc[ch], fsum[vtx * 3 + ch]);
                 }
-                gut = wcu[vtx].mul_add(dot, gut);
-                gvt = wcv[vtx].mul_add(dot, gvt);
+            }
+            if GEO {
+                let (wcu, wcv) = weight_grads_lanes(cf.vertices, ut, vt);
+                for vtx in 0..cf.vertices {
+                    let r = &colv.v[vtx * 3..vtx * 3 + 3];
+                    let dot = gc[0].mul(r[0]).add(gc[1].mul(r[1])).add(gc[2].mul(r[2]));
+                    gut = wcu[vtx].mul_add(dot, gut);
+                    gvt = wcv[vtx].mul_add(dot, gvt);
+                }
             }
             [colv.eval(cf, &wc, 0), colv.eval(cf, &wc, 1), colv.eval(cf, &wc, 2)]
         } else {
@@ -175,7 +181,7 @@ impl<S: Lanes> Entry<'_, S> {
         };
         if FEAT && ce > 0 {
             let we = feat_weights(ef, ut, vt);
-            let (weu, wev) = if ef.vertices > 1 {
+            let (weu, wev) = if GEO && ef.vertices > 1 {
                 weight_grads_lanes(ef.vertices, ut, vt)
             } else {
                 ([zero; MAX_VERTICES], [zero; MAX_VERTICES])
@@ -192,22 +198,26 @@ impl<S: Lanes> Entry<'_, S> {
                     let ge = ld(ARRAYS + ch);
                     let k = n_col + vtx * ce + ch;
                     fsum[k] = cw.mul_add(ge, fsum[k]);
-                    dot = ge.mul_add(extv.v[vtx * ce + ch], dot);
+                    if GEO {
+                        dot = ge.mul_add(extv.v[vtx * ce + ch], dot);
+                    }
                 }
-                if ef.vertices > 1 {
+                if GEO && ef.vertices > 1 {
                     gut = weu[vtx].mul_add(dot, gut);
                     gvt = wev[vtx].mul_add(dot, gvt);
                 }
             }
         }
-        let mut v_z = if geom { wgt.mul(gd) } else { zero };
+        let mut v_z = if GEO && geom { wgt.mul(gd) } else { zero };
         if DIST {
             let inv_z = sp(1.0).div(ev.z);
             let mz = sp(m_scale).mul(sp(1.0).sub(sp(near).mul(inv_z)));
-            let dm_dz = sp(m_scale).mul(sp(near)).mul(inv_z).mul(inv_z);
             let (a, m1, m2, gdist) = (ld(A), ld(M1), ld(M2), ld(GDIST));
             gw = gw.add(gdist.mul(a.mul(mz).mul(mz).sub(sp(2.0).mul(mz).mul(m1)).add(m2)));
-            v_z = v_z.add(gdist.mul(sp(2.0)).mul(wgt).mul(mz.mul(a).sub(m1)).mul(dm_dz));
+            if GEO {
+                let dm_dz = sp(m_scale).mul(sp(near)).mul(inv_z).mul(inv_z);
+                v_z = v_z.add(gdist.mul(sp(2.0)).mul(wgt).mul(mz.mul(a).sub(m1)).mul(dm_dz));
+            }
         }
         // Upstream gradients are finite, so one masked weight serves all these sums.
         for ch in 0..3 {
@@ -215,13 +225,18 @@ impl<S: Lanes> Entry<'_, S> {
                 // One colour per Gaussian (interpolated colours are summed per vertex above).
                 sm.v_col[ch] = wgt_m.mul_add(gc[ch], sm.v_col[ch]);
             }
-            if geom {
+            if GEO && geom {
                 sm.v_n[ch] = wgt_m.mul_add(gn[ch], sm.v_n[ch]);
             }
         }
         let pacc = ld(ACC);
         let v_alpha = ti.mul(gw).sub(pacc.mul(inv_one_m));
         gr.store::<S, PACKED>(arr(ACC), S::select(m, pacc.add(gw.mul(wgt)), pacc));
+        let free = S::andnot(m, o.mul(ev.g).gt(sp(0.99)));
+        acc(&mut sm.opacity, free, v_alpha.mul(ev.g));
+        if !GEO {
+            return S::bits(m) != 0;
+        }
         // The hit's backward ([`crate::splat::intersect_backward`]); the (u, v) input is the
         // interpolation's, `w d(sum_ch g_ch f_ch)/du~ du~/du`.
         let (mut gu, mut gv) = if FEAT && interp {
@@ -236,8 +251,6 @@ impl<S: Lanes> Entry<'_, S> {
             acc(&mut sm.h_depth[1], m, v_z.mul(ev.v));
             acc(&mut sm.h_depth[2], m, v_z);
         }
-        let free = S::andnot(m, o.mul(ev.g).gt(sp(0.99)));
-        acc(&mut sm.opacity, free, v_alpha.mul(ev.g));
         let v_rho = sp(-0.5).mul(v_alpha).mul(o).mul(ev.g);
         let on3d = S::and(free, ev.use3d);
         gu = S::select(on3d, gu.add(sp(2.0).mul(v_rho).mul(ev.u)), gu);
@@ -263,7 +276,7 @@ impl<S: Lanes> Entry<'_, S> {
 /// extra channels come from the feature tables (interpolated over vertices).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool>(
+unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
     ctx: &Ctx<f32>,
     t: usize,
     eg: &mut [f32],
@@ -377,16 +390,15 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool>(
         groups.list::<S>(s, &tr, row_act, stride);
         let mut any = false;
         for gr in groups.wide() {
-            any |= k.group::<DIST, FEAT, false>(&gr, &mut sm, &mut fsum);
+            any |= k.group::<DIST, FEAT, GEO, false>(&gr, &mut sm, &mut fsum);
         }
         for gr in groups.packed() {
-            any |= k.group::<DIST, FEAT, true>(&gr, &mut sm, &mut fsum);
+            any |= k.group::<DIST, FEAT, GEO, true>(&gr, &mut sm, &mut fsum);
         }
         if !any {
             continue;
         }
         let slot = &mut eg[(e - e_tile0) * dim..(e - e_tile0 + 1) * dim];
-        let v_n = hsum3(&sm.v_n);
         if FEAT && ci {
             for (k, f) in fsum[..n_col].iter().enumerate() {
                 slot[OFF_COL + k] += f.hsum();
@@ -402,6 +414,12 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool>(
                 slot[ctx.off_ext + k] += f.hsum();
             }
         }
+        slot[OFF_OP] += sm.opacity.hsum();
+        if !GEO {
+            // The geometry slots stay zero (`crate::RasterConfig::geometry_grads`).
+            continue;
+        }
+        let v_n = hsum3(&sm.v_n);
         let sg = SplatGrad::from_sums(
             hsum3(&sm.h_depth),
             [sm.center[0].hsum(), sm.center[1].hsum()],
@@ -416,7 +434,6 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool>(
         }
         slot[OFF_C] += sg.center[0];
         slot[OFF_C + 1] += sg.center[1];
-        slot[OFF_OP] += sg.opacity;
         for j in 0..3 {
             slot[OFF_N + j] += v_n[j];
         }
@@ -425,7 +442,7 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool>(
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-unsafe fn tile_avx2<const DIST: bool, const FEAT: bool>(
+unsafe fn tile_avx2<const DIST: bool, const FEAT: bool, const GEO: bool>(
     ctx: &Ctx<f32>,
     t: usize,
     eg: &mut [f32],
@@ -434,12 +451,12 @@ unsafe fn tile_avx2<const DIST: bool, const FEAT: bool>(
     row_act: &mut [u64],
     groups: &mut Groups,
 ) {
-    tile_k::<crate::simd::F8, DIST, FEAT>(ctx, t, eg, buf, by_ncon, row_act, groups)
+    tile_k::<crate::simd::F8, DIST, FEAT, GEO>(ctx, t, eg, buf, by_ncon, row_act, groups)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512vl,avx2,fma")]
-unsafe fn tile_avx512<const DIST: bool, const FEAT: bool>(
+unsafe fn tile_avx512<const DIST: bool, const FEAT: bool, const GEO: bool>(
     ctx: &Ctx<f32>,
     t: usize,
     eg: &mut [f32],
@@ -448,7 +465,7 @@ unsafe fn tile_avx512<const DIST: bool, const FEAT: bool>(
     row_act: &mut [u64],
     groups: &mut Groups,
 ) {
-    tile_k::<crate::simd::F8k, DIST, FEAT>(ctx, t, eg, buf, by_ncon, row_act, groups)
+    tile_k::<crate::simd::F8k, DIST, FEAT, GEO>(ctx, t, eg, buf, by_ncon, row_act, groups)
 }
 
 /// Runs tile `t` on the SIMD path `path` (already resolved); false when `path` is scalar (the
@@ -468,9 +485,14 @@ pub(crate) fn backward_tile_simd(
     #[cfg(target_arch = "x86_64")]
     {
         let feat = ctx.cf.vertices > 1 || ctx.ef.channels > 0;
+        let geo = ctx.cfg.geometry_grads;
         macro_rules! go {
             ($f:ident, $d:literal, $e:literal) => {
-                $f::<$d, $e>(ctx, t, eg, buf, by_ncon, row_act, groups)
+                if geo {
+                    $f::<$d, $e, true>(ctx, t, eg, buf, by_ncon, row_act, groups)
+                } else {
+                    $f::<$d, $e, false>(ctx, t, eg, buf, by_ncon, row_act, groups)
+                }
             };
         }
         // SAFETY: `resolve` only returns a path whose features the CPU has.

@@ -375,14 +375,33 @@ pub fn bench_scene(surfels: Surfels, cameras: &[Camera], background: [f32; 3], t
     let (w, h) = (cameras[0].intrinsics.width, cameras[0].intrinsics.height);
     // "all": a gradient on every output (as the random table); "stage 1": the outputs stage-1
     // training differentiates (colour, opacity, depth, normal; distortion off, as its weight);
-    // "colour": 3DGS's loss (`--profile views`), no distortion and no geometry outputs.
+    // "colour": 3DGS's loss (`--profile views`), no distortion and no geometry outputs;
+    // "stage 2 SH" and "stage 2 PBR": stage 2's two renders, whose geometry is frozen (the SH
+    // colour alone; colours and 7 material channels interpolated from 4 vertices), each also
+    // with the geometry gradients stage 2 does not need.
+    let colour = RasterConfig { distortion: false, geometry: false, ..Default::default() };
+    let pbr = RasterConfig { distortion: false, ..Default::default() };
     let variants = [
-        ("all", RasterConfig::default()),
-        ("stage 1", RasterConfig { distortion: false, ..Default::default() }),
-        ("colour", RasterConfig { distortion: false, geometry: false, ..Default::default() }),
+        ("all", RasterConfig::default(), false),
+        ("stage 1", pbr, false),
+        ("colour", colour, false),
+        ("stage 2 SH", RasterConfig { geometry_grads: false, ..colour }, false),
+        ("stage 2 PBR, with geometry gradients", pbr, true),
+        ("stage 2 PBR", RasterConfig { geometry_grads: false, ..pbr }, true),
     ];
-    for (label, cfg) in variants {
-        let _ = writeln!(s, "gradients on: {label} outputs");
+    // Stage 2's feature tables: smooth made-up values (the timing does not depend on them).
+    const M: usize = 4;
+    const CE: usize = 7;
+    let colf: Vec<f32> = (0..n * M * 3).map(|i| 0.2 + 0.6 * ((i % 17) as f32 / 17.0)).collect();
+    let extf: Vec<f32> = (0..n * M * CE).map(|i| 0.1 + 0.8 * ((i % 13) as f32 / 13.0)).collect();
+    let npx = w as usize * h as usize;
+    let g_ext = vec![1e-3f32; npx * CE];
+    for (label, cfg, feat) in variants {
+        let _ = writeln!(
+            s,
+            "gradients on: {label} outputs{}",
+            if cfg.geometry_grads { "" } else { " (no geometry gradients)" }
+        );
         for t in thread_counts(threads) {
             let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().expect("rayon pool");
             let (mut pairs, mut evals) = (0usize, 0u64);
@@ -392,6 +411,12 @@ pub fn bench_scene(surfels: Surfels, cameras: &[Camera], background: [f32; 3], t
                 let mut input = p.input();
                 input.background = Background::Color(background);
                 let mut grads = p.grads();
+                if feat {
+                    input.colors = ColorSource::Features(crate::Features { data: &colf, vertices: M, channels: 3 });
+                    input.extra = Some(crate::Features { data: &extf, vertices: M, channels: CE });
+                    grads.extra = Some(&g_ext);
+                    grads.normal = None;
+                }
                 if !cfg.distortion {
                     grads.distortion = None;
                 }

@@ -68,6 +68,13 @@ pub struct RasterConfig {
     /// bit. The f32 tile kernels then skip those accumulators (about 5% of a forward+backward
     /// on a trained lego): for a loss that reads colour alone (3DGS's, the `views` profile).
     pub geometry: bool,
+    /// Compute the gradients of positions, rotations and log-scales (and the densification
+    /// statistic `v_mean2d_norm`). When false they are returned as zeros, and the f32 tile
+    /// kernels skip every per-pixel term that only reaches them: the hit's (u, v) and depth chain,
+    /// the derivatives of the vertex weights, the centre and normal sums (a third of the
+    /// backward tile work of stage 2's feature render, whose geometry is frozen, SPEC 6). The
+    /// opacity, SH, colour, feature and background gradients keep their bits.
+    pub geometry_grads: bool,
     /// Which f32 tile kernels run ([`Simd::Auto`]: `SVGIR_SIMD` or the best the CPU has). The
     /// choice changes no image bit, and gradients only by the rounding of per-Gaussian sums.
     pub simd: Simd,
@@ -75,7 +82,16 @@ pub struct RasterConfig {
 
 impl Default for RasterConfig {
     fn default() -> Self {
-        Self { near: 0.2, far: 1e4, t_stop: 1e-4, tile: 32, distortion: true, geometry: true, simd: Simd::Auto }
+        Self {
+            near: 0.2,
+            far: 1e4,
+            t_stop: 1e-4,
+            tile: 32,
+            distortion: true,
+            geometry: true,
+            geometry_grads: true,
+            simd: Simd::Auto,
+        }
     }
 }
 

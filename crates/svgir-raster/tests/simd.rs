@@ -316,6 +316,66 @@ fn geometry_off_changes_only_the_geometry_outputs() {
     }
 }
 
+/// What stage 2 relies on when it freezes the geometry (SPEC 6): without geometry gradients,
+/// every path returns the opacity, SH, colour, feature and background gradients of the full
+/// backward bit for bit, and zeros for positions, rotations, scales and the densification
+/// statistic; for SH colours and for colours and extra channels interpolated from vertices, with
+/// and without the distortion and geometry outputs.
+#[test]
+fn frozen_geometry_changes_only_the_geometry_gradients() {
+    let (n, res, m, ce) = (3000, 64u32, 4usize, 7usize);
+    let surfels = scene(41, n);
+    let camera = bench_camera(res, res);
+    let npx = (res * res) as usize;
+    let mut rng = svgir_core::Rng::new(41);
+    let colf: Vec<f32> = (0..n * m * 3).map(|_| rng.uniform()).collect();
+    let extf: Vec<f32> = (0..n * m * ce).map(|_| rng.normal()).collect();
+    let (g3, g1, ge) = upstream_grads(npx, ce);
+    let (c, e) = features(&colf, &extf, m, ce);
+    let inputs = [
+        ("sh", ColorSourceOf::Sh, None),
+        ("features", c, Some(e)),
+        ("extra only", ColorSourceOf::Sh, Some(FeaturesOf { data: &extf, vertices: m, channels: ce })),
+    ];
+    let geometry_names = ["positions", "rotations", "log scales", "mean2d"];
+    for path in Simd::available() {
+        for (kind, colors, extra) in &inputs {
+            for (dist, geometry) in [(false, true), (true, true), (false, false)] {
+                let input = RenderInput {
+                    surfels: &surfels,
+                    camera: &camera,
+                    colors: *colors,
+                    extra: *extra,
+                    background: Background::Color([0.3, 0.6, 0.1]),
+                };
+                let full = RasterConfig { simd: path, distortion: dist, geometry, ..Default::default() };
+                let frozen = RasterConfig { geometry_grads: false, ..full };
+                let (out, st) = render(&input, &full);
+                let grads = OutputGrads {
+                    color: Some(&g3),
+                    alpha: Some(&g1),
+                    depth: Some(&g1),
+                    normal: Some(&g3),
+                    distortion: Some(&g1),
+                    extra: extra.map(|_| ge.as_slice()),
+                };
+                let ga = backward(&input, &full, &st, &out, &grads);
+                let gb = backward(&input, &frozen, &st, &out, &grads);
+                let what = format!("{} {kind} dist {dist} geometry {geometry}", path.name());
+                for ((name, x), (_, y)) in grad_arrays(&ga).iter().zip(grad_arrays(&gb).iter()) {
+                    if geometry_names.contains(name) {
+                        assert!(x.iter().any(|&v| v != 0.0), "{what}: full {name} all zero");
+                        assert!(y.iter().all(|&v| v == 0.0), "{what}: frozen {name} not zero");
+                    } else {
+                        assert_eq!(x, y, "{what}: {name}");
+                    }
+                }
+                assert!(ga.v_opacity_logits.iter().any(|&v| v != 0.0), "{what}: opacities all zero");
+            }
+        }
+    }
+}
+
 /// Colours and `ce` extra channels from `m` vertices.
 fn features<'a>(c: &'a [f32], e: &'a [f32], m: usize, ce: usize) -> (ColorSourceOf<'a, f32>, FeaturesOf<'a, f32>) {
     (

@@ -120,9 +120,10 @@ pub struct BackSide {
     pub lights: BrightLights,
 }
 
-/// Stage 2's rasteriser settings: no distortion output (no loss uses it).
+/// Stage 2's rasteriser settings: no distortion output (no loss uses it), and no gradients for
+/// the frozen positions, rotations and scales (SPEC 6).
 fn raster_config() -> RasterConfig {
-    RasterConfig { distortion: false, ..RasterConfig::default() }
+    RasterConfig { distortion: false, geometry_grads: false, ..RasterConfig::default() }
 }
 
 /// The per-pixel coverage `mode` blends the PBR image by for a view whose photo is `image`: its
