@@ -6,13 +6,18 @@
 //! prediction (its straight colour under the ground-truth mask), so that training cannot darken a
 //! surface by thinning it over a black background, which the evaluation would then divide out.
 //!
-//! Per pixel and independent, so forward and backward are plain loops; computed in f64 so the
-//! same per-pixel functions are the finite-difference oracle.
+//! Per pixel and independent, so forward and backward are plain loops over pixels, split into
+//! rows of pixels across threads (each pixel's value does not depend on the split); computed in
+//! f64 so the same per-pixel functions are the finite-difference oracle.
 
 /// Opacity floor of the division (SPEC 3).
 pub const MIN_OPACITY: f64 = 1e-5;
 
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+
+/// Pixels per parallel task (a 256-pixel-wide image's 16 rows).
+const CHUNK: usize = 4096;
 use svgir_core::color::{linear_to_srgb as srgb, linear_to_srgb_grad as srgb_grad};
 
 /// One pixel's image value; `cover`: the photo's alpha ([`Coverage::Photo`]), `None` for the
@@ -64,9 +69,15 @@ fn cover_of(cover: Option<&[f32]>, p: usize) -> Option<f64> {
 
 /// The whole image (RGB, 3 per pixel); `cover`: one alpha per pixel, or `None` for the render's.
 pub fn pbr_composite(color: &[f32], alpha: &[f32], cover: Option<&[f32]>, bg: [f32; 3]) -> Vec<f32> {
-    (0..alpha.len())
-        .flat_map(|p| composite_px(px(color, p), alpha[p] as f64, cover_of(cover, p), bg).map(|v| v as f32))
-        .collect()
+    let mut image = vec![0.0f32; alpha.len() * 3];
+    image.par_chunks_mut(3 * CHUNK).enumerate().for_each(|(k, out)| {
+        for (i, o) in out.chunks_exact_mut(3).enumerate() {
+            let p = k * CHUNK + i;
+            let v = composite_px(px(color, p), alpha[p] as f64, cover_of(cover, p), bg);
+            o.iter_mut().zip(v).for_each(|(o, v)| *o = v as f32);
+        }
+    });
+    image
 }
 
 /// `(dL/dC, dL/dO)` for the whole image.
@@ -79,13 +90,14 @@ pub fn pbr_composite_backward(
 ) -> (Vec<f32>, Vec<f32>) {
     let mut v_color = vec![0.0; color.len()];
     let mut v_alpha = vec![0.0; alpha.len()];
-    for p in 0..alpha.len() {
-        let (vc, vo) = composite_px_backward(px(color, p), alpha[p] as f64, cover_of(cover, p), bg, px(v_image, p));
-        for k in 0..3 {
-            v_color[3 * p + k] = vc[k] as f32;
+    v_color.par_chunks_mut(3 * CHUNK).zip(v_alpha.par_chunks_mut(CHUNK)).enumerate().for_each(|(k, (vcs, vos))| {
+        for (i, (vc_out, vo_out)) in vcs.chunks_exact_mut(3).zip(vos.iter_mut()).enumerate() {
+            let p = k * CHUNK + i;
+            let (vc, vo) = composite_px_backward(px(color, p), alpha[p] as f64, cover_of(cover, p), bg, px(v_image, p));
+            vc_out.iter_mut().zip(vc).for_each(|(o, v)| *o = v as f32);
+            *vo_out = vo as f32;
         }
-        v_alpha[p] = vo as f32;
-    }
+    });
     (v_color, v_alpha)
 }
 

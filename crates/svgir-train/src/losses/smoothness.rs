@@ -6,13 +6,38 @@
 
 use svgir_core::Float;
 
+/// The edge weights of Eqn 17 for a guide image: `exp(-mean_c |I_p - I_q|)` of each pixel's edge
+/// to its left (`x`) and upper (`y`) neighbour, 0 where it has none. One set serves every buffer
+/// smoothed against the same guide (stage 2's albedo and roughness share the photo's).
+pub struct EdgeWeights<F> {
+    width: usize,
+    height: usize,
+    x: Vec<F>,
+    y: Vec<F>,
+}
+
+impl<F: Float> EdgeWeights<F> {
+    /// Weights of the guide `img` (`ci` channels, `width x height`), rows in parallel.
+    pub fn new(img: &[F], ci: usize, width: usize, height: usize) -> Self {
+        use rayon::prelude::*;
+        let (mut x, mut y) = (vec![F::ZERO; width * height], vec![F::ZERO; width * height]);
+        x.par_chunks_mut(width).zip(y.par_chunks_mut(width)).enumerate().for_each(|(r, (ex, ey))| {
+            for c in 0..width {
+                let p = r * width + c;
+                if c > 0 {
+                    ex[c] = edge(img, ci, p, p - 1);
+                }
+                if r > 0 {
+                    ey[c] = edge(img, ci, p, p - width);
+                }
+            }
+        });
+        Self { width, height, x, y }
+    }
+}
+
 /// Loss value; accumulates `weight * dL/da` into `v_a`. `a` has `ca` channels, `img` has `ci`.
 /// Generic so the f64 instantiation checks the gradient by finite differences.
-///
-/// Work split: each edge's gradient is computed once, rows in parallel, and each element of
-/// `v_a` then adds its (up to) four edges in the order the serial loop
-/// ([`edge_aware_smoothness_serial`], the oracle) visits them, so `v_a` gets the same bits. The
-/// loss is summed per row in f64, which can differ from the serial sum in its last f64 bits.
 #[allow(clippy::too_many_arguments)]
 pub fn edge_aware_smoothness<F: Float>(
     a: &[F],
@@ -24,7 +49,18 @@ pub fn edge_aware_smoothness<F: Float>(
     weight: F,
     v_a: &mut [F],
 ) -> F {
+    edge_aware_smoothness_with(a, ca, &EdgeWeights::new(img, ci, width, height), weight, v_a)
+}
+
+/// [`edge_aware_smoothness`] with the guide's edge weights computed beforehand.
+///
+/// Work split: each edge's gradient is computed once, rows in parallel, and each element of
+/// `v_a` then adds its (up to) four edges in the order the serial loop
+/// ([`edge_aware_smoothness_serial`], the oracle) visits them, so `v_a` gets the same bits. The
+/// loss is summed per row in f64, which can differ from the serial sum in its last f64 bits.
+pub fn edge_aware_smoothness_with<F: Float>(a: &[F], ca: usize, edges: &EdgeWeights<F>, weight: F, v_a: &mut [F]) -> F {
     use rayon::prelude::*;
+    let (width, height) = (edges.width, edges.height);
     let n = F::from_f64((width * height * ca) as f64);
     let two = F::from_f64(2.0);
     let row = width * ca;
@@ -37,17 +73,21 @@ pub fn edge_aware_smoothness<F: Float>(
         .enumerate()
         .map(|(y, (gx, gy))| {
             let mut loss = 0.0f64;
+            // Per pixel its left edge, then its upper one, as the serial loop.
+            let mut one = |e: F, p: usize, q: usize, g: &mut [F]| {
+                for c in 0..ca {
+                    let d = a[p * ca + c] - a[q * ca + c];
+                    loss += (e * d * d).to_f64();
+                    g[c] = weight * two * e * d / n;
+                }
+            };
             for x in 0..width {
                 let p = y * width + x;
-                for (q, g) in
-                    [(x > 0).then(|| (p - 1, &mut *gx)), (y > 0).then(|| (p - width, &mut *gy))].into_iter().flatten()
-                {
-                    let e = edge(img, ci, p, q);
-                    for c in 0..ca {
-                        let d = a[p * ca + c] - a[q * ca + c];
-                        loss += (e * d * d).to_f64();
-                        g[x * ca + c] = weight * two * e * d / n;
-                    }
+                if x > 0 {
+                    one(edges.x[p], p, p - 1, &mut gx[x * ca..(x + 1) * ca]);
+                }
+                if y > 0 {
+                    one(edges.y[p], p, p - width, &mut gy[x * ca..(x + 1) * ca]);
                 }
             }
             loss

@@ -16,7 +16,7 @@ use super::config::Stage2Weights;
 use crate::composite::{pbr_composite, pbr_composite_backward};
 use crate::losses::depth_normal::depth_normal_loss;
 use crate::losses::l1::l1_loss;
-use crate::losses::smoothness::{depth_guide, edge_aware_smoothness, BACKGROUND_GUIDE};
+use crate::losses::smoothness::{depth_guide, edge_aware_smoothness_with, EdgeWeights, BACKGROUND_GUIDE};
 use glam::Vec3;
 use svgir_core::Camera;
 use svgir_pbr::{faces, ActivatedMaterials};
@@ -161,15 +161,18 @@ pub fn stage2_objective(
     }
     let mut v_alb = vec![0.0f32; npix * 3];
     let mut v_rough = vec![0.0f32; npix];
-    loss += wts.smooth_albedo * edge_aware_smoothness(&alb, 3, gt, 3, w, h, wts.smooth_albedo, &mut v_alb);
-    loss += wts.smooth_roughness * edge_aware_smoothness(&rough, 1, gt, 3, w, h, wts.smooth_roughness, &mut v_rough);
+    let photo_edges = EdgeWeights::new(gt, 3, w, h);
+    loss += wts.smooth_albedo * edge_aware_smoothness_with(&alb, 3, &photo_edges, wts.smooth_albedo, &mut v_alb);
+    loss +=
+        wts.smooth_roughness * edge_aware_smoothness_with(&rough, 1, &photo_edges, wts.smooth_roughness, &mut v_rough);
     let mut v_nrm = vec![0.0f32; npix * 3];
     if wts.smooth_normal > 0.0 {
         let guide = depth_guide(out.depth, out.alpha, NORMAL_SMOOTHING_SHARPNESS);
         let nrm: Vec<f32> = (0..npix * 3)
             .map(|i| if guide[i / 3] == BACKGROUND_GUIDE { 0.0 } else { nsum[i] / out.alpha[i / 3] })
             .collect();
-        loss += wts.smooth_normal * edge_aware_smoothness(&nrm, 3, &guide, 1, w, h, wts.smooth_normal, &mut v_nrm);
+        let depth_edges = EdgeWeights::new(&guide, 1, w, h);
+        loss += wts.smooth_normal * edge_aware_smoothness_with(&nrm, 3, &depth_edges, wts.smooth_normal, &mut v_nrm);
     }
     let (ln, g_n) = depth_normal_loss(out.depth, out.alpha, &nsum, cam);
     loss += wts.normal * ln;
