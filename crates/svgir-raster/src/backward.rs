@@ -73,7 +73,6 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     let mut sw = Stopwatch::start();
     let cam = Cam::<F>::new(input.camera);
     let (w, h) = (cam.width, cam.height);
-    let npx = w as usize * h as usize;
     let n = input.surfels.count();
     let bins = &state.bins;
     let cf = FeatView::colors(&input.colors, &state.sh_colors);
@@ -151,6 +150,53 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
             }
         });
     };
+    if !cfg.geometry_grads && !sh_mode {
+        // Frozen geometry and colours from feature tables (stage 2's PBR pass): the per-Gaussian
+        // backward is only the opacity's sigmoid, so one reduce reads each entry slot once for
+        // the opacity and every feature column (the same sums, in the same order, as below).
+        let width = dim - OFF_OP;
+        let mut rows = vec![F::ZERO; n * width];
+        reduce(&mut rows, width, OFF_OP, dim);
+        sw.lap("reduce");
+        let (nc, ne) = (cf.vertices * 3, if input.extra.is_some() { ef.vertices * ce } else { 0 });
+        let (oc, oe) = (OFF_COL - OFF_OP, off_ext - OFF_OP);
+        let mut v_opacity_logits = vec![F::ZERO; n];
+        let mut v_color_features = vec![F::ZERO; n * nc];
+        let mut v_extra = vec![F::ZERO; n * ne];
+        v_opacity_logits.par_iter_mut().zip(rows.par_chunks_exact(width)).zip(&state.splats).for_each(
+            |((v, r), sp)| {
+                if sp.visible() {
+                    let o = sp.opacity;
+                    *v = r[0] * o * (F::ONE - o);
+                }
+            },
+        );
+        sw.lap("gaussians");
+        v_color_features
+            .par_chunks_exact_mut(nc)
+            .zip(rows.par_chunks_exact(width))
+            .for_each(|(v, r)| v.copy_from_slice(&r[oc..oc + nc]));
+        if ne > 0 {
+            v_extra
+                .par_chunks_exact_mut(ne)
+                .zip(rows.par_chunks_exact(width))
+                .for_each(|(v, r)| v.copy_from_slice(&r[oe..oe + ne]));
+        }
+        let v_background = background_grad(&input.background, grads.color, &state.final_t);
+        sw.lap("features");
+        return GradsOf {
+            v_positions: vec![F::v3([F::ZERO; 3]); n],
+            v_rotations: vec![F::quat([F::ZERO; 4]); n],
+            v_log_scales: vec![F::v2([F::ZERO; 2]); n],
+            v_opacity_logits,
+            v_sh: vec![bytemuck::Zeroable::zeroed(); n],
+            v_color_features,
+            v_extra,
+            v_background,
+            v_mean2d_norm: vec![F::ZERO; n],
+            phases: sw.finish(),
+        };
+    }
     let hi = if sh_mode { OFF_COL + 3 } else { OFF_COL };
     let mut sums = vec![F::ZERO; n * (OFF_COL + 3)];
     reduce(&mut sums, OFF_COL + 3, 0, hi);
@@ -245,22 +291,7 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     let v_color_features = if sh_mode { Vec::new() } else { feature_grads(&cf, OFF_COL) };
     let v_extra = if input.extra.is_some() { feature_grads(&ef, off_ext) } else { Vec::new() };
 
-    // Background: C = ... + T_N bg.
-    let v_background = match (&input.background, grads.color) {
-        (BackgroundOf::Color(_), None) => vec![F::ZERO; 3],
-        (BackgroundOf::Image(_), None) => vec![F::ZERO; npx * 3],
-        (BackgroundOf::Color(_), Some(gc)) => {
-            let mut s = [F::ZERO; 3];
-            for p in 0..npx {
-                for ch in 0..3 {
-                    s[ch] += state.final_t[p] * gc[p * 3 + ch];
-                }
-            }
-            s.to_vec()
-        }
-        (BackgroundOf::Image(_), Some(gc)) => (0..npx * 3).map(|i| state.final_t[i / 3] * gc[i]).collect(),
-    };
-
+    let v_background = background_grad(&input.background, grads.color, &state.final_t);
     sw.lap("features");
     GradsOf {
         v_positions,
@@ -273,6 +304,25 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
         v_background,
         v_mean2d_norm,
         phases: sw.finish(),
+    }
+}
+
+/// The background's gradient: `C = ... + T_N bg`.
+fn background_grad<F: Real>(bg: &BackgroundOf<F>, gc: Option<&[F]>, final_t: &[F]) -> Vec<F> {
+    let npx = final_t.len();
+    match (bg, gc) {
+        (BackgroundOf::Color(_), None) => vec![F::ZERO; 3],
+        (BackgroundOf::Image(_), None) => vec![F::ZERO; npx * 3],
+        (BackgroundOf::Color(_), Some(gc)) => {
+            let mut s = [F::ZERO; 3];
+            for p in 0..npx {
+                for ch in 0..3 {
+                    s[ch] += final_t[p] * gc[p * 3 + ch];
+                }
+            }
+            s.to_vec()
+        }
+        (BackgroundOf::Image(_), Some(gc)) => (0..npx * 3).map(|i| final_t[i / 3] * gc[i]).collect(),
     }
 }
 
