@@ -74,8 +74,8 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     let cam = Cam::<F>::new(input.camera);
     let (w, h) = (cam.width, cam.height);
     let n = input.surfels.count();
-    let bins = &state.bins;
-    let cf = FeatView::colors(&input.colors, &state.sh_colors);
+    let bins = &state.proj.bins;
+    let cf = FeatView::colors(&input.colors, &state.proj.sh_colors);
     let ef = FeatView::extra(&input.extra);
     let ce = ef.channels;
     let off_ext = OFF_COL + cf.vertices * 3;
@@ -90,7 +90,7 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
         let tiles: Vec<(usize, &mut [F])> = split_lens(&mut entry_grads, elens).into_iter().enumerate().collect();
         let ctx = Ctx {
             bins,
-            recs: &state.recs,
+            recs: &state.proj.recs,
             state,
             cf: &cf,
             ef: &ef,
@@ -163,7 +163,7 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
         let mut v_opacity_logits = vec![F::ZERO; n];
         let mut v_color_features = vec![F::ZERO; n * nc];
         let mut v_extra = vec![F::ZERO; n * ne];
-        v_opacity_logits.par_iter_mut().zip(rows.par_chunks_exact(width)).zip(&state.splats).for_each(
+        v_opacity_logits.par_iter_mut().zip(rows.par_chunks_exact(width)).zip(&state.proj.splats).for_each(
             |((v, r), sp)| {
                 if sp.visible() {
                     let o = sp.opacity;
@@ -224,7 +224,7 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
             |x, (b, (((((position, rotation), log_scale), opacity_logit), sh), mean2d_norm))| {
                 let mut out = GradSlots::<F> { position, rotation, log_scale, opacity_logit, sh, mean2d_norm };
                 let (g0, m) = (b * BLOCK, out.len());
-                let splats = &state.splats[g0..g0 + m];
+                let splats = &state.proj.splats[g0..g0 + m];
                 if path != crate::Simd::Scalar {
                     x.fill(input.surfels, splats, &sums[g0..g0 + m], sh_mode, g0);
                     // SAFETY: `path` is only a SIMD one when `F` is `f32` (above), so these are the

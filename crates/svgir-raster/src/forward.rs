@@ -23,8 +23,12 @@ use crate::preprocess::{preprocess, Cam};
 use crate::real::Real;
 use crate::splat::{eval_row, row_offsets, row_setup, RowEval};
 use crate::tiles::{bin, columns_mask, gather_records, EntryBox, TileBins, TileRec};
-use crate::{BackgroundOf, ColorSourceOf, ForwardStateOf, GaussianParams, RasterConfig, RenderInputOf, RenderOutputOf};
+use crate::{
+    BackgroundOf, ColorSourceOf, ForwardStateOf, GaussianParams, Projection, RasterConfig, RenderInputOf,
+    RenderOutputOf,
+};
 use rayon::prelude::*;
+use std::sync::Arc;
 
 /// A feature table seen by the kernels: `data[(g * vertices + m) * channels + c]`.
 #[derive(Clone, Copy, Debug)]
@@ -136,15 +140,29 @@ pub fn render_generic<F: Real, P: GaussianParams<F> + ?Sized>(
 ) -> (RenderOutputOf<F>, ForwardStateOf<F>) {
     let mut sw = Stopwatch::start();
     let cam = Cam::<F>::new(input.camera);
-    let (w, h) = (cam.width, cam.height);
-    let npx = w as usize * h as usize;
     let (splats, sh_colors) = preprocess(input.surfels, &cam, &input.colors, cfg);
     sw.lap("preprocess");
-    let bins = bin(&splats, w, h, cfg.tile);
+    let bins = bin(&splats, cam.width, cam.height, cfg.tile);
     sw.lap("bin");
     let cf = FeatView::colors(&input.colors, &sh_colors);
     let recs = gather_records(&bins, &splats, (cf.vertices == 1).then_some(cf.data));
     sw.lap("records");
+    let proj = Projection { splats, sh_colors, recs, bins, camera: Some(*input.camera), near: cfg.near };
+    render_projected(input, cfg, Arc::new(proj), sw)
+}
+
+/// The tile passes of [`render_generic`] over a projection already made (by this render or an
+/// earlier one of the same Gaussians and camera, [`crate::try_render_reusing`]).
+pub(crate) fn render_projected<F: Real, P: GaussianParams<F> + ?Sized>(
+    input: &RenderInputOf<F, P>,
+    cfg: &RasterConfig,
+    proj: Arc<Projection<F>>,
+    mut sw: Stopwatch,
+) -> (RenderOutputOf<F>, ForwardStateOf<F>) {
+    let (w, h) = (input.camera.width(), input.camera.height());
+    let npx = w as usize * h as usize;
+    let (splats, bins, recs) = (&proj.splats, &proj.bins, &proj.recs);
+    let cf = FeatView::colors(&input.colors, &proj.sh_colors);
     let ef = FeatView::extra(&input.extra);
     let ce = ef.channels;
 
@@ -206,7 +224,7 @@ pub fn render_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     };
     sw.lap("buffers");
     bands.into_par_iter().for_each(|mut b| {
-        render_band(&mut b, &bins, &recs, &cf, &ef, &input.background, cfg, w, h);
+        render_band(&mut b, bins, recs, &cf, &ef, &input.background, cfg, w, h);
     });
     sw.lap("tiles");
 
@@ -223,17 +241,7 @@ pub fn render_generic<F: Real, P: GaussianParams<F> + ?Sized>(
         })
         .collect();
     sw.lap("reduce");
-    let state = ForwardStateOf {
-        splats,
-        sh_colors,
-        recs,
-        bins,
-        final_t,
-        n_contrib,
-        moment1: m1,
-        moment2: m2,
-        phases: sw.finish(),
-    };
+    let state = ForwardStateOf { proj, final_t, n_contrib, moment1: m1, moment2: m2, phases: sw.finish() };
     (out, state)
 }
 

@@ -117,6 +117,10 @@ pub enum RasterError {
     /// Colour features with a channel count other than 3.
     #[error("colour features must have 3 channels, got {0}")]
     ColorChannels(usize),
+    /// [`try_render_reusing`] given a prior render of other Gaussians, another camera or
+    /// settings, or colours not interpolated from vertices.
+    #[error("a render can reuse only a projection of the same Gaussians by the same camera and settings, with colours from several vertices")]
+    Reuse,
     /// `RasterConfig::tile` outside 1..=64.
     #[error("tile size must be in 1..=64, got {0}")]
     Tile(u32),
@@ -263,10 +267,8 @@ pub type RenderOutput = RenderOutputOf<f32>;
 /// last composited one, and the distortion moments `sum w m`, `sum w m^2`.
 #[derive(Clone, Debug, Default)]
 pub struct ForwardStateOf<F> {
-    pub(crate) splats: Vec<preprocess::Splat<F>>,
-    pub(crate) sh_colors: Vec<[F; 3]>,
-    pub(crate) recs: Vec<tiles::TileRec<F>>,
-    pub(crate) bins: tiles::TileBins,
+    /// Shared with the later renders that reuse it ([`try_render_reusing`]).
+    pub(crate) proj: std::sync::Arc<Projection<F>>,
     pub(crate) final_t: Vec<F>,
     pub(crate) n_contrib: Vec<u32>,
     pub(crate) moment1: Vec<F>,
@@ -277,28 +279,41 @@ pub struct ForwardStateOf<F> {
 /// [`ForwardStateOf`] in `f32`, as training uses it.
 pub type ForwardState = ForwardStateOf<f32>;
 
+/// What a render derives from the Gaussians' geometry and opacity and the camera before any
+/// pixel: the splats (and, for SH colours, each Gaussian's colour), the tile lists sorted by
+/// (depth, id) and their per-entry records; with the camera and settings it was made for.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct Projection<F> {
+    pub(crate) splats: Vec<preprocess::Splat<F>>,
+    pub(crate) sh_colors: Vec<[F; 3]>,
+    pub(crate) recs: Vec<tiles::TileRec<F>>,
+    pub(crate) bins: tiles::TileBins,
+    pub(crate) camera: Option<Camera>,
+    pub(crate) near: f32,
+}
+
 impl<F> ForwardStateOf<F> {
     /// The colour each Gaussian composited, `max(0, 0.5 + SH(view))`, for a render of
     /// [`ColorSource::Sh`] (0 for culled Gaussians); empty for other colour sources.
     pub fn sh_colors(&self) -> &[[F; 3]] {
-        &self.sh_colors
+        &self.proj.sh_colors
     }
 
     /// Number of (Gaussian, tile) pairs this render binned.
     pub fn num_tile_entries(&self) -> usize {
-        self.bins.ids.len()
+        self.proj.bins.ids.len()
     }
 
     /// Gaussian-pixel pairs inside the Gaussians' boxes clipped to their tiles: an upper bound on
     /// the ray-splat evaluations of one forward pass.
     pub fn box_evaluations(&self) -> u64 {
-        let b = &self.bins;
+        let b = &self.proj.bins;
         let mut total = 0u64;
         for (t, r) in b.ranges.iter().enumerate() {
             let tx = t as u32 % b.tiles_x * b.tile;
             let ty = t as u32 / b.tiles_x * b.tile;
             for &g in &b.ids[r[0] as usize..r[1] as usize] {
-                let s = &self.splats[g as usize].rect;
+                let s = &self.proj.splats[g as usize].rect;
                 let w = s[1].min(tx + b.tile).saturating_sub(s[0].max(tx));
                 let h = s[3].min(ty + b.tile).saturating_sub(s[2].max(ty));
                 total += w as u64 * h as u64;
@@ -406,6 +421,28 @@ pub fn try_render(input: &RenderInput, cfg: &RasterConfig) -> Result<(RenderOutp
     input.surfels.check().map_err(RasterError::Surfels)?;
     check_input(input, cfg)?;
     Ok(render_generic(input, cfg))
+}
+
+/// [`try_render`] reusing the projection of `prior` (the splats, their tile lists and records), a
+/// render of the same Gaussians -- positions, rotations, scales and opacities unchanged since --
+/// by the same camera with the same `near` and tile size: stage 2's PBR pass after its SH pass.
+/// Its colours must come from a feature table of several vertices, since the records carry the
+/// prior render's one colour per Gaussian. Outputs, state and gradients are those of
+/// [`try_render`] (bit for bit; the Gaussians themselves are the caller's promise, the rest is
+/// checked).
+pub fn try_render_reusing(
+    input: &RenderInput,
+    cfg: &RasterConfig,
+    prior: &ForwardState,
+) -> Result<(RenderOutput, ForwardState), RasterError> {
+    check_input(input, cfg)?;
+    let p = &prior.proj;
+    let interpolated = matches!(input.colors, ColorSourceOf::Features(f) if f.vertices > 1);
+    let same_view = p.camera.as_ref() == Some(input.camera) && p.near == cfg.near && p.bins.tile == cfg.tile;
+    if !interpolated || !same_view || p.splats.len() != input.surfels.len() {
+        return Err(RasterError::Reuse);
+    }
+    Ok(forward::render_projected(input, cfg, prior.proj.clone(), phases::Stopwatch::start()))
 }
 
 /// Gradients of a loss whose output gradients are `grads`, for the render that produced `state`

@@ -13,7 +13,7 @@ use svgir_core::Surfels;
 use svgir_raster::bench::{bench_camera, random_scene};
 use svgir_raster::{
     backward, backward_generic, render, render_generic, Background, BackgroundOf, ColorSourceOf, FeaturesOf, Grads,
-    GradsOf, OutputGrads, OutputGradsOf, RasterConfig, RenderInput, RenderInputOf, RenderOutput, Simd,
+    GradsOf, OutputGrads, OutputGradsOf, RasterConfig, RasterError, RenderInput, RenderInputOf, RenderOutput, Simd,
 };
 
 fn close(what: &str, a: &[f32], b: &[f32]) {
@@ -372,6 +372,68 @@ fn frozen_geometry_changes_only_the_geometry_gradients() {
                 }
                 assert!(ga.v_opacity_logits.iter().any(|&v| v != 0.0), "{what}: opacities all zero");
             }
+        }
+    }
+}
+
+/// Stage 2's PBR pass reuses its SH pass's projection: on every path the outputs and gradients
+/// are those of a render of its own, bit for bit; a prior render by another camera or of another
+/// size, or colours that are not interpolated, are refused.
+#[test]
+fn reusing_a_projection_changes_no_bit() {
+    let (n, res, m, ce) = (3000, 64u32, 4usize, 7usize);
+    let surfels = scene(43, n);
+    let camera = bench_camera(res, res);
+    let npx = (res * res) as usize;
+    let mut rng = svgir_core::Rng::new(43);
+    let colf: Vec<f32> = (0..n * m * 3).map(|_| rng.uniform()).collect();
+    let extf: Vec<f32> = (0..n * m * ce).map(|_| rng.normal()).collect();
+    let (g3, g1, ge) = upstream_grads(npx, ce);
+    let grads = OutputGrads {
+        color: Some(&g3),
+        alpha: Some(&g1),
+        depth: Some(&g1),
+        normal: Some(&g3),
+        distortion: None,
+        extra: Some(&ge),
+    };
+    let sh_input = RenderInput {
+        surfels: &surfels,
+        camera: &camera,
+        colors: ColorSourceOf::Sh,
+        extra: None,
+        background: Background::Color([0.0; 3]),
+    };
+    let (c, e) = features(&colf, &extf, m, ce);
+    let input = RenderInput { colors: c, extra: Some(e), ..sh_input };
+    for path in Simd::available() {
+        for geometry_grads in [true, false] {
+            let what = format!("{} geometry gradients {geometry_grads}", path.name());
+            let cfg = RasterConfig { simd: path, distortion: false, geometry_grads, ..Default::default() };
+            let (_, sh_state) = render(&sh_input, &RasterConfig { geometry: false, ..cfg });
+            let (a, sa) = render(&input, &cfg);
+            let (b, sb) = svgir_raster::try_render_reusing(&input, &cfg, &sh_state).expect("same view");
+            let outputs = |o: &RenderOutput| {
+                [&o.color, &o.alpha, &o.depth, &o.median_depth, &o.normal, &o.extra, &o.accum_weight, &o.max_radius]
+                    .map(|v| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>())
+            };
+            assert_eq!(outputs(&a), outputs(&b), "{what}: outputs");
+            let ga = backward(&input, &cfg, &sa, &a, &grads);
+            let gb = backward(&input, &cfg, &sb, &b, &grads);
+            for ((name, x), (_, y)) in grad_arrays(&ga).iter().zip(grad_arrays(&gb).iter()) {
+                assert_eq!(x, y, "{what}: {name}");
+            }
+            assert!(ga.v_extra.iter().any(|&v| v != 0.0), "{what}: no feature gradient");
+            // Refused: another camera, another tile size, colours from one vertex or SH.
+            let refused = |input: &RenderInput, cfg: &RasterConfig| {
+                matches!(svgir_raster::try_render_reusing(input, cfg, &sh_state), Err(RasterError::Reuse))
+            };
+            let other = bench_camera(res, res / 2);
+            assert!(refused(&RenderInput { camera: &other, ..input }, &cfg), "{what}: camera");
+            assert!(refused(&input, &RasterConfig { tile: 16, ..cfg }), "{what}: tile");
+            let (c1, e1) = features(&colf[..n * 3], &extf[..n * ce], 1, ce);
+            assert!(refused(&RenderInput { colors: c1, extra: Some(e1), ..input }, &cfg), "{what}: one vertex");
+            assert!(refused(&sh_input, &cfg), "{what}: SH");
         }
     }
 }

@@ -41,7 +41,10 @@ use svgir_pbr::{
     split_by_side, ColourProjector, ConsistencyInputs, DirectionCache, EnvLight, Indirect, PbrError, PbrGrads,
     ShadeInputs, ShadeOutput, ShadeParams, Side, SvgMaterials,
 };
-use svgir_raster::{backward, render, Background, ColorSource, Features, OutputGrads, RasterConfig, RenderInput};
+use svgir_raster::{
+    backward, render, Background, ColorSource, Features, ForwardState, OutputGrads, RasterConfig, RenderInput,
+    RenderOutput,
+};
 use svgir_trace::{brightest_texels, concentrate_lobe, BrightLights, Bvh, GatherParams, MicroBuffer};
 
 /// What one stage-2 iteration reports (a line of `metrics.jsonl`).
@@ -131,6 +134,17 @@ fn raster_config() -> RasterConfig {
 /// opacity; `crate::composite`).
 fn photo_coverage(mode: Coverage, image: &Image) -> Option<Vec<f32>> {
     (mode == Coverage::Photo && image.channels == 4).then(|| alpha_of(image))
+}
+
+/// The PBR pass of a view after its SH pass `prior`: the same Gaussians (SPEC 6 freezes their
+/// geometry, and opacities change only at the optimiser's step), camera and settings, so it
+/// reuses the SH pass's projection; with one vertex per Gaussian (M = 1) it renders its own.
+pub(crate) fn render_after(
+    input: &RenderInput,
+    cfg: &RasterConfig,
+    prior: &ForwardState,
+) -> (RenderOutput, ForwardState) {
+    svgir_raster::try_render_reusing(input, cfg, prior).unwrap_or_else(|_| render(input, cfg))
 }
 
 fn visible_of(max_radius: &[f32]) -> Vec<bool> {
@@ -463,7 +477,7 @@ impl Stage2 {
             extra: Some(Features { data: &extra, vertices: m, channels: EXTRA_CHANNELS }),
             background: Background::Color([0.0; 3]),
         };
-        let (pbr_out, pbr_state) = render(&pbr_input, &self.raster);
+        let (pbr_out, pbr_state) = render_after(&pbr_input, &self.raster, &sh_state);
         let t1 = Instant::now();
 
         // 3. Eqn 15's per-pixel terms on the PBR image (see `composite`), its material buffers

@@ -130,7 +130,7 @@ impl Stage2 {
             extra: None,
             background: Background::Color([0.0; 3]),
         };
-        let (seen, _) = render(&probe, &RasterConfig { geometry: false, ..self.raster });
+        let (seen, seen_state) = render(&probe, &RasterConfig { geometry: false, ..self.raster });
         let blended = weighted(&visible_of(&seen.max_radius), &seen.accum_weight, 0.0);
         let (front_vis, back_vis) = self.sides(camera, &blended, shading.back.is_some());
         let back_normals = shading.back.as_ref().map(|_| negated(&act.normals));
@@ -160,7 +160,7 @@ impl Stage2 {
             extra: Some(Features { data: &extra, vertices: m, channels: EXTRA_CHANNELS }),
             background: Background::Color([0.0; 3]),
         };
-        let (out, _) = render(&input, &self.raster);
+        let (out, _) = super::render_after(&input, &self.raster, &seen_state);
         let mut r = PbrRender {
             width: w as u32,
             height: h as u32,
