@@ -8,7 +8,9 @@
 //! per-pixel chain (transmittance walk, suffix sum, `dL/dalpha`, the hit's gradient) is the
 //! scalar arithmetic lane by lane; the per-Gaussian sums (`dL/dp` moments, centre, opacity,
 //! normal, colour) are kept per lane and reduced once per entry, so they differ from the scalar
-//! path's pixel-order sums by rounding only.
+//! path's pixel-order sums by rounding only. Without geometry gradients
+//! ([`crate::RasterConfig::geometry_grads`], the `GEO` parameter) the chain stops at `dL/dalpha`:
+//! only the opacity, colour and feature sums are kept, with the same bits.
 
 // The kernels are `unsafe fn`s with one contract -- the CPU has the features of the path that
 // runs them (checked once by `Simd::resolve`) and every pointer stays inside its tile buffer --
