@@ -327,9 +327,7 @@ fn frozen_geometry_changes_only_the_geometry_gradients() {
     let surfels = scene(41, n);
     let camera = bench_camera(res, res);
     let npx = (res * res) as usize;
-    let mut rng = svgir_core::Rng::new(41);
-    let colf: Vec<f32> = (0..n * m * 3).map(|_| rng.uniform()).collect();
-    let extf: Vec<f32> = (0..n * m * ce).map(|_| rng.normal()).collect();
+    let (colf, extf) = feature_tables(41, n, m, ce);
     let (g3, g1, ge) = upstream_grads(npx, ce);
     let (c, e) = features(&colf, &extf, m, ce);
     let inputs = [
@@ -385,9 +383,7 @@ fn reusing_a_projection_changes_no_bit() {
     let surfels = scene(43, n);
     let camera = bench_camera(res, res);
     let npx = (res * res) as usize;
-    let mut rng = svgir_core::Rng::new(43);
-    let colf: Vec<f32> = (0..n * m * 3).map(|_| rng.uniform()).collect();
-    let extf: Vec<f32> = (0..n * m * ce).map(|_| rng.normal()).collect();
+    let (colf, extf) = feature_tables(43, n, m, ce);
     let (g3, g1, ge) = upstream_grads(npx, ce);
     let grads = OutputGrads {
         color: Some(&g3),
@@ -438,6 +434,15 @@ fn reusing_a_projection_changes_no_bit() {
     }
 }
 
+/// Random feature tables of `n` Gaussians: colours in [0, 1) and `ce` normal-distributed extra
+/// channels, both from `m` vertices.
+fn feature_tables(seed: u64, n: usize, m: usize, ce: usize) -> (Vec<f32>, Vec<f32>) {
+    let mut rng = svgir_core::Rng::new(seed);
+    let colf = (0..n * m * 3).map(|_| rng.uniform()).collect();
+    let extf = (0..n * m * ce).map(|_| rng.normal()).collect();
+    (colf, extf)
+}
+
 /// Colours and `ce` extra channels from `m` vertices.
 fn features<'a>(c: &'a [f32], e: &'a [f32], m: usize, ce: usize) -> (ColorSourceOf<'a, f32>, FeaturesOf<'a, f32>) {
     (
@@ -458,9 +463,7 @@ fn features_of_unweighted_gaussians_are_never_read() {
     surfels.log_scales.iter_mut().for_each(|s| *s += glam::Vec2::splat(1.5));
     let camera = bench_camera(res, res);
     let npx = (res * res) as usize;
-    let mut rng = svgir_core::Rng::new(31);
-    let colf: Vec<f32> = (0..n * m * 3).map(|_| rng.uniform()).collect();
-    let extf: Vec<f32> = (0..n * m * ce).map(|_| rng.normal()).collect();
+    let (colf, extf) = feature_tables(31, n, m, ce);
     let (g3, _, ge) = upstream_grads(npx, ce);
     let grads = OutputGrads { color: Some(&g3), extra: Some(&ge), ..Default::default() };
     for path in Simd::available() {
