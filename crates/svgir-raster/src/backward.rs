@@ -24,7 +24,7 @@ use crate::interp::{normalised_coord, weight_grads, weights, MAX_VERTICES};
 use crate::phases::Stopwatch;
 use crate::preprocess::Cam;
 use crate::preprocess::{assume_init, uninit_vec, Splat};
-use crate::preprocess_backward::{gaussian_backward, GradSlots, ParamGrad, SplatGradSum};
+use crate::preprocess_backward::{gaussian_backward, opacity_logit_grad, GradSlots, ParamGrad, SplatGradSum};
 use crate::preprocess_backward_simd::{gaussian_backward_block, Inputs, BLOCK};
 use crate::real::Real;
 use crate::splat::{eval_row, hit_from_row, intersect_backward, row_offsets, row_setup, RowEval, SplatGrad};
@@ -166,8 +166,7 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
         v_opacity_logits.par_iter_mut().zip(rows.par_chunks_exact(width)).zip(&state.proj.splats).for_each(
             |((v, r), sp)| {
                 if sp.visible() {
-                    let o = sp.opacity;
-                    *v = r[0] * o * (F::ONE - o);
+                    *v = opacity_logit_grad(r[0], sp.opacity);
                 }
             },
         );

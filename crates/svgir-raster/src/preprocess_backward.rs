@@ -79,6 +79,13 @@ pub fn quat_backward<F: Real>(q: [F; 4], v_r: &[[F; 3]; 3]) -> [F; 4] {
     [0, 1, 2, 3].map(|i| (gq[i] - qh[i] * d) / len)
 }
 
+/// `dL/d(logit)` of an opacity `o = sigmoid(logit)` from `dL/do` (the lane kernel of
+/// `preprocess_backward_simd` forms the same product in the same order).
+#[inline]
+pub(crate) fn opacity_logit_grad<F: Real>(v_o: F, o: F) -> F {
+    v_o * o * (F::ONE - o)
+}
+
 /// Parameter gradients of Gaussian `i` given its summed splat-record gradients.
 pub fn gaussian_backward<F: Real, P: GaussianParams<F> + ?Sized>(
     params: &P,
@@ -130,8 +137,7 @@ pub fn gaussian_backward<F: Real, P: GaussianParams<F> + ?Sized>(
         v_r[r][2] = splat.flip * g.normal[r];
     }
     out.rotation = quat_backward(q, &v_r);
-    let o = splat.opacity;
-    out.opacity_logit = g.opacity * o * (F::ONE - o);
+    out.opacity_logit = opacity_logit_grad(g.opacity, splat.opacity);
 
     if sh_mode {
         let deg = params.sh_degree().min(3);
