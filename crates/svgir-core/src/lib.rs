@@ -17,6 +17,7 @@ pub mod dataset;
 pub mod envmap;
 pub mod float;
 pub mod image;
+pub mod par;
 pub mod rng;
 pub mod sh;
 pub mod simd;

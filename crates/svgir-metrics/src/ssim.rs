@@ -122,7 +122,7 @@ pub(crate) fn blur_rows<T: Real>(
     out: &mut Vec<T>,
 ) -> (usize, usize) {
     let (off, wo, ho) = if same { (HALF, w, h) } else { (0, w + 1 - WINDOW, h + 1 - WINDOW) };
-    tmp.resize(k_planes * wo * h, T::ZERO);
+    sized(tmp, k_planes * wo * h);
     tmp.par_chunks_mut(wo * BAND).enumerate().for_each(|(band, rows)| {
         // Row r of the stacked planes is row r of the source too (same plane, same y); it is
         // written between `off` zeros so that every output reads all 11 taps.
@@ -133,7 +133,7 @@ pub(crate) fn blur_rows<T: Real>(
             taps(&padded, 1, row, g);
         }
     });
-    out.resize(k_planes * wo * ho, T::ZERO);
+    sized(out, k_planes * wo * ho);
     let tmp = &tmp[..];
     out.par_chunks_mut(wo * BAND).enumerate().for_each(|(band, rows)| {
         for (j, row) in rows.chunks_exact_mut(wo).enumerate() {
@@ -156,6 +156,16 @@ pub(crate) fn blur_rows<T: Real>(
         }
     });
     (wo, ho)
+}
+
+/// `v` with length `n`; its old contents are kept or zeros, as the callers overwrite every
+/// element (a fresh buffer is zeroed by the workers, not by a serial `resize`).
+pub(crate) fn sized<T: Real>(v: &mut Vec<T>, n: usize) {
+    if v.len() < n {
+        *v = svgir_core::par::filled(n, T::ZERO);
+    } else {
+        v.truncate(n);
+    }
 }
 
 /// `out[x] = sum_k g[k] src[k * stride + x]` for every output, the taps summed in order from

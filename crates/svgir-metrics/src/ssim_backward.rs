@@ -14,7 +14,7 @@ use rayon::prelude::*;
 
 use crate::error::Result;
 use crate::real::Real;
-use crate::ssim::{gather5, moments, BlurBuffers, Shape, SsimVariant, C1, C2};
+use crate::ssim::{gather5, moments, sized, BlurBuffers, Shape, SsimVariant, C1, C2};
 
 /// 3DGS SSIM of `a` against `b` and its gradient `v_a` (d SSIM / d a, same layout as `a`).
 pub fn ssim_with_grad<T: Real>(a: &[T], b: &[T], shape: Shape) -> Result<(T, Vec<T>)> {
@@ -23,7 +23,7 @@ pub fn ssim_with_grad<T: Real>(a: &[T], b: &[T], shape: Shape) -> Result<(T, Vec
     let inv_count = T::from_f64(1.0 / a.len() as f64);
     let (two, c1, c2) = (T::from_f64(2.0), T::from_f64(C1), T::from_f64(C2));
     let mut total = 0.0f64;
-    let mut v_a = vec![T::ZERO; a.len()];
+    let mut v_a = svgir_core::par::filled(a.len(), T::ZERO);
     let (mut fwd, mut bwd) = (BlurBuffers::default(), BlurBuffers::default());
     let mut row_sums: Vec<f64> = Vec::new();
     for c in 0..n {
@@ -32,7 +32,7 @@ pub fn ssim_with_grad<T: Real>(a: &[T], b: &[T], shape: Shape) -> Result<(T, Vec
         let np = w * h;
         // Three stacked planes: dS/dmu1, dS/de11, dS/de12, each already scaled by 1/N; and each
         // row's SSIM sum (the map value is `a1 a2 / (b1 b2)`, as `ssim_from_moments` forms it).
-        bwd.src.resize(3 * np, T::ZERO);
+        sized(&mut bwd.src, 3 * np);
         let (p_mu, rest) = bwd.src.split_at_mut(np);
         let (p_e11, p_e12) = rest.split_at_mut(np);
         row_sums.resize(h, 0.0);

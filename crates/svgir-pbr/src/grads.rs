@@ -5,6 +5,8 @@
 //! the raw parameters. Shading and the consistency loss return the same bundle so the trainer can
 //! sum them before chaining once.
 
+use rayon::prelude::*;
+use svgir_core::par::filled;
 use svgir_shading::Float;
 
 /// Gradients of a stage-2 shading loss with respect to the activated materials, light and rho.
@@ -26,9 +28,9 @@ impl<F: Float> PbrGrads<F> {
     /// All-zero gradients for N Gaussians with M vertices and `env_texels` texels.
     pub fn zeros(n: usize, m: usize, env_texels: usize) -> Self {
         Self {
-            v_albedo: vec![F::ZERO; n * m * 3],
-            v_roughness: vec![F::ZERO; n * m],
-            v_normals: vec![F::ZERO; n * m * 3],
+            v_albedo: filled(n * m * 3, F::ZERO),
+            v_roughness: filled(n * m, F::ZERO),
+            v_normals: filled(n * m * 3, F::ZERO),
             v_env: vec![[F::ZERO; 3]; env_texels],
             v_rho: F::ZERO,
         }
@@ -49,9 +51,7 @@ impl<F: Float> PbrGrads<F> {
             (&mut self.v_normals, &other.v_normals),
         ];
         for (a, b) in pairs {
-            for (x, y) in a.iter_mut().zip(b) {
-                *x += scale * *y;
-            }
+            a.par_iter_mut().zip(b).with_min_len(4096).for_each(|(x, y)| *x += scale * *y);
         }
         for (x, y) in self.v_env.iter_mut().zip(&other.v_env) {
             for c in 0..3 {

@@ -155,7 +155,7 @@ impl SvgMaterials {
     pub fn offset_penalty(&self) -> (f32, Vec<f32>) {
         let count = (self.normal_offset.len() / 3).max(1) as f32;
         let value = self.normal_offset.iter().map(|x| x * x).sum::<f32>() / count;
-        (value, self.normal_offset.iter().map(|x| 2.0 * x / count).collect())
+        (value, self.normal_offset.par_iter().with_min_len(4096).map(|x| 2.0 * x / count).collect())
     }
 }
 

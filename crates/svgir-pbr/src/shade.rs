@@ -449,8 +449,7 @@ pub fn shade_into_cached<F: Float>(
     out.m = m;
     let split_len = if out.split { len } else { 0 };
     for (buf, len) in [(&mut out.color, len), (&mut out.direct, split_len), (&mut out.indirect, split_len)] {
-        buf.clear();
-        buf.resize(len, F::ZERO);
+        svgir_core::par::refill(buf, len, F::ZERO);
     }
     let table = FibTable::new(inp.mb.k);
     let lane = lane_kernels::<F>(inp.params.simd);

@@ -21,6 +21,7 @@ use crate::shade::{shade_into_cached, ShadeInputs, ShadeOutput};
 use crate::shade_backward::shade_backward_cached;
 use crate::PbrError;
 use glam::Vec3;
+use rayon::prelude::*;
 use svgir_shading::Float;
 use svgir_trace::DirectionCache;
 
@@ -57,7 +58,7 @@ pub fn split_by_side(normals: &[Vec3], positions: &[Vec3], camera: Vec3, visible
 
 /// The back side's shading normals: every component negated.
 pub fn negated<F: Float>(normals: &[F]) -> Vec<F> {
-    normals.iter().map(|&x| -x).collect()
+    normals.par_iter().with_min_len(4096).map(|&x| -x).collect()
 }
 
 /// Shade the front side, then add the back side's output (`scratch` holds it between calls).
@@ -80,7 +81,7 @@ pub fn shade_sides_into<F: Float>(
     for (o, s) in
         [(&mut out.color, &scratch.color), (&mut out.direct, &scratch.direct), (&mut out.indirect, &scratch.indirect)]
     {
-        o.iter_mut().zip(s).for_each(|(a, b)| *a += *b);
+        o.par_iter_mut().zip(s).with_min_len(4096).for_each(|(a, b)| *a += *b);
     }
     Ok(())
 }
@@ -96,7 +97,7 @@ pub fn shade_sides_backward<F: Float>(
     let Some(back) = back else { return Ok(g) };
     let mut b = shade_backward_cached(&back.inputs, back.cache, v_color)?;
     // The back side shades with -n_m: d/dn_m = -d/d(-n_m).
-    b.v_normals.iter_mut().for_each(|x| *x = -*x);
+    b.v_normals.par_iter_mut().with_min_len(4096).for_each(|x| *x = -*x);
     if !g.add_scaled(&b, F::ONE) {
         return Err(PbrError::InvalidParameter("front and back shading have different sizes".into()));
     }

@@ -34,6 +34,7 @@ use crate::{
     RenderOutputOf,
 };
 use rayon::prelude::*;
+use svgir_core::par::{filled, zeroed};
 
 // Per-entry gradient slot layout.
 pub(crate) const OFF_H: usize = 0;
@@ -81,7 +82,7 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     let off_ext = OFF_COL + cf.vertices * 3;
     let dim = off_ext + ef.vertices * ce;
 
-    let mut entry_grads = vec![F::ZERO; bins.ids.len() * dim];
+    let mut entry_grads = filled(bins.ids.len() * dim, F::ZERO);
     sw.lap("buffers");
     {
         // One task per tile (its entries are a contiguous run of `entry_grads`): finer than the
@@ -155,14 +156,14 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
         // backward is only the opacity's sigmoid, so one reduce reads each entry slot once for
         // the opacity and every feature column (the same sums, in the same order, as below).
         let width = dim - OFF_OP;
-        let mut rows = vec![F::ZERO; n * width];
+        let mut rows = filled(n * width, F::ZERO);
         reduce(&mut rows, width, OFF_OP, dim);
         sw.lap("reduce");
         let (nc, ne) = (cf.vertices * 3, if input.extra.is_some() { ef.vertices * ce } else { 0 });
         let (oc, oe) = (OFF_COL - OFF_OP, off_ext - OFF_OP);
-        let mut v_opacity_logits = vec![F::ZERO; n];
-        let mut v_color_features = vec![F::ZERO; n * nc];
-        let mut v_extra = vec![F::ZERO; n * ne];
+        let mut v_opacity_logits = filled(n, F::ZERO);
+        let mut v_color_features = filled(n * nc, F::ZERO);
+        let mut v_extra = filled(n * ne, F::ZERO);
         v_opacity_logits.par_iter_mut().zip(rows.par_chunks_exact(width)).zip(&state.proj.splats).for_each(
             |((v, r), sp)| {
                 if sp.visible() {
@@ -184,20 +185,20 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
         let v_background = background_grad(&input.background, grads.color, &state.final_t);
         sw.lap("features");
         return GradsOf {
-            v_positions: vec![F::v3([F::ZERO; 3]); n],
-            v_rotations: vec![F::quat([F::ZERO; 4]); n],
-            v_log_scales: vec![F::v2([F::ZERO; 2]); n],
+            v_positions: zeroed(n),
+            v_rotations: zeroed(n),
+            v_log_scales: zeroed(n),
             v_opacity_logits,
-            v_sh: vec![bytemuck::Zeroable::zeroed(); n],
+            v_sh: zeroed(n),
             v_color_features,
             v_extra,
             v_background,
-            v_mean2d_norm: vec![F::ZERO; n],
+            v_mean2d_norm: filled(n, F::ZERO),
             phases: sw.finish(),
         };
     }
     let hi = if sh_mode { OFF_COL + 3 } else { OFF_COL };
-    let mut sums = vec![F::ZERO; n * (OFF_COL + 3)];
+    let mut sums = filled(n * (OFF_COL + 3), F::ZERO);
     reduce(&mut sums, OFF_COL + 3, 0, hi);
     let (sums, _) = sums.as_chunks::<{ OFF_COL + 3 }>();
     sw.lap("reduce");
@@ -281,7 +282,7 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     sw.lap("gaussians");
     let feature_grads = |fv: &FeatView<F>, lo: usize| -> Vec<F> {
         let len = fv.vertices * fv.channels;
-        let mut v = vec![F::ZERO; n * len];
+        let mut v = filled(n * len, F::ZERO);
         if len > 0 {
             reduce(&mut v, len, lo, lo + len);
         }

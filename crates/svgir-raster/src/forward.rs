@@ -29,6 +29,7 @@ use crate::{
 };
 use rayon::prelude::*;
 use std::sync::Arc;
+use svgir_core::par::filled;
 
 /// A feature table seen by the kernels: `data[(g * vertices + m) * channels + c]`.
 #[derive(Clone, Copy, Debug)]
@@ -169,22 +170,22 @@ pub(crate) fn render_projected<F: Real, P: GaussianParams<F> + ?Sized>(
     let mut out = RenderOutputOf::<F> {
         width: w,
         height: h,
-        color: vec![F::ZERO; npx * 3],
-        alpha: vec![F::ZERO; npx],
-        depth: vec![F::ZERO; npx],
-        median_depth: vec![F::ZERO; npx],
-        normal: vec![F::ZERO; npx * 3],
-        distortion: vec![F::ZERO; npx],
-        extra: vec![F::ZERO; npx * ce],
+        color: filled(npx * 3, F::ZERO),
+        alpha: filled(npx, F::ZERO),
+        depth: filled(npx, F::ZERO),
+        median_depth: filled(npx, F::ZERO),
+        normal: filled(npx * 3, F::ZERO),
+        distortion: filled(npx, F::ZERO),
+        extra: filled(npx * ce, F::ZERO),
         extra_channels: ce,
         accum_weight: Vec::new(),
-        max_radius: splats.iter().map(|s| if s.visible() { s.radius } else { 0.0 }).collect(),
+        max_radius: splats.par_iter().with_min_len(4096).map(|s| if s.visible() { s.radius } else { 0.0 }).collect(),
     };
-    let mut final_t = vec![F::ONE; npx];
-    let mut n_contrib = vec![0u32; npx];
-    let mut m1 = vec![F::ZERO; npx];
-    let mut m2 = vec![F::ZERO; npx];
-    let mut wsum = vec![F::ZERO; bins.ids.len()];
+    let mut final_t = filled(npx, F::ONE);
+    let mut n_contrib = filled(npx, 0u32);
+    let mut m1 = filled(npx, F::ZERO);
+    let mut m2 = filled(npx, F::ZERO);
+    let mut wsum = filled(bins.ids.len(), F::ZERO);
 
     let rows = |ch: usize| (0..bins.tiles_y).map(move |ty| band_rows(ty, cfg.tile, h) * w as usize * ch);
     let bands: Vec<Band<F>> = {

@@ -36,16 +36,35 @@ pub struct DirectionCache {
 }
 
 /// FNV-style hash of the bits that fix the directions (normals, azimuths, K).
+///
+/// Checked at every shading and gather call (several per stage-2 iteration), so it is cheap:
+/// FNV-1a over fixed chunks of Gaussians in parallel, four independent streams per chunk (one
+/// per field, so the multiplies overlap), the chunk hashes combined in order. The value depends
+/// on the inputs only, not on the thread count.
 fn fingerprint(mb: &MicroBuffer) -> u64 {
-    let mut h = 0xcbf2_9ce4_8422_2325u64 ^ mb.k as u64;
-    let mut mix = |x: u32| h = (h ^ x as u64).wrapping_mul(0x0000_0100_0000_01b3);
-    for (n, xi) in mb.normals.iter().zip(&mb.xi) {
-        mix(n.x.to_bits());
-        mix(n.y.to_bits());
-        mix(n.z.to_bits());
-        mix(xi.to_bits());
-    }
-    h
+    use rayon::prelude::*;
+    const CHUNK: usize = 4096;
+    const BASIS: u64 = 0xcbf2_9ce4_8422_2325;
+    let mix = |h: u64, x: u32| (h ^ x as u64).wrapping_mul(0x0000_0100_0000_01b3);
+    let chunks: Vec<u64> = mb
+        .normals
+        .par_chunks(CHUNK)
+        .zip(mb.xi.par_chunks(CHUNK))
+        .map(|(ns, xs)| {
+            let mut h = [BASIS; 4];
+            for (n, xi) in ns.iter().zip(xs) {
+                h = [
+                    mix(h[0], n.x.to_bits()),
+                    mix(h[1], n.y.to_bits()),
+                    mix(h[2], n.z.to_bits()),
+                    mix(h[3], xi.to_bits()),
+                ];
+            }
+            h.iter().fold(BASIS, |a, &b| mix(mix(a, b as u32), (b >> 32) as u32))
+        })
+        .collect();
+    let h = (BASIS ^ mb.k as u64) ^ ((mb.normals.len() as u64) << 20);
+    chunks.iter().fold(h, |a, &b| mix(mix(a, b as u32), (b >> 32) as u32))
 }
 
 impl DirectionCache {

@@ -45,9 +45,9 @@ impl<F: Float> GatherGrads<F> {
     /// All-zero gradients for N Gaussians with M vertices and `env_texels` texels.
     pub fn zeros(n: usize, m: usize, env_texels: usize) -> Self {
         Self {
-            v_albedo: vec![F::ZERO; n * m * 3],
-            v_roughness: vec![F::ZERO; n * m],
-            v_normals: vec![F::ZERO; n * m * 3],
+            v_albedo: svgir_core::par::filled(n * m * 3, F::ZERO),
+            v_roughness: svgir_core::par::filled(n * m, F::ZERO),
+            v_normals: svgir_core::par::filled(n * m * 3, F::ZERO),
             v_env: vec![[F::ZERO; 3]; env_texels],
         }
     }

@@ -4,6 +4,8 @@
 //! where `|I_ij - I_kl|` is the mean absolute difference over the photo's channels and `|a|` the
 //! number of elements of `a` (pixels x channels). The photo carries no gradient.
 
+use rayon::prelude::*;
+use svgir_core::par::filled;
 use svgir_core::Float;
 
 /// The edge weights of Eqn 17 for a guide image: `exp(-mean_c |I_p - I_q|)` of each pixel's edge
@@ -19,8 +21,7 @@ pub struct EdgeWeights<F> {
 impl<F: Float> EdgeWeights<F> {
     /// Weights of the guide `img` (`ci` channels, `width x height`), rows in parallel.
     pub fn new(img: &[F], ci: usize, width: usize, height: usize) -> Self {
-        use rayon::prelude::*;
-        let (mut x, mut y) = (vec![F::ZERO; width * height], vec![F::ZERO; width * height]);
+        let (mut x, mut y) = (filled(width * height, F::ZERO), filled(width * height, F::ZERO));
         x.par_chunks_mut(width).zip(y.par_chunks_mut(width)).enumerate().for_each(|(r, (ex, ey))| {
             for c in 0..width {
                 let p = r * width + c;
@@ -59,14 +60,13 @@ pub fn edge_aware_smoothness<F: Float>(
 /// ([`edge_aware_smoothness_serial`], the oracle) visits them, so `v_a` gets the same bits. The
 /// loss is summed per row in f64, which can differ from the serial sum in its last f64 bits.
 pub fn edge_aware_smoothness_with<F: Float>(a: &[F], ca: usize, edges: &EdgeWeights<F>, weight: F, v_a: &mut [F]) -> F {
-    use rayon::prelude::*;
     let (width, height) = (edges.width, edges.height);
     let n = F::from_f64((width * height * ca) as f64);
     let two = F::from_f64(2.0);
     let row = width * ca;
     // gx[p * ca + c]: the gradient of the edge from p's left neighbour to p; gy: from the pixel
     // above. Zero where there is no such neighbour.
-    let (mut gx, mut gy) = (vec![F::ZERO; a.len()], vec![F::ZERO; a.len()]);
+    let (mut gx, mut gy) = (filled(a.len(), F::ZERO), filled(a.len(), F::ZERO));
     let loss: f64 = gx
         .par_chunks_mut(row)
         .zip(gy.par_chunks_mut(row))
@@ -170,8 +170,9 @@ pub fn edge_aware_smoothness_serial<F: Float>(
 /// is smoothed towards. `depth_sum` is the rasteriser's `sum w_i z_i`.
 pub fn depth_guide(depth_sum: &[f32], alpha: &[f32], sharpness: f32) -> Vec<f32> {
     depth_sum
-        .iter()
+        .par_iter()
         .zip(alpha)
+        .with_min_len(4096)
         .map(|(&d, &a)| if a > 0.5 { sharpness * (d / a).max(1e-6).ln() } else { BACKGROUND_GUIDE })
         .collect()
 }

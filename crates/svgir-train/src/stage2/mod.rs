@@ -32,6 +32,7 @@ use crate::orient::orient_normals;
 use crate::stage1::{alpha_of, psnr_of_mse, target_rgb, PhaseTimes};
 use glam::Vec3;
 use objective::{extra_features, extra_features_backward, stage2_objective, Stage2Outputs, Stage2Target};
+use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use std::time::Instant;
 use svgir_core::color::srgb_to_linear;
@@ -554,11 +555,16 @@ impl Stage2 {
         extra_features_backward(&g_pbr.v_extra, m, &facing, &mut pg.v_albedo, &mut pg.v_roughness, &mut pg.v_normals);
         let mg = self.materials.backward(&self.normals, &pg.v_albedo, &pg.v_roughness, &pg.v_normals)?;
         let mut v_offset = mg.v_normal_offset;
-        v_offset.iter_mut().zip(&v_reg).for_each(|(g, r)| *g += wts.normal_offset * r);
+        v_offset.par_iter_mut().zip(&v_reg).with_min_len(4096).for_each(|(g, r)| *g += wts.normal_offset * r);
         let mut v_env = self.env.backward(&pg.v_env)?;
         v_env.iter_mut().zip(&v_tv).for_each(|(g, t)| (0..3).for_each(|c| g[c] += wts.env_tv * t[c]));
-        let v_opacity: Vec<f32> =
-            g_pbr.v_opacity_logits.iter().zip(&g_sh.v_opacity_logits).map(|(a, b)| a + b).collect();
+        let v_opacity: Vec<f32> = g_pbr
+            .v_opacity_logits
+            .par_iter()
+            .zip(&g_sh.v_opacity_logits)
+            .with_min_len(4096)
+            .map(|(a, b)| a + b)
+            .collect();
         let t3 = Instant::now();
 
         // 5. Adam.

@@ -18,6 +18,8 @@ use crate::losses::depth_normal::depth_normal_loss;
 use crate::losses::l1::l1_loss;
 use crate::losses::smoothness::{depth_guide, edge_aware_smoothness_with, EdgeWeights, BACKGROUND_GUIDE};
 use glam::Vec3;
+use rayon::prelude::*;
+use svgir_core::par::filled;
 use svgir_core::Camera;
 use svgir_pbr::{faces, ActivatedMaterials};
 
@@ -28,6 +30,8 @@ pub const MIN_OPACITY: f32 = crate::composite::MIN_OPACITY as f32;
 /// Depth guide of the normal smoothness: neighbours 1% apart in depth weigh e^-1. A pixel spans
 /// ~0.3% of the depth on our 256-px scenes at normal incidence, ~1.5% at 80 degrees.
 pub const NORMAL_SMOOTHING_SHARPNESS: f32 = 100.0;
+/// Pixels (or values) per rayon task in the per-pixel loops.
+const PX_CHUNK: usize = 4096;
 
 /// +1 or -1 per Gaussian: whether its oriented normal faces the camera at `center`. Splatted
 /// normals are flipped to face the camera, as the rasteriser does for geometric normals (SPEC 1),
@@ -41,12 +45,14 @@ pub fn facing(normals: &[Vec3], positions: &[Vec3], center: Vec3) -> Vec<f32> {
 pub fn extra_features(act: &ActivatedMaterials, facing: &[f32]) -> Vec<f32> {
     let nv = act.roughness.len();
     let m = act.m;
-    let mut out = Vec::with_capacity(nv * EXTRA_CHANNELS);
-    for v in 0..nv {
-        out.extend_from_slice(&act.albedo[3 * v..3 * v + 3]);
-        out.push(act.roughness[v]);
-        out.extend(act.normals[3 * v..3 * v + 3].iter().map(|x| x * facing[v / m]));
-    }
+    let mut out = filled(nv * EXTRA_CHANNELS, 0.0f32);
+    out.par_chunks_exact_mut(EXTRA_CHANNELS).enumerate().with_min_len(PX_CHUNK).for_each(|(v, e)| {
+        e[..3].copy_from_slice(&act.albedo[3 * v..3 * v + 3]);
+        e[3] = act.roughness[v];
+        for c in 0..3 {
+            e[4 + c] = act.normals[3 * v + c] * facing[v / m];
+        }
+    });
     out
 }
 
@@ -61,13 +67,18 @@ pub fn extra_features_backward(
     v_roughness: &mut [f32],
     v_normals: &mut [f32],
 ) {
-    for (v, e) in v_extra.chunks_exact(EXTRA_CHANNELS).enumerate() {
-        for c in 0..3 {
-            v_albedo[3 * v + c] += e[c];
-            v_normals[3 * v + c] += facing[v / m] * e[4 + c];
-        }
-        v_roughness[v] += e[3];
-    }
+    (v_albedo.par_chunks_exact_mut(3), v_roughness.par_iter_mut(), v_normals.par_chunks_exact_mut(3))
+        .into_par_iter()
+        .zip(v_extra.par_chunks_exact(EXTRA_CHANNELS))
+        .enumerate()
+        .with_min_len(PX_CHUNK)
+        .for_each(|(v, ((a, r, n), e))| {
+            for c in 0..3 {
+                a[c] += e[c];
+                n[c] += facing[v / m] * e[4 + c];
+            }
+            *r += e[3];
+        });
 }
 
 /// What the objective reads of one view besides the renders.
@@ -129,46 +140,52 @@ pub fn stage2_objective(
 
     // SPEC 3: the PBR image, then Eqn 15's photometric terms on it and on the SH image.
     let image = pbr_composite(out.color, out.alpha, cover, bg);
-    let mut v_image = vec![0.0f32; npix * 3];
+    let mut v_image = filled(npix * 3, 0.0f32);
     let l1_pbr = l1_loss(&image, gt, wts.l1, &mut v_image);
     let shape = svgir_metrics::Shape::new(w, h, 3);
     let (ssim_pbr, g) = svgir_metrics::ssim_with_grad(&image, gt, shape).expect("same shape");
-    v_image.iter_mut().zip(&g).for_each(|(v, g)| *v -= wts.ssim * g);
+    v_image.par_iter_mut().zip(&g).with_min_len(PX_CHUNK).for_each(|(v, g)| *v -= wts.ssim * g);
     let mut loss = wts.l1 * l1_pbr + wts.ssim * (1.0 - ssim_pbr);
 
-    let mut v_sh_color = vec![0.0f32; npix * 3];
+    let mut v_sh_color = filled(npix * 3, 0.0f32);
     let l1_sh = l1_loss(out.sh_color, gt, wts.l1, &mut v_sh_color);
     let (ssim_sh, g) = svgir_metrics::ssim_with_grad(out.sh_color, gt, shape).expect("same shape");
-    v_sh_color.iter_mut().zip(&g).for_each(|(v, g)| *v -= wts.ssim * g);
+    v_sh_color.par_iter_mut().zip(&g).with_min_len(PX_CHUNK).for_each(|(v, g)| *v -= wts.ssim * g);
     loss += wts.l1 * l1_sh + wts.ssim * (1.0 - ssim_sh);
 
     let (v_color, mut v_alpha) = pbr_composite_backward(out.color, out.alpha, cover, bg, &v_image);
 
     // Material buffers (opacity detached in the division) with edge-aware smoothness
     // (Eqn 17) against the photo, and the shading-normal / depth-normal loss (Eqn 18).
-    let mut v_extra = vec![0.0f32; npix * EXTRA_CHANNELS];
+    let mut v_extra = filled(npix * EXTRA_CHANNELS, 0.0f32);
     let ex = out.extra;
-    let mut alb = vec![0.0f32; npix * 3];
-    let mut rough = vec![0.0f32; npix];
-    let mut nsum = vec![0.0f32; npix * 3];
-    for p in 0..npix {
-        let inv = 1.0 / out.alpha[p].max(MIN_OPACITY);
-        for c in 0..3 {
-            alb[3 * p + c] = ex[EXTRA_CHANNELS * p + c] * inv;
-            nsum[3 * p + c] = ex[EXTRA_CHANNELS * p + 4 + c];
-        }
-        rough[p] = ex[EXTRA_CHANNELS * p + 3] * inv;
-    }
-    let mut v_alb = vec![0.0f32; npix * 3];
-    let mut v_rough = vec![0.0f32; npix];
+    let mut alb = filled(npix * 3, 0.0f32);
+    let mut rough = filled(npix, 0.0f32);
+    let mut nsum = filled(npix * 3, 0.0f32);
+    (alb.par_chunks_exact_mut(3), rough.par_iter_mut(), nsum.par_chunks_exact_mut(3))
+        .into_par_iter()
+        .zip(ex.par_chunks_exact(EXTRA_CHANNELS).zip(out.alpha))
+        .with_min_len(PX_CHUNK)
+        .for_each(|((a, r, n), (e, &o))| {
+            let inv = 1.0 / o.max(MIN_OPACITY);
+            for c in 0..3 {
+                a[c] = e[c] * inv;
+                n[c] = e[4 + c];
+            }
+            *r = e[3] * inv;
+        });
+    let mut v_alb = filled(npix * 3, 0.0f32);
+    let mut v_rough = filled(npix, 0.0f32);
     let photo_edges = EdgeWeights::new(gt, 3, w, h);
     loss += wts.smooth_albedo * edge_aware_smoothness_with(&alb, 3, &photo_edges, wts.smooth_albedo, &mut v_alb);
     loss +=
         wts.smooth_roughness * edge_aware_smoothness_with(&rough, 1, &photo_edges, wts.smooth_roughness, &mut v_rough);
-    let mut v_nrm = vec![0.0f32; npix * 3];
+    let mut v_nrm = filled(npix * 3, 0.0f32);
     if wts.smooth_normal > 0.0 {
         let guide = depth_guide(out.depth, out.alpha, NORMAL_SMOOTHING_SHARPNESS);
         let nrm: Vec<f32> = (0..npix * 3)
+            .into_par_iter()
+            .with_min_len(PX_CHUNK)
             .map(|i| if guide[i / 3] == BACKGROUND_GUIDE { 0.0 } else { nsum[i] / out.alpha[i / 3] })
             .collect();
         let depth_edges = EdgeWeights::new(&guide, 1, w, h);
@@ -176,15 +193,17 @@ pub fn stage2_objective(
     }
     let (ln, g_n) = depth_normal_loss(out.depth, out.alpha, &nsum, cam);
     loss += wts.normal * ln;
-    for p in 0..npix {
-        let inv = 1.0 / out.alpha[p].max(MIN_OPACITY);
-        for c in 0..3 {
-            v_extra[EXTRA_CHANNELS * p + c] = v_alb[3 * p + c] * inv;
-            v_extra[EXTRA_CHANNELS * p + 4 + c] = wts.normal * g_n.v_normal[3 * p + c] + v_nrm[3 * p + c] * inv;
-        }
-        v_extra[EXTRA_CHANNELS * p + 3] = v_rough[p] * inv;
-        v_alpha[p] += wts.normal * g_n.v_opacity[p];
-    }
-    let v_depth: Vec<f32> = g_n.v_depth_sum.iter().map(|g| wts.normal * g).collect();
+    v_extra.par_chunks_exact_mut(EXTRA_CHANNELS).zip(&mut v_alpha).enumerate().with_min_len(PX_CHUNK).for_each(
+        |(p, (ve, va))| {
+            let inv = 1.0 / out.alpha[p].max(MIN_OPACITY);
+            for c in 0..3 {
+                ve[c] = v_alb[3 * p + c] * inv;
+                ve[4 + c] = wts.normal * g_n.v_normal[3 * p + c] + v_nrm[3 * p + c] * inv;
+            }
+            ve[3] = v_rough[p] * inv;
+            *va += wts.normal * g_n.v_opacity[p];
+        },
+    );
+    let v_depth: Vec<f32> = g_n.v_depth_sum.par_iter().with_min_len(PX_CHUNK).map(|g| wts.normal * g).collect();
     Stage2Objective { loss, image, v_color, v_alpha, v_depth, v_extra, v_sh_color }
 }
