@@ -169,8 +169,8 @@ pub trait Lanes: Copy {
     unsafe fn add(self, o: Self) -> Self;
     unsafe fn sub(self, o: Self) -> Self;
     unsafe fn mul(self, o: Self) -> Self;
-    /// `self * a + b` with one rounding (FMA): only for the backward's per-lane sums, never
-    /// where a value must match the scalar path bit for bit.
+    /// `self * a + b` with one rounding (FMA): for the backward's per-lane sums, and where a value
+    /// must match the scalar path bit for bit only if the scalar path calls `mul_add` there too.
     unsafe fn mul_add(self, a: Self, b: Self) -> Self;
     unsafe fn div(self, o: Self) -> Self;
     /// Correctly rounded square root (as `f32::sqrt`).

@@ -68,11 +68,15 @@ impl<'a, F: Real> FeatView<'a, F> {
             out[..c].copy_from_slice(&self.data[base..base + c]);
             return;
         }
-        out[..c].fill(F::ZERO);
-        for m in 0..self.vertices {
+        // The first vertex's product, then the others' by FMA in vertex order (what the SIMD
+        // kernels compute lane by lane).
+        for ch in 0..c {
+            out[ch] = w[0] * self.data[base + ch];
+        }
+        for m in 1..self.vertices {
             let row = &self.data[base + m * c..base + (m + 1) * c];
             for ch in 0..c {
-                out[ch] += w[m] * row[ch];
+                out[ch] = w[m].mul_add(row[ch], out[ch]);
             }
         }
     }
@@ -405,7 +409,8 @@ fn render_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
                         col = s.color;
                     }
                     for ch in 0..3 {
-                        a.color[ch] += wgt * col[ch];
+                        // Colours from feature tables by FMA, as the SIMD kernels.
+                        a.color[ch] = if CI { wgt.mul_add(col[ch], a.color[ch]) } else { a.color[ch] + wgt * col[ch] };
                     }
                     if geom {
                         for ch in 0..3 {
@@ -431,7 +436,7 @@ fn render_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
                         ef.eval(g, &we, &mut ext);
                         let dst = &mut acc_extra[li * ce..(li + 1) * ce];
                         for ch in 0..ce {
-                            dst[ch] += wgt * ext[ch];
+                            dst[ch] = wgt.mul_add(ext[ch], dst[ch]);
                         }
                     }
                 }

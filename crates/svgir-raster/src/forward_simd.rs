@@ -10,8 +10,10 @@
 //! arithmetic of [`crate::splat::eval_row`] lane by lane) and the compositing, with the per-pixel
 //! accumulators of the tile kept as one array per quantity so that `N` neighbouring pixels are
 //! one load. Skipped, finished and outside pixels are masked, never branched on. Every per-pixel
-//! value is computed with the scalar kernel's operations in its order (no FMA), so the images are
-//! bit-identical to the scalar path; only the per-Gaussian weight sums are summed lane-wise.
+//! value is computed with the scalar kernel's operations in its order (FMA exactly where the
+//! scalar kernel calls `mul_add`: the interpolation and accumulation of feature tables), so the
+//! images are bit-identical to the scalar path; only the per-Gaussian weight sums are summed
+//! lane-wise.
 
 // The lane methods and kernels are `unsafe fn`s with one contract -- the CPU has the features
 // of the path that runs them (checked once by `Simd::resolve`) and every pointer stays inside
@@ -102,16 +104,16 @@ impl<S: Lanes> FeatLanes<S> {
     }
 
     /// Channel `c` at vertex weights `w` (`FeatView::eval`'s operations: one vertex is copied,
-    /// several are summed from zero in vertex order).
+    /// several are the first vertex's product plus the others' by FMA, in vertex order).
     #[inline(always)]
     pub(crate) unsafe fn eval(&self, f: &FeatView<f32>, w: &[S; MAX_VERTICES], c: usize) -> S {
         let ch = f.channels;
         if f.vertices == 1 {
             return self.v[c];
         }
-        let mut out = S::splat(0.0);
-        for m in 0..f.vertices {
-            out = out.add(w[m].mul(self.v[m * ch + c]));
+        let mut out = w[0].mul(self.v[c]);
+        for m in 1..f.vertices {
+            out = w[m].mul_add(self.v[m * ch + c], out);
         }
         out
     }
@@ -161,6 +163,7 @@ impl<S: Lanes> Composite<'_, S> {
             |k: usize, m: S::M, d: S| gr.add_masked::<S, PACKED>(a(k), m, d),
             |k: usize, m: S::M, d: S| gr.set_masked::<S, PACKED>(a(k), m, d),
         );
+        let fma = |k: usize, m: S::M, x: S, y: S| gr.fma_masked::<S, PACKED>(a(k), m, x, y);
         let (cf, ef) = (self.cf, self.ef);
         let (ci, ce) = (cf.vertices > 1, ef.channels);
         let interp = ci || (ce > 0 && ef.vertices > 1);
@@ -183,14 +186,20 @@ impl<S: Lanes> Composite<'_, S> {
         } else {
             self.col1
         };
+        // Feature tables (stage 2's PBR pass) accumulate by FMA, as the scalar kernel does for
+        // them; one colour per Gaussian keeps the product and the sum (stage 1's bits).
         if FEAT && ce > 0 {
             let we = feat_weights(ef, ut, vt);
             for ch in 0..ce {
-                add(ARRAYS + ch, comp, wgt.mul(self.extv.eval(ef, &we, ch)));
+                fma(ARRAYS + ch, comp, wgt, self.extv.eval(ef, &we, ch));
             }
         }
         for ch in 0..3 {
-            add(COL + ch, comp, wgt.mul(col[ch]));
+            if FEAT && ci {
+                fma(COL + ch, comp, wgt, col[ch]);
+            } else {
+                add(COL + ch, comp, wgt.mul(col[ch]));
+            }
         }
         if self.geom {
             for ch in 0..3 {

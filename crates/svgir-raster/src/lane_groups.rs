@@ -97,6 +97,13 @@ impl Group {
         self.store::<S, PACKED>(p, S::select(m, v.add(d), v));
     }
 
+    /// `*p = a * b + *p` with one rounding (FMA) on the lanes of `m`.
+    #[inline(always)]
+    pub(crate) unsafe fn fma_masked<S: Lanes, const PACKED: bool>(&self, p: *mut f32, m: S::M, a: S, b: S) {
+        let v = self.load::<S, PACKED>(p);
+        self.store::<S, PACKED>(p, S::select(m, a.mul_add(b, v), v));
+    }
+
     /// `*p = d` on the lanes of `m`.
     #[inline(always)]
     pub(crate) unsafe fn set_masked<S: Lanes, const PACKED: bool>(&self, p: *mut f32, m: S::M, d: S) {

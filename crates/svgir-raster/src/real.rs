@@ -53,6 +53,8 @@ pub trait Real:
     /// `exp` for the per-pixel Gaussian falloff: inlined polynomial in `f32` (relative error
     /// below 3e-7 on [-87, 88]), `std` in `f64`.
     fn exp_fast(self) -> Self;
+    /// `self * a + b` with one rounding (the SIMD kernels' FMA, bit for bit).
+    fn mul_add(self, a: Self, b: Self) -> Self;
     /// Square root.
     fn sqrt(self) -> Self;
     /// Absolute value.
@@ -121,6 +123,10 @@ impl Real for f32 {
         exp_f32(self)
     }
     #[inline(always)]
+    fn mul_add(self, a: Self, b: Self) -> Self {
+        f32::mul_add(self, a, b)
+    }
+    #[inline(always)]
     fn sqrt(self) -> Self {
         f32::sqrt(self)
     }
@@ -182,6 +188,10 @@ impl Real for f64 {
     #[inline(always)]
     fn exp_fast(self) -> Self {
         f64::exp(self)
+    }
+    #[inline(always)]
+    fn mul_add(self, a: Self, b: Self) -> Self {
+        f64::mul_add(self, a, b)
     }
     #[inline(always)]
     fn sqrt(self) -> Self {

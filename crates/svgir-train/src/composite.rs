@@ -15,6 +15,7 @@ pub const MIN_OPACITY: f64 = 1e-5;
 
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use svgir_core::par::filled;
 
 /// Pixels per parallel task (a 256-pixel-wide image's 16 rows).
 const CHUNK: usize = 4096;
@@ -69,7 +70,7 @@ fn cover_of(cover: Option<&[f32]>, p: usize) -> Option<f64> {
 
 /// The whole image (RGB, 3 per pixel); `cover`: one alpha per pixel, or `None` for the render's.
 pub fn pbr_composite(color: &[f32], alpha: &[f32], cover: Option<&[f32]>, bg: [f32; 3]) -> Vec<f32> {
-    let mut image = vec![0.0f32; alpha.len() * 3];
+    let mut image = filled(alpha.len() * 3, 0.0f32);
     image.par_chunks_mut(3 * CHUNK).enumerate().for_each(|(k, out)| {
         for (i, o) in out.chunks_exact_mut(3).enumerate() {
             let p = k * CHUNK + i;
@@ -88,8 +89,8 @@ pub fn pbr_composite_backward(
     bg: [f32; 3],
     v_image: &[f32],
 ) -> (Vec<f32>, Vec<f32>) {
-    let mut v_color = vec![0.0; color.len()];
-    let mut v_alpha = vec![0.0; alpha.len()];
+    let mut v_color = filled(color.len(), 0.0);
+    let mut v_alpha = filled(alpha.len(), 0.0);
     v_color.par_chunks_mut(3 * CHUNK).zip(v_alpha.par_chunks_mut(CHUNK)).enumerate().for_each(|(k, (vcs, vos))| {
         for (i, (vc_out, vo_out)) in vcs.chunks_exact_mut(3).zip(vos.iter_mut()).enumerate() {
             let p = k * CHUNK + i;

@@ -12,6 +12,7 @@
 
 use glam::DVec3;
 use rayon::prelude::*;
+use svgir_core::par::filled;
 use svgir_core::Camera;
 
 /// Gradients of [`depth_normal_loss`] with respect to its rendered inputs.
@@ -78,10 +79,10 @@ pub fn depth_normal_loss_f64(s: &[f64], o: &[f64], n: &[f64], cam: &Camera) -> (
     let nvec = |i: usize| DVec3::new(n[3 * i], n[3 * i + 1], n[3 * i + 2]);
 
     // Pass 1, rows in parallel: per-pixel loss, dL/dN and the gradients of the two differences.
-    let mut pix_loss = vec![1.0; w * h];
-    let mut v_n = vec![0.0; 3 * w * h];
-    let mut v_dx = vec![DVec3::ZERO; w * h];
-    let mut v_dy = vec![DVec3::ZERO; w * h];
+    let mut pix_loss = filled(w * h, 1.0);
+    let mut v_n = filled(3 * w * h, 0.0);
+    let mut v_dx = filled(w * h, DVec3::ZERO);
+    let mut v_dy = filled(w * h, DVec3::ZERO);
     let rows = pix_loss
         .par_chunks_mut(w)
         .zip(v_n.par_chunks_mut(3 * w))
@@ -117,8 +118,8 @@ pub fn depth_normal_loss_f64(s: &[f64], o: &[f64], n: &[f64], cam: &Camera) -> (
     let loss: f64 = pix_loss.iter().fold(0.0, |a, &l| a + l);
 
     // Pass 2, rows in parallel: gather the differences' gradients onto each pixel's depth.
-    let mut v_s = vec![0.0; w * h];
-    let mut v_o = vec![0.0; w * h];
+    let mut v_s = filled(w * h, 0.0);
+    let mut v_o = filled(w * h, 0.0);
     v_s.par_chunks_mut(w).zip(v_o.par_chunks_mut(w)).enumerate().for_each(|(y, (vs_row, vo_row))| {
         for x in 0..w {
             let i = y * w + x;

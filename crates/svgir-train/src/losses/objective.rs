@@ -5,6 +5,8 @@
 
 use super::{depth_normal::depth_normal_loss, l1::l1_loss, mask};
 use crate::config::LossWeights;
+use rayon::prelude::*;
+use svgir_core::par::filled;
 use svgir_core::Camera;
 
 /// What the objective reads of one view besides the render.
@@ -68,17 +70,15 @@ pub fn stage1_objective(
 ) -> Objective {
     let (width, height) = (camera.width() as usize, camera.height() as usize);
     let npix = width * height;
-    let mut v_color = vec![0.0f32; npix * 3];
+    let mut v_color = filled(npix * 3, 0.0f32);
     let l1 = l1_loss(out.color, target.rgb, w.l1, &mut v_color);
     let (ssim, v_ssim) =
         svgir_metrics::ssim_with_grad(out.color, target.rgb, svgir_metrics::Shape::new(width, height, 3))
             .expect("render and target have the same shape");
-    for (g, s) in v_color.iter_mut().zip(&v_ssim) {
-        // The loss term is weight * (1 - SSIM).
-        *g -= w.ssim * s;
-    }
+    // The loss term is weight * (1 - SSIM).
+    v_color.par_iter_mut().zip(&v_ssim).with_min_len(4096).for_each(|(g, s)| *g -= w.ssim * s);
     let mut loss = w.l1 * l1 + w.ssim * (1.0 - ssim);
-    let mut v_alpha = vec![0.0f32; npix];
+    let mut v_alpha = filled(npix, 0.0f32);
     if use_mask {
         loss += w.mask * mask::mask_loss(out.alpha, target.dilated, w.mask, &mut v_alpha);
         loss += w.entropy * mask::entropy_loss(out.alpha, target.alpha, w.entropy, &mut v_alpha);
@@ -86,7 +86,7 @@ pub fn stage1_objective(
     let w_dn = depth_normal_weight(w, t_frac);
     let (v_depth, v_normal) = if w_dn == 0.0 {
         // A switched-off term costs nothing (it is the loss phase's second largest).
-        (vec![0.0; npix], vec![0.0; 3 * npix])
+        (filled(npix, 0.0), filled(3 * npix, 0.0))
     } else {
         let (dn, g_dn) = depth_normal_loss(out.depth, out.alpha, out.normal, camera);
         loss += w_dn * dn;
