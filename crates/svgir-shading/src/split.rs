@@ -31,6 +31,12 @@ pub struct Lobe<F> {
     pub gv: F,
     /// `a^2 g(n.v) / (4 pi)`.
     pub c0: F,
+    /// `a^2 / pi` (D's factor).
+    pub d0: F,
+    /// `4 r^3 / pi` (dD/dr's factor).
+    pub cr: F,
+    /// `-4 a^2 (a^2 - 1) / pi` (dD/d(n.h)'s factor).
+    pub cn: F,
 }
 
 #[inline]
@@ -48,7 +54,21 @@ pub fn lobe<F: Float>(n: [F; 3], v: [F; 3], r: F) -> Lobe<F> {
     let k = (r + F::ONE) * (r + F::ONE) / F::from_f64(8.0);
     let omk = F::ONE - k;
     let gv = F::ONE / (nv * omk + k);
-    Lobe { n, r, a2, k, omk, nv, nv_live, gv, c0: a2 * gv / F::from_f64(4.0 * PI) }
+    let pi = F::from_f64(PI);
+    Lobe {
+        n,
+        r,
+        a2,
+        k,
+        omk,
+        nv,
+        nv_live,
+        gv,
+        c0: a2 * gv / F::from_f64(4.0 * PI),
+        d0: a2 / pi,
+        cr: F::from_f64(4.0) * r * r * r / pi,
+        cn: -F::from_f64(4.0) * a2 * (a2 - F::ONE) / pi,
+    }
 }
 
 /// The (v, l)-dependent part of S.
@@ -93,29 +113,33 @@ pub struct SpecGrad<F> {
 }
 
 /// S and its gradients for one vertex and light direction `l`; `nl` is the unclamped n.l.
+/// One division per (vertex, direction): `1 / (q (n.l (1-k) + k))` gives both `1/q` and the
+/// `g(n.l)` term, and the `1/pi` factors are the lobe's (`d0`, `cr`, `cn`). The lane form
+/// ([`crate::split_lanes::spec_grad_lanes`]) repeats these operations in this order.
 #[inline]
 pub fn spec_grad<F: Float>(lb: &Lobe<F>, hv: &HalfVec<F>, v: [F; 3], l: [F; 3], nl: F) -> SpecGrad<F> {
     let (nl, nl_live) = cdot(nl);
     let (nh, nh_live) = cdot(dot(lb.n, hv.h));
-    let pi = F::from_f64(PI);
     let a2 = lb.a2;
     let q = nh * nh * (a2 - F::ONE) + F::ONE;
-    let inv_q = F::ONE / q;
-    let d = a2 * inv_q * inv_q / pi;
-    let gl = F::ONE / (nl * lb.omk + lb.k);
+    let den = nl * lb.omk + lb.k;
+    let t = F::ONE / (q * den);
+    let inv_q = den * t;
+    let gl = q * t;
+    let d = lb.d0 * inv_q * inv_q;
     let gv = lb.gv;
     let fq = hv.fr * F::from_f64(0.25);
     let value = fq * d * gv * gl;
     // Roughness: through alpha^2 = r^4 in D and through k in both g terms.
-    let inv_piq3 = inv_q * inv_q * inv_q / pi;
-    let dd_dr = (q - F::from_f64(2.0) * a2 * nh * nh) * inv_piq3 * F::from_f64(4.0) * lb.r * lb.r * lb.r;
+    let inv_q3 = inv_q * inv_q * inv_q;
+    let dd_dr = (q - F::from_f64(2.0) * a2 * nh * nh) * inv_q3 * lb.cr;
     let dk_dr = (lb.r + F::ONE) * F::from_f64(0.25);
     let dgv_dk = -(F::ONE - lb.nv) * gv * gv;
     let dgl_dk = -(F::ONE - nl) * gl * gl;
     let v_r = fq * (dd_dr * gv * gl + d * (dgv_dk * gl + gv * dgl_dk) * dk_dr);
     // Normal: through n.h (D), n.v and n.l (g terms).
     let zero = F::ZERO;
-    let ds_dnh = if nh_live { fq * gv * gl * (-F::from_f64(4.0) * a2 * nh * (a2 - F::ONE) * inv_piq3) } else { zero };
+    let ds_dnh = if nh_live { fq * gv * gl * (lb.cn * nh * inv_q3) } else { zero };
     let ds_dnv = if lb.nv_live { -fq * d * gl * lb.omk * gv * gv } else { zero };
     let ds_dnl = if nl_live { -fq * d * gv * lb.omk * gl * gl } else { zero };
     let v_n = [0, 1, 2].map(|i| ds_dnh * hv.h[i] + ds_dnv * v[i] + ds_dnl * l[i]);
