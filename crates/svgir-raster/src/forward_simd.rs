@@ -306,28 +306,37 @@ unsafe fn band<S: Lanes, const DIST: bool, const FEAT: bool>(
             }
             b.wsum[e - e_band0] = ws.hsum();
         }
-        let at = |k: usize, li: usize| buf[k * np + li];
+        // The tile's rows out to the band, a row of each array at a time (slice copies and
+        // loops the compiler vectorises; per pixel, the same values as the scalar kernel's).
+        let wt = (tr[1] - tr[0]) as usize;
         for y in tr[2] as usize..tr[3] as usize {
-            for x in tr[0] as usize..tr[1] as usize {
-                let li = (y - ty0) * stride + (x - tx0);
-                let bi = (y - y_band0) * wu + x;
-                let tn = at(T, li);
-                let c = background_at(bg, y * wu + x);
+            let l0 = (y - ty0) * stride;
+            let b0 = (y - y_band0) * wu + tx0;
+            let row = |k: usize| &buf[k * np + l0..k * np + l0 + wt];
+            let t = row(T);
+            b.final_t[b0..b0 + wt].copy_from_slice(t);
+            b.alpha[b0..b0 + wt].iter_mut().zip(t).for_each(|(a, tn)| *a = 1.0 - tn);
+            b.depth[b0..b0 + wt].copy_from_slice(row(DEP));
+            b.median[b0..b0 + wt].copy_from_slice(row(MED));
+            b.dist[b0..b0 + wt].copy_from_slice(row(DST));
+            b.m1[b0..b0 + wt].copy_from_slice(row(M1));
+            b.m2[b0..b0 + wt].copy_from_slice(row(M2));
+            b.n_contrib[b0..b0 + wt].iter_mut().zip(row(NCON)).for_each(|(n, v)| *n = *v as u32);
+            let (col, nrm) = ([row(COL), row(COL + 1), row(COL + 2)], [row(NRM), row(NRM + 1), row(NRM + 2)]);
+            for (i, (o, n)) in b.color[3 * b0..3 * (b0 + wt)]
+                .chunks_exact_mut(3)
+                .zip(b.normal[3 * b0..3 * (b0 + wt)].chunks_exact_mut(3))
+                .enumerate()
+            {
+                let c = background_at(bg, y * wu + tx0 + i);
                 for ch in 0..3 {
-                    b.color[bi * 3 + ch] = at(COL + ch, li) + tn * c[ch];
-                    b.normal[bi * 3 + ch] = at(NRM + ch, li);
+                    o[ch] = col[ch][i] + t[i] * c[ch];
+                    n[ch] = nrm[ch][i];
                 }
-                b.alpha[bi] = 1.0 - tn;
-                b.depth[bi] = at(DEP, li);
-                b.median[bi] = at(MED, li);
-                b.dist[bi] = at(DST, li);
-                b.final_t[bi] = tn;
-                b.n_contrib[bi] = at(NCON, li) as u32;
-                b.m1[bi] = at(M1, li);
-                b.m2[bi] = at(M2, li);
-                for ch in 0..ce {
-                    b.extra[bi * ce + ch] = at(ARRAYS + ch, li);
-                }
+            }
+            for ch in 0..ce {
+                let dst = b.extra[ce * b0..ce * (b0 + wt)].iter_mut().skip(ch).step_by(ce);
+                dst.zip(row(ARRAYS + ch)).for_each(|(e, v)| *e = *v);
             }
         }
     }
