@@ -67,6 +67,12 @@ pub fn extra_features_backward(
     v_roughness: &mut [f32],
     v_normals: &mut [f32],
 ) {
+    let nv = v_extra.len() / EXTRA_CHANNELS;
+    assert!(
+        v_albedo.len() == 3 * nv && v_roughness.len() == nv && v_normals.len() == 3 * nv,
+        "extra_features_backward: {nv} vertices of extra gradients for {} roughness gradients",
+        v_roughness.len()
+    );
     (v_albedo.par_chunks_exact_mut(3), v_roughness.par_iter_mut(), v_normals.par_chunks_exact_mut(3))
         .into_par_iter()
         .zip(v_extra.par_chunks_exact(EXTRA_CHANNELS))
