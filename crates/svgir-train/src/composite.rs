@@ -13,12 +13,11 @@
 /// Opacity floor of the division (SPEC 3).
 pub const MIN_OPACITY: f64 = 1e-5;
 
+use crate::losses::CHUNK;
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use svgir_core::par::filled;
 
-/// Pixels per parallel task (a 256-pixel-wide image's 16 rows).
-const CHUNK: usize = 4096;
 use svgir_core::color::{linear_to_srgb as srgb, linear_to_srgb_grad as srgb_grad};
 
 /// One pixel's image value; `cover`: the photo's alpha ([`Coverage::Photo`]), `None` for the

@@ -10,8 +10,9 @@ pub mod smoothness;
 
 use rayon::prelude::*;
 
-/// Pixels per rayon task of [`chunked_sum`].
-const CHUNK: usize = 4096;
+/// Pixels (or per-pixel values) per rayon task of the per-pixel loss loops ([`chunked_sum`],
+/// the composite, the objectives): a 256-pixel-wide image's 16 rows.
+pub(crate) const CHUNK: usize = 4096;
 
 /// `sum_i f(i, x[i], &mut g[i])`, chunks of pixels in parallel; the chunk sums are added in
 /// order, so the value does not depend on the thread count.

@@ -76,7 +76,7 @@ pub fn stage1_objective(
         svgir_metrics::ssim_with_grad(out.color, target.rgb, svgir_metrics::Shape::new(width, height, 3))
             .expect("render and target have the same shape");
     // The loss term is weight * (1 - SSIM).
-    v_color.par_iter_mut().zip(&v_ssim).with_min_len(4096).for_each(|(g, s)| *g -= w.ssim * s);
+    v_color.par_iter_mut().zip(&v_ssim).with_min_len(super::CHUNK).for_each(|(g, s)| *g -= w.ssim * s);
     let mut loss = w.l1 * l1 + w.ssim * (1.0 - ssim);
     let mut v_alpha = filled(npix, 0.0f32);
     if use_mask {

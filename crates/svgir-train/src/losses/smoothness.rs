@@ -172,7 +172,7 @@ pub fn depth_guide(depth_sum: &[f32], alpha: &[f32], sharpness: f32) -> Vec<f32>
     depth_sum
         .par_iter()
         .zip(alpha)
-        .with_min_len(4096)
+        .with_min_len(super::CHUNK)
         .map(|(&d, &a)| if a > 0.5 { sharpness * (d / a).max(1e-6).ln() } else { BACKGROUND_GUIDE })
         .collect()
 }

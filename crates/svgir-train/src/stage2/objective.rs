@@ -17,6 +17,7 @@ use crate::composite::{pbr_composite, pbr_composite_backward};
 use crate::losses::depth_normal::depth_normal_loss;
 use crate::losses::l1::l1_loss;
 use crate::losses::smoothness::{depth_guide, edge_aware_smoothness_with, EdgeWeights, BACKGROUND_GUIDE};
+use crate::losses::CHUNK;
 use glam::Vec3;
 use rayon::prelude::*;
 use svgir_core::par::filled;
@@ -30,8 +31,6 @@ pub const MIN_OPACITY: f32 = crate::composite::MIN_OPACITY as f32;
 /// Depth guide of the normal smoothness: neighbours 1% apart in depth weigh e^-1. A pixel spans
 /// ~0.3% of the depth on our 256-px scenes at normal incidence, ~1.5% at 80 degrees.
 pub const NORMAL_SMOOTHING_SHARPNESS: f32 = 100.0;
-/// Pixels (or values) per rayon task in the per-pixel loops.
-const PX_CHUNK: usize = 4096;
 
 /// +1 or -1 per Gaussian: whether its oriented normal faces the camera at `center`. Splatted
 /// normals are flipped to face the camera, as the rasteriser does for geometric normals (SPEC 1),
@@ -46,7 +45,7 @@ pub fn extra_features(act: &ActivatedMaterials, facing: &[f32]) -> Vec<f32> {
     let nv = act.roughness.len();
     let m = act.m;
     let mut out = filled(nv * EXTRA_CHANNELS, 0.0f32);
-    out.par_chunks_exact_mut(EXTRA_CHANNELS).enumerate().with_min_len(PX_CHUNK).for_each(|(v, e)| {
+    out.par_chunks_exact_mut(EXTRA_CHANNELS).enumerate().with_min_len(CHUNK).for_each(|(v, e)| {
         e[..3].copy_from_slice(&act.albedo[3 * v..3 * v + 3]);
         e[3] = act.roughness[v];
         for c in 0..3 {
@@ -77,7 +76,7 @@ pub fn extra_features_backward(
         .into_par_iter()
         .zip(v_extra.par_chunks_exact(EXTRA_CHANNELS))
         .enumerate()
-        .with_min_len(PX_CHUNK)
+        .with_min_len(CHUNK)
         .for_each(|(v, ((a, r, n), e))| {
             for c in 0..3 {
                 a[c] += e[c];
@@ -150,13 +149,13 @@ pub fn stage2_objective(
     let l1_pbr = l1_loss(&image, gt, wts.l1, &mut v_image);
     let shape = svgir_metrics::Shape::new(w, h, 3);
     let (ssim_pbr, g) = svgir_metrics::ssim_with_grad(&image, gt, shape).expect("same shape");
-    v_image.par_iter_mut().zip(&g).with_min_len(PX_CHUNK).for_each(|(v, g)| *v -= wts.ssim * g);
+    v_image.par_iter_mut().zip(&g).with_min_len(CHUNK).for_each(|(v, g)| *v -= wts.ssim * g);
     let mut loss = wts.l1 * l1_pbr + wts.ssim * (1.0 - ssim_pbr);
 
     let mut v_sh_color = filled(npix * 3, 0.0f32);
     let l1_sh = l1_loss(out.sh_color, gt, wts.l1, &mut v_sh_color);
     let (ssim_sh, g) = svgir_metrics::ssim_with_grad(out.sh_color, gt, shape).expect("same shape");
-    v_sh_color.par_iter_mut().zip(&g).with_min_len(PX_CHUNK).for_each(|(v, g)| *v -= wts.ssim * g);
+    v_sh_color.par_iter_mut().zip(&g).with_min_len(CHUNK).for_each(|(v, g)| *v -= wts.ssim * g);
     loss += wts.l1 * l1_sh + wts.ssim * (1.0 - ssim_sh);
 
     let (v_color, mut v_alpha) = pbr_composite_backward(out.color, out.alpha, cover, bg, &v_image);
@@ -171,7 +170,7 @@ pub fn stage2_objective(
     (alb.par_chunks_exact_mut(3), rough.par_iter_mut(), nsum.par_chunks_exact_mut(3))
         .into_par_iter()
         .zip(ex.par_chunks_exact(EXTRA_CHANNELS).zip(out.alpha))
-        .with_min_len(PX_CHUNK)
+        .with_min_len(CHUNK)
         .for_each(|((a, r, n), (e, &o))| {
             let inv = 1.0 / o.max(MIN_OPACITY);
             for c in 0..3 {
@@ -191,7 +190,7 @@ pub fn stage2_objective(
         let guide = depth_guide(out.depth, out.alpha, NORMAL_SMOOTHING_SHARPNESS);
         let nrm: Vec<f32> = (0..npix * 3)
             .into_par_iter()
-            .with_min_len(PX_CHUNK)
+            .with_min_len(CHUNK)
             .map(|i| if guide[i / 3] == BACKGROUND_GUIDE { 0.0 } else { nsum[i] / out.alpha[i / 3] })
             .collect();
         let depth_edges = EdgeWeights::new(&guide, 1, w, h);
@@ -199,7 +198,7 @@ pub fn stage2_objective(
     }
     let (ln, g_n) = depth_normal_loss(out.depth, out.alpha, &nsum, cam);
     loss += wts.normal * ln;
-    v_extra.par_chunks_exact_mut(EXTRA_CHANNELS).zip(&mut v_alpha).enumerate().with_min_len(PX_CHUNK).for_each(
+    v_extra.par_chunks_exact_mut(EXTRA_CHANNELS).zip(&mut v_alpha).enumerate().with_min_len(CHUNK).for_each(
         |(p, (ve, va))| {
             let inv = 1.0 / out.alpha[p].max(MIN_OPACITY);
             for c in 0..3 {
@@ -210,6 +209,6 @@ pub fn stage2_objective(
             *va += wts.normal * g_n.v_opacity[p];
         },
     );
-    let v_depth: Vec<f32> = g_n.v_depth_sum.par_iter().with_min_len(PX_CHUNK).map(|g| wts.normal * g).collect();
+    let v_depth: Vec<f32> = g_n.v_depth_sum.par_iter().with_min_len(CHUNK).map(|g| wts.normal * g).collect();
     Stage2Objective { loss, image, v_color, v_alpha, v_depth, v_extra, v_sh_color }
 }
