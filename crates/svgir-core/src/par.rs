@@ -9,6 +9,9 @@
 //!
 //! Work split: chunks of [`CHUNK_BYTES`]; buffers under [`SERIAL_BYTES`] are filled on the
 //! calling thread, where waking the workers would cost more than the fill.
+//!
+//! [`Disjoint`] lets parallel tasks write one buffer at places that are not contiguous runs
+//! (a tile's pixels are a piece of each of its rows), each task in its own segments.
 
 use rayon::prelude::*;
 use std::mem::MaybeUninit;
@@ -52,6 +55,56 @@ pub fn zeroed<T: bytemuck::Zeroable + Copy + Send + Sync>(n: usize) -> Vec<T> {
     filled(n, T::zeroed())
 }
 
+/// A mutable slice that parallel tasks write at once, each in segments no other task touches.
+///
+/// Splitting a slice into `&mut` pieces needs the pieces to be contiguous runs; the pixels of an
+/// image tile are a short run in each of several rows. Each task asks for its runs with
+/// [`Disjoint::seg`], whose caller promises that no two live segments overlap.
+pub struct Disjoint<'a, T> {
+    ptr: *mut T,
+    len: usize,
+    _borrow: std::marker::PhantomData<&'a mut [T]>,
+}
+
+// SAFETY: a `Disjoint` hands out only non-overlapping segments (the contract of `seg`), so
+// sharing it between threads is sharing disjoint `&mut [T]`, which is `Send` when `T` is.
+unsafe impl<T: Send> Send for Disjoint<'_, T> {}
+unsafe impl<T: Send> Sync for Disjoint<'_, T> {}
+
+impl<'a, T> Disjoint<'a, T> {
+    /// Borrows `v` for parallel writes.
+    pub fn new(v: &'a mut [T]) -> Self {
+        Self { ptr: v.as_mut_ptr(), len: v.len(), _borrow: std::marker::PhantomData }
+    }
+
+    /// Elements in the whole slice.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether the slice is empty.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// The `len` elements from `start`.
+    ///
+    /// # Safety
+    /// No other segment that overlaps this one is alive (in this task or another) while the
+    /// returned slice is.
+    ///
+    /// # Panics
+    /// If the segment does not lie inside the slice.
+    #[allow(clippy::mut_from_ref)]
+    #[inline]
+    pub unsafe fn seg(&self, start: usize, len: usize) -> &'a mut [T] {
+        assert!(start <= self.len && len <= self.len - start, "segment {start}+{len} outside {}", self.len);
+        // SAFETY: in bounds (checked above); exclusive by the caller's contract; the borrow of
+        // the whole slice lives for 'a.
+        unsafe { std::slice::from_raw_parts_mut(self.ptr.add(start), len) }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -68,5 +121,34 @@ mod tests {
                 assert_eq!(v, vec![-1.0f32; n], "n = {n}, from {start}");
             }
         }
+    }
+
+    #[test]
+    fn disjoint_segments_cover_the_slice_from_parallel_tasks() {
+        // A 7-wide, 5-tall "image" written by 3-column "tiles" at once, each through its rows.
+        let (w, h) = (7usize, 5usize);
+        let mut img = vec![0u32; w * h];
+        let d = Disjoint::new(&mut img);
+        assert_eq!(d.len(), w * h);
+        (0..w.div_ceil(3)).into_par_iter().for_each(|tx| {
+            let (x0, x1) = (3 * tx, (3 * tx + 3).min(w));
+            for y in 0..h {
+                // SAFETY: tile `tx` alone owns columns x0..x1.
+                let row = unsafe { d.seg(y * w + x0, x1 - x0) };
+                for (i, v) in row.iter_mut().enumerate() {
+                    *v = (y * w + x0 + i) as u32 + 1;
+                }
+            }
+        });
+        assert_eq!(img, (1..=(w * h) as u32).collect::<Vec<_>>());
+    }
+
+    #[test]
+    #[should_panic(expected = "outside")]
+    fn a_segment_past_the_end_panics() {
+        let mut v = vec![0u8; 4];
+        let d = Disjoint::new(&mut v);
+        // SAFETY: the only segment.
+        let _ = unsafe { d.seg(2, 3) };
     }
 }

@@ -1,11 +1,12 @@
 //! Forward compositing (SPEC 1, Eqn 3): preprocess, bin, then per tile front to back.
 //!
-//! Work split: one rayon task per row of tiles (each owns disjoint row bands of every output
-//! image and a contiguous range of tile-list entries). Inside a tile the loop is Gaussian-outer,
+//! Work split: one rayon task per run of consecutive tiles ([`tile_runs`], several per thread,
+//! since tiles differ tenfold in cost); a tile writes its own pixels of every output image (a
+//! run in each of its rows, through [`Disjoint`]) and its own range of tile-list entries. Inside a tile the loop is Gaussian-outer,
 //! pixel-inner over the Gaussian's box clipped to the tile, so a Gaussian costs only the pixels it
 //! can touch. Each box row is first evaluated branch-free into a small buffer
 //! ([`crate::splat::eval_row`], vectorisable), then composited pixel by pixel into one tile-local
-//! accumulator record per pixel, copied to the output bands at the end of the tile. The tile stops
+//! accumulator record per pixel, copied to the output images at the end of the tile. The tile stops
 //! when every pixel has hit the transmittance floor. Per-Gaussian data is read from per-entry
 //! copies ([`crate::tiles::TileRec`]) so the loop streams through memory.
 //!
@@ -28,8 +29,9 @@ use crate::{
     RenderOutputOf,
 };
 use rayon::prelude::*;
+use std::ops::Range;
 use std::sync::Arc;
-use svgir_core::par::filled;
+use svgir_core::par::{filled, Disjoint};
 
 /// A feature table seen by the kernels: `data[(g * vertices + m) * channels + c]`.
 #[derive(Clone, Copy, Debug)]
@@ -109,9 +111,26 @@ pub(crate) fn background_at<F: Real>(bg: &BackgroundOf<F>, pix: usize) -> [F; 3]
     }
 }
 
-/// Mutable row band of every per-pixel buffer for one row of tiles.
-pub(crate) struct Band<'a, F> {
-    pub(crate) ty: u32,
+/// Every per-pixel output and the per-entry weight sums, written by the tile tasks at once:
+/// each tile writes its own pixels (a run in each of its rows) and its own tile-list entries.
+pub(crate) struct Outputs<'a, F> {
+    color: Disjoint<'a, F>,
+    alpha: Disjoint<'a, F>,
+    depth: Disjoint<'a, F>,
+    median: Disjoint<'a, F>,
+    normal: Disjoint<'a, F>,
+    dist: Disjoint<'a, F>,
+    extra: Disjoint<'a, F>,
+    final_t: Disjoint<'a, F>,
+    n_contrib: Disjoint<'a, u32>,
+    m1: Disjoint<'a, F>,
+    m2: Disjoint<'a, F>,
+    /// Per tile-list entry: sum of w.
+    pub(crate) wsum: Disjoint<'a, F>,
+}
+
+/// One run of pixels (part of an image row) in every per-pixel output.
+pub(crate) struct RowOut<'a, F> {
     pub(crate) color: &'a mut [F],
     pub(crate) alpha: &'a mut [F],
     pub(crate) depth: &'a mut [F],
@@ -123,9 +142,45 @@ pub(crate) struct Band<'a, F> {
     pub(crate) n_contrib: &'a mut [u32],
     pub(crate) m1: &'a mut [F],
     pub(crate) m2: &'a mut [F],
-    /// Per entry of this row's tiles: sum of w.
-    pub(crate) wsum: &'a mut [F],
 }
+
+impl<'a, F> Outputs<'a, F> {
+    /// Pixels `start..start + len` (row-major pixel indices) of every output; `ce` extra
+    /// channels per pixel.
+    ///
+    /// # Safety
+    /// No other task holds any of these pixels meanwhile (a tile's own pixels, one row at a
+    /// time).
+    pub(crate) unsafe fn row(&self, start: usize, len: usize, ce: usize) -> RowOut<'a, F> {
+        // SAFETY: the caller's contract, for each output.
+        unsafe {
+            RowOut {
+                color: self.color.seg(3 * start, 3 * len),
+                alpha: self.alpha.seg(start, len),
+                depth: self.depth.seg(start, len),
+                median: self.median.seg(start, len),
+                normal: self.normal.seg(3 * start, 3 * len),
+                dist: self.dist.seg(start, len),
+                extra: self.extra.seg(ce * start, ce * len),
+                final_t: self.final_t.seg(start, len),
+                n_contrib: self.n_contrib.seg(start, len),
+                m1: self.m1.seg(start, len),
+                m2: self.m2.seg(start, len),
+            }
+        }
+    }
+}
+
+/// The forward's tasks: runs of consecutive tiles, about [`TASKS_PER_THREAD`] per worker. A
+/// tile's cost follows how many entries it holds and how soon its pixels saturate, which varies
+/// tenfold over an object's image, so the tasks are smaller than an even share.
+pub(crate) fn tile_runs(ntiles: usize, threads: usize) -> Vec<std::ops::Range<usize>> {
+    let per = ntiles.div_ceil(TASKS_PER_THREAD * threads.max(1)).max(1);
+    (0..ntiles).step_by(per).map(|a| a..(a + per).min(ntiles)).collect()
+}
+
+/// Forward tasks per worker thread (see [`tile_runs`]).
+const TASKS_PER_THREAD: usize = 8;
 
 /// Splits `v` into consecutive chunks of the given lengths.
 pub(crate) fn split_lens<T>(mut v: &mut [T], lens: impl Iterator<Item = usize>) -> Vec<&mut [T]> {
@@ -191,46 +246,26 @@ pub(crate) fn render_projected<F: Real, P: GaussianParams<F> + ?Sized>(
     let mut m2 = filled(npx, F::ZERO);
     let mut wsum = filled(bins.ids.len(), F::ZERO);
 
-    let rows = |ch: usize| (0..bins.tiles_y).map(move |ty| band_rows(ty, cfg.tile, h) * w as usize * ch);
-    let bands: Vec<Band<F>> = {
-        let mut color = split_lens(&mut out.color, rows(3)).into_iter();
-        let mut alpha = split_lens(&mut out.alpha, rows(1)).into_iter();
-        let mut depth = split_lens(&mut out.depth, rows(1)).into_iter();
-        let mut median = split_lens(&mut out.median_depth, rows(1)).into_iter();
-        let mut normal = split_lens(&mut out.normal, rows(3)).into_iter();
-        let mut dist = split_lens(&mut out.distortion, rows(1)).into_iter();
-        let mut extra = split_lens(&mut out.extra, rows(ce)).into_iter();
-        let mut ft = split_lens(&mut final_t, rows(1)).into_iter();
-        let mut nc = split_lens(&mut n_contrib, rows(1)).into_iter();
-        let mut a1 = split_lens(&mut m1, rows(1)).into_iter();
-        let mut a2 = split_lens(&mut m2, rows(1)).into_iter();
-        let elens = (0..bins.tiles_y).map(|ty| {
-            let r = bins.row_range(ty);
-            (r[1] - r[0]) as usize
+    {
+        let outs = Outputs {
+            color: Disjoint::new(&mut out.color),
+            alpha: Disjoint::new(&mut out.alpha),
+            depth: Disjoint::new(&mut out.depth),
+            median: Disjoint::new(&mut out.median_depth),
+            normal: Disjoint::new(&mut out.normal),
+            dist: Disjoint::new(&mut out.distortion),
+            extra: Disjoint::new(&mut out.extra),
+            final_t: Disjoint::new(&mut final_t),
+            n_contrib: Disjoint::new(&mut n_contrib),
+            m1: Disjoint::new(&mut m1),
+            m2: Disjoint::new(&mut m2),
+            wsum: Disjoint::new(&mut wsum),
+        };
+        sw.lap("buffers");
+        tile_runs(bins.ranges.len(), rayon::current_num_threads()).into_par_iter().for_each(|run| {
+            render_tiles(&outs, run, bins, recs, &cf, &ef, &input.background, cfg, w, h);
         });
-        let mut ws = split_lens(&mut wsum, elens).into_iter();
-        (0..bins.tiles_y)
-            .map(|ty| Band {
-                ty,
-                color: color.next().unwrap(),
-                alpha: alpha.next().unwrap(),
-                depth: depth.next().unwrap(),
-                median: median.next().unwrap(),
-                normal: normal.next().unwrap(),
-                dist: dist.next().unwrap(),
-                extra: extra.next().unwrap(),
-                final_t: ft.next().unwrap(),
-                n_contrib: nc.next().unwrap(),
-                m1: a1.next().unwrap(),
-                m2: a2.next().unwrap(),
-                wsum: ws.next().unwrap(),
-            })
-            .collect()
-    };
-    sw.lap("buffers");
-    bands.into_par_iter().for_each(|mut b| {
-        render_band(&mut b, bins, recs, &cf, &ef, &input.background, cfg, w, h);
-    });
+    }
     sw.lap("tiles");
 
     out.accum_weight = (0..splats.len())
@@ -248,11 +283,6 @@ pub(crate) fn render_projected<F: Real, P: GaussianParams<F> + ?Sized>(
     sw.lap("reduce");
     let state = ForwardStateOf { proj, final_t, n_contrib, moment1: m1, moment2: m2, phases: sw.finish() };
     (out, state)
-}
-
-/// Pixel rows in tile row `ty`.
-pub(crate) fn band_rows(ty: u32, tile: u32, h: u32) -> usize {
-    ((ty * tile + tile).min(h) - ty * tile) as usize
 }
 
 /// Per-pixel accumulators of one tile (one record per pixel: one cache line, one bounds check).
@@ -273,8 +303,9 @@ struct PixAcc<F> {
 /// Dispatches to the kernel specialised for which optional paths are live (each is a branch per
 /// composited pixel otherwise): interpolated colours, extra channels, distortion.
 #[allow(clippy::too_many_arguments)]
-fn render_band<F: Real>(
-    b: &mut Band<F>,
+fn render_tiles<F: Real>(
+    o: &Outputs<F>,
+    run: Range<usize>,
     bins: &TileBins,
     recs: &[TileRec<F>],
     cf: &FeatView<F>,
@@ -288,22 +319,23 @@ fn render_band<F: Real>(
     let ex = ef.channels > 0;
     if crate::simd::is_f32::<F>() {
         // SAFETY: `F` is `f32` (checked above), so these are the same types.
-        let (b32, recs32, cf32, ef32, bg32) = unsafe {
+        let (o32, recs32, cf32, ef32, bg32) = unsafe {
             (
-                &mut *(b as *mut Band<F> as *mut Band<f32>),
+                &*(o as *const Outputs<F> as *const Outputs<f32>),
                 &*(recs as *const [TileRec<F>] as *const [TileRec<f32>]),
                 &*(cf as *const FeatView<F> as *const FeatView<f32>),
                 &*(ef as *const FeatView<F> as *const FeatView<f32>),
                 &*(bg as *const BackgroundOf<F> as *const BackgroundOf<f32>),
             )
         };
-        if crate::forward_simd::render_band_simd(cfg.simd.resolve(), b32, bins, recs32, cf32, ef32, bg32, cfg, w, h) {
+        let path = cfg.simd.resolve();
+        if crate::forward_simd::render_tiles_simd(path, o32, run.clone(), bins, recs32, cf32, ef32, bg32, cfg, w, h) {
             return;
         }
     }
     macro_rules! go {
         ($ci:literal, $ex:literal, $d:literal) => {
-            render_band_k::<F, $ci, $ex, $d>(b, bins, recs, cf, ef, bg, cfg, w, h)
+            render_tiles_k::<F, $ci, $ex, $d>(o, run, bins, recs, cf, ef, bg, cfg, w, h)
         };
     }
     match (ci, ex, cfg.distortion) {
@@ -318,11 +350,12 @@ fn render_band<F: Real>(
     }
 }
 
-/// One row of tiles; see [`render_band`] for the const parameters.
+/// A run of tiles; see [`render_tiles`] for the const parameters.
 #[allow(clippy::too_many_arguments)]
 #[inline(never)]
-fn render_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
-    b: &mut Band<F>,
+fn render_tiles_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
+    o: &Outputs<F>,
+    run: Range<usize>,
     bins: &TileBins,
     recs: &[TileRec<F>],
     cf: &FeatView<F>,
@@ -342,8 +375,6 @@ fn render_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
     let wu = w as usize;
     let ce = ef.channels;
     let tile = bins.tile as usize;
-    let e_band0 = bins.row_range(b.ty)[0] as usize;
-    let y_band0 = (b.ty * bins.tile) as usize;
     let mut acc = vec![PixAcc::<F>::default(); tile * tile];
     let mut acc_extra = vec![F::ZERO; tile * tile * ce];
     let mut row_live = vec![0u64; tile];
@@ -360,11 +391,12 @@ fn render_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
         z: F,
         alpha: F,
     }
-    for tx in 0..bins.tiles_x {
-        let t = (b.ty * bins.tiles_x + tx) as usize;
+    for t in run {
         let tr = bins.tile_rect(t, w, h);
         let [r0, r1] = bins.ranges[t];
         let (tx0, ty0) = (tr[0] as usize, tr[2] as usize);
+        // SAFETY (every `seg` of this tile): tile `t` alone owns its entries and its pixels.
+        let wsum = unsafe { o.wsum.seg(r0 as usize, (r1 - r0) as usize) };
         acc.fill(PixAcc { t: F::ONE, ..Default::default() });
         acc_extra.fill(F::ZERO);
         let mut remaining = (tr[1] - tr[0]) as usize * (tr[3] - tr[2]) as usize;
@@ -441,30 +473,30 @@ fn render_band_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
                     }
                 }
             }
-            b.wsum[e - e_band0] = ws;
+            wsum[e - r0 as usize] = ws;
         }
+        let wt = (tr[1] - tr[0]) as usize;
         for y in tr[2] as usize..tr[3] as usize {
-            for x in tr[0] as usize..tr[1] as usize {
-                let li = (y - ty0) * tile + (x - tx0);
+            let b0 = y * wu + tx0;
+            let r = unsafe { o.row(b0, wt, ce) };
+            for i in 0..wt {
+                let li = (y - ty0) * tile + i;
                 let a = &acc[li];
-                let bi = (y - y_band0) * wu + x;
                 let tn = a.t;
-                let c = background_at(bg, y * wu + x);
+                let c = background_at(bg, b0 + i);
                 for ch in 0..3 {
-                    b.color[bi * 3 + ch] = a.color[ch] + tn * c[ch];
-                    b.normal[bi * 3 + ch] = a.normal[ch];
+                    r.color[i * 3 + ch] = a.color[ch] + tn * c[ch];
+                    r.normal[i * 3 + ch] = a.normal[ch];
                 }
-                b.alpha[bi] = F::ONE - tn;
-                b.depth[bi] = a.depth;
-                b.median[bi] = a.median;
-                b.dist[bi] = a.dist;
-                b.final_t[bi] = tn;
-                b.n_contrib[bi] = a.ncon;
-                b.m1[bi] = a.m1;
-                b.m2[bi] = a.m2;
-                if ce > 0 {
-                    b.extra[bi * ce..(bi + 1) * ce].copy_from_slice(&acc_extra[li * ce..(li + 1) * ce]);
-                }
+                r.alpha[i] = F::ONE - tn;
+                r.depth[i] = a.depth;
+                r.median[i] = a.median;
+                r.dist[i] = a.dist;
+                r.final_t[i] = tn;
+                r.n_contrib[i] = a.ncon;
+                r.m1[i] = a.m1;
+                r.m2[i] = a.m2;
+                r.extra[i * ce..(i + 1) * ce].copy_from_slice(&acc_extra[li * ce..(li + 1) * ce]);
             }
         }
     }

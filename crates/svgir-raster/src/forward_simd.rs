@@ -3,7 +3,7 @@
 //! interpolated from a surfel's vertices as in stage 2's PBR render), compiled for AVX2 and
 //! AVX-512 and chosen at run time ([`crate::simd`]).
 //!
-//! Same work split and order as the scalar kernel: per row of tiles, per tile front to back,
+//! Same work split and order as the scalar kernel: per run of tiles, per tile front to back,
 //! per Gaussian the rows of its box narrowed by the row chord and the live-pixel masks. A row
 //! segment is processed `N` pixels at a time, and two segments of at most `N/2` pixels on
 //! different rows share one lane group ([`crate::lane_groups::Group`]): the ray-splat evaluation ([`eval_lanes`], the
@@ -16,17 +16,19 @@
 //! lane-wise.
 
 // The lane methods and kernels are `unsafe fn`s with one contract -- the CPU has the features
-// of the path that runs them (checked once by `Simd::resolve`) and every pointer stays inside
-// its tile buffer -- so the operations inside need no block of their own.
+// of the path that runs them (checked once by `Simd::resolve`), every pointer stays inside
+// its tile buffer and every output segment is the tile's own -- so the operations inside need
+// no block of their own.
 #![allow(unsafe_op_in_unsafe_fn)]
 
-use crate::forward::{background_at, Band, FeatView};
+use crate::forward::{background_at, FeatView, Outputs};
 use crate::interp::{normalised_coord_lanes, weights_lanes, MAX_VERTICES};
 use crate::lane_groups::{Group, Groups};
 use crate::simd::Lanes;
 
 use crate::tiles::{columns_mask, TileBins, TileRec};
 use crate::{BackgroundOf, RasterConfig};
+use std::ops::Range;
 
 /// One lane group's evaluation; `alpha == 0` marks a skipped pixel.
 #[derive(Clone, Copy)]
@@ -224,12 +226,13 @@ impl<S: Lanes> Composite<'_, S> {
     }
 }
 
-/// One row of tiles, `S::N` pixels at a time (see the module docs). `FEAT`: the colours or
+/// A run of tiles, `S::N` pixels at a time (see the module docs). `FEAT`: the colours or
 /// extra channels come from the feature tables `cf` / `ef` (interpolated over vertices).
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-unsafe fn band<S: Lanes, const DIST: bool, const FEAT: bool>(
-    b: &mut Band<f32>,
+unsafe fn tiles<S: Lanes, const DIST: bool, const FEAT: bool>(
+    o: &Outputs<f32>,
+    run: Range<usize>,
     bins: &TileBins,
     recs: &[TileRec<f32>],
     cf: &FeatView<f32>,
@@ -245,19 +248,18 @@ unsafe fn band<S: Lanes, const DIST: bool, const FEAT: bool>(
     // Row stride: a full lane group from any column of the tile stays in its row.
     let stride = tile + S::N;
     let np = stride * tile;
-    let e_band0 = bins.row_range(b.ty)[0] as usize;
-    let y_band0 = (b.ty * bins.tile) as usize;
     let ce = ef.channels;
     let ci = cf.vertices > 1;
     let mut buf = vec![0f32; np * (ARRAYS + ce)];
     let (mut colv, mut extv) = (FeatLanes::<S> { v: Vec::new() }, FeatLanes::<S> { v: Vec::new() });
     let mut row_live = vec![0u64; tile];
     let mut groups = Groups::new(tile);
-    for tx in 0..bins.tiles_x {
-        let t = (b.ty * bins.tiles_x + tx) as usize;
+    for t in run {
         let tr = bins.tile_rect(t, w, h);
         let [r0, r1] = bins.ranges[t];
         let (tx0, ty0) = (tr[0] as usize, tr[2] as usize);
+        // SAFETY (every `seg` of this tile): tile `t` alone owns its entries and its pixels.
+        let wsum = unsafe { o.wsum.seg(r0 as usize, (r1 - r0) as usize) };
         buf[..np].fill(1.0);
         buf[np..].fill(0.0);
         let mut remaining = (tr[1] - tr[0]) as usize * (tr[3] - tr[2]) as usize;
@@ -304,39 +306,35 @@ unsafe fn band<S: Lanes, const DIST: bool, const FEAT: bool>(
                 gr.clear::<true>(&mut row_live, sb, S::N);
                 remaining -= sb.count_ones() as usize;
             }
-            b.wsum[e - e_band0] = ws.hsum();
+            wsum[e - r0 as usize] = ws.hsum();
         }
-        // The tile's rows out to the band, a row of each array at a time (slice copies and
+        // The tile's rows out to the images, a row of each array at a time (slice copies and
         // loops the compiler vectorises; per pixel, the same values as the scalar kernel's).
         let wt = (tr[1] - tr[0]) as usize;
         for y in tr[2] as usize..tr[3] as usize {
             let l0 = (y - ty0) * stride;
-            let b0 = (y - y_band0) * wu + tx0;
+            let b0 = y * wu + tx0;
             let row = |k: usize| &buf[k * np + l0..k * np + l0 + wt];
             let t = row(T);
-            b.final_t[b0..b0 + wt].copy_from_slice(t);
-            b.alpha[b0..b0 + wt].iter_mut().zip(t).for_each(|(a, tn)| *a = 1.0 - tn);
-            b.depth[b0..b0 + wt].copy_from_slice(row(DEP));
-            b.median[b0..b0 + wt].copy_from_slice(row(MED));
-            b.dist[b0..b0 + wt].copy_from_slice(row(DST));
-            b.m1[b0..b0 + wt].copy_from_slice(row(M1));
-            b.m2[b0..b0 + wt].copy_from_slice(row(M2));
-            b.n_contrib[b0..b0 + wt].iter_mut().zip(row(NCON)).for_each(|(n, v)| *n = *v as u32);
+            let r = o.row(b0, wt, ce);
+            r.final_t.copy_from_slice(t);
+            r.alpha.iter_mut().zip(t).for_each(|(a, tn)| *a = 1.0 - tn);
+            r.depth.copy_from_slice(row(DEP));
+            r.median.copy_from_slice(row(MED));
+            r.dist.copy_from_slice(row(DST));
+            r.m1.copy_from_slice(row(M1));
+            r.m2.copy_from_slice(row(M2));
+            r.n_contrib.iter_mut().zip(row(NCON)).for_each(|(n, v)| *n = *v as u32);
             let (col, nrm) = ([row(COL), row(COL + 1), row(COL + 2)], [row(NRM), row(NRM + 1), row(NRM + 2)]);
-            for (i, (o, n)) in b.color[3 * b0..3 * (b0 + wt)]
-                .chunks_exact_mut(3)
-                .zip(b.normal[3 * b0..3 * (b0 + wt)].chunks_exact_mut(3))
-                .enumerate()
-            {
-                let c = background_at(bg, y * wu + tx0 + i);
+            for (i, (c_out, n_out)) in r.color.chunks_exact_mut(3).zip(r.normal.chunks_exact_mut(3)).enumerate() {
+                let c = background_at(bg, b0 + i);
                 for ch in 0..3 {
-                    o[ch] = col[ch][i] + t[i] * c[ch];
-                    n[ch] = nrm[ch][i];
+                    c_out[ch] = col[ch][i] + t[i] * c[ch];
+                    n_out[ch] = nrm[ch][i];
                 }
             }
             for ch in 0..ce {
-                let dst = b.extra[ce * b0..ce * (b0 + wt)].iter_mut().skip(ch).step_by(ce);
-                dst.zip(row(ARRAYS + ch)).for_each(|(e, v)| *e = *v);
+                r.extra.iter_mut().skip(ch).step_by(ce).zip(row(ARRAYS + ch)).for_each(|(e, v)| *e = *v);
             }
         }
     }
@@ -345,8 +343,9 @@ unsafe fn band<S: Lanes, const DIST: bool, const FEAT: bool>(
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn band_avx2<const DIST: bool, const FEAT: bool>(
-    b: &mut Band<f32>,
+unsafe fn tiles_avx2<const DIST: bool, const FEAT: bool>(
+    o: &Outputs<f32>,
+    run: Range<usize>,
     bins: &TileBins,
     recs: &[TileRec<f32>],
     cf: &FeatView<f32>,
@@ -356,14 +355,15 @@ unsafe fn band_avx2<const DIST: bool, const FEAT: bool>(
     w: u32,
     h: u32,
 ) {
-    band::<crate::simd::F8, DIST, FEAT>(b, bins, recs, cf, ef, bg, cfg, w, h)
+    tiles::<crate::simd::F8, DIST, FEAT>(o, run, bins, recs, cf, ef, bg, cfg, w, h)
 }
 
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx512f,avx512vl,avx2,fma")]
 #[allow(clippy::too_many_arguments)]
-unsafe fn band_avx512<const DIST: bool, const FEAT: bool>(
-    b: &mut Band<f32>,
+unsafe fn tiles_avx512<const DIST: bool, const FEAT: bool>(
+    o: &Outputs<f32>,
+    run: Range<usize>,
     bins: &TileBins,
     recs: &[TileRec<f32>],
     cf: &FeatView<f32>,
@@ -373,15 +373,16 @@ unsafe fn band_avx512<const DIST: bool, const FEAT: bool>(
     w: u32,
     h: u32,
 ) {
-    band::<crate::simd::F8k, DIST, FEAT>(b, bins, recs, cf, ef, bg, cfg, w, h)
+    tiles::<crate::simd::F8k, DIST, FEAT>(o, run, bins, recs, cf, ef, bg, cfg, w, h)
 }
 
-/// Runs the row of tiles on the SIMD path `path` (already resolved); false when `path` is
+/// Runs the tiles `run` on the SIMD path `path` (already resolved); false when `path` is
 /// scalar (the caller runs the generic kernel).
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn render_band_simd(
+pub(crate) fn render_tiles_simd(
     path: crate::simd::Simd,
-    b: &mut Band<f32>,
+    o: &Outputs<f32>,
+    run: Range<usize>,
     bins: &TileBins,
     recs: &[TileRec<f32>],
     cf: &FeatView<f32>,
@@ -397,20 +398,20 @@ pub(crate) fn render_band_simd(
         let feat = cf.vertices > 1 || ef.channels > 0;
         macro_rules! go {
             ($f:ident, $d:literal, $e:literal) => {
-                $f::<$d, $e>(b, bins, recs, cf, ef, bg, cfg, w, h)
+                $f::<$d, $e>(o, run, bins, recs, cf, ef, bg, cfg, w, h)
             };
         }
         // SAFETY: `resolve` only returns a path whose features the CPU has.
         unsafe {
             match (path, cfg.distortion, feat) {
-                (Simd::Avx2, false, false) => go!(band_avx2, false, false),
-                (Simd::Avx2, true, false) => go!(band_avx2, true, false),
-                (Simd::Avx2, false, true) => go!(band_avx2, false, true),
-                (Simd::Avx2, true, true) => go!(band_avx2, true, true),
-                (Simd::Avx512, false, false) => go!(band_avx512, false, false),
-                (Simd::Avx512, true, false) => go!(band_avx512, true, false),
-                (Simd::Avx512, false, true) => go!(band_avx512, false, true),
-                (Simd::Avx512, true, true) => go!(band_avx512, true, true),
+                (Simd::Avx2, false, false) => go!(tiles_avx2, false, false),
+                (Simd::Avx2, true, false) => go!(tiles_avx2, true, false),
+                (Simd::Avx2, false, true) => go!(tiles_avx2, false, true),
+                (Simd::Avx2, true, true) => go!(tiles_avx2, true, true),
+                (Simd::Avx512, false, false) => go!(tiles_avx512, false, false),
+                (Simd::Avx512, true, false) => go!(tiles_avx512, true, false),
+                (Simd::Avx512, false, true) => go!(tiles_avx512, false, true),
+                (Simd::Avx512, true, true) => go!(tiles_avx512, true, true),
                 _ => return false,
             }
         }
@@ -418,7 +419,7 @@ pub(crate) fn render_band_simd(
     }
     #[cfg(not(target_arch = "x86_64"))]
     {
-        let _ = (path, b, bins, recs, cf, ef, bg, cfg, w, h);
+        let _ = (path, o, run, bins, recs, cf, ef, bg, cfg, w, h);
         false
     }
 }

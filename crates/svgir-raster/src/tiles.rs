@@ -1,8 +1,9 @@
 //! Binning of visible Gaussians into screen tiles, each tile's list sorted front to back by
 //! (centre depth, id) -- never depth alone, so ties are deterministic (SPEC 1, 9.9).
 //!
-//! Work split: one parallel sort of the visible Gaussians by a unique u64 key, then a sequential
-//! counting pass and a sequential fill in sorted order (so every tile list comes out sorted).
+//! Work split: one parallel radix sort of the visible Gaussians by a unique u64 key, then a
+//! counting sort into tiles, chunk-parallel over the sorted keys (so every tile list comes out
+//! sorted).
 //! Saved for backward: the whole [`TileBins`], including for each Gaussian the positions of its
 //! entries in the flat list, which lets per-entry gradients be reduced per Gaussian in a fixed
 //! order without atomics or racy `+=` (SPEC 9.4). The tile kernels read a copy of each
@@ -12,6 +13,7 @@
 use crate::preprocess::Splat;
 use crate::real::Real;
 use rayon::prelude::*;
+use svgir_core::par::Disjoint;
 
 /// The sort key: depth (as f32, whose bit pattern orders positive values) then id.
 #[inline]
@@ -150,17 +152,22 @@ pub fn bin<F: Real>(splats: &[Splat<F>], width: u32, height: u32, tile: u32) -> 
     let tiles_x = width.div_ceil(tile);
     let tiles_y = height.div_ceil(tile);
     let ntiles = (tiles_x * tiles_y) as usize;
-    let keys: Vec<u64> =
-        splats.par_iter().enumerate().filter(|(_, s)| s.visible()).map(|(i, s)| sort_key(s.depth, i as u32)).collect();
-    // The keys are built in id order, so a stable sort on the depth half gives (depth, id) order.
-    let keys = radix_sort_high(keys);
-
-    // Tile spans in a compact array (the fill below reads them in depth order, i.e. randomly).
-    let spans: Vec<[u32; 4]> = splats
+    // Tile spans and depths in compact arrays, in one pass over the (large) splats: the sort
+    // keys are built from them, and the fill below reads the spans in depth order, i.e. randomly.
+    let (spans, depths): (Vec<[u32; 4]>, Vec<F>) = splats
         .par_iter()
         .with_min_len(4096)
-        .map(|s| if s.visible() { tile_span(&s.rect, tile) } else { [0; 4] })
+        .map(|s| if s.visible() { (tile_span(&s.rect, tile), s.depth) } else { ([0; 4], F::ZERO) })
+        .unzip();
+    // A span is empty exactly when the splat is culled (its box is empty).
+    let keys: Vec<u64> = (0..splats.len())
+        .into_par_iter()
+        .with_min_len(4096)
+        .filter(|&i| spans[i][0] < spans[i][1])
+        .map(|i| sort_key(depths[i], i as u32))
         .collect();
+    // The keys are built in id order, so a stable sort on the depth half gives (depth, id) order.
+    let keys = radix_sort_high(keys);
     let mut entry_offsets = vec![0u32; splats.len() + 1];
     for (g, r) in spans.iter().enumerate() {
         entry_offsets[g + 1] = entry_offsets[g] + (r[1] - r[0]) * (r[3] - r[2]);
@@ -202,8 +209,8 @@ pub fn bin<F: Real>(splats: &[Splat<F>], width: u32, height: u32, tile: u32) -> 
         ranges.push([start, acc]);
     }
     let total = acc as usize;
-    let mut ids = vec![0u32; total];
-    let mut entries = vec![0u32; total];
+    let mut ids = svgir_core::par::filled(total, 0u32);
+    let mut entries = svgir_core::par::filled(total, 0u32);
     {
         let (ids_p, entries_p) = (SharedSlice(ids.as_mut_ptr()), SharedSlice(entries.as_mut_ptr()));
         keys.par_chunks(chunk).zip(cursors.par_iter_mut()).for_each(|(ks, cursor)| {
@@ -240,32 +247,64 @@ pub fn bin<F: Real>(splats: &[Splat<F>], width: u32, height: u32, tile: u32) -> 
 /// Stable LSD radix sort of `keys` by their upper 32 bits (8 bits a pass; a pass whose byte is
 /// the same in every key is skipped). Ties keep their order, so keys built in id order come out
 /// sorted by the whole key. Several times faster than a comparison sort of 100k keys.
+///
+/// Each pass runs on the rayon workers: the keys are cut into chunks, each chunk counts its
+/// bytes, the counts give every (chunk, byte) its own run of the output (byte-major, chunks in
+/// order, which keeps the sort stable), and the chunks scatter into their runs at once. Below
+/// [`RADIX_CHUNK`] keys there is one chunk, the serial sort.
 pub fn radix_sort_high(mut keys: Vec<u64>) -> Vec<u64> {
-    let mut tmp = vec![0u64; keys.len()];
+    let n = keys.len();
+    let chunk = n.div_ceil(2 * rayon::current_num_threads()).max(RADIX_CHUNK);
+    let mut tmp = svgir_core::par::filled(n, 0u64);
     for pass in 0..4 {
         let shift = 32 + 8 * pass;
-        let mut count = [0usize; 256];
-        for &k in &keys {
-            count[(k >> shift) as usize & 255] += 1;
+        let byte = |k: u64| (k >> shift) as usize & 255;
+        let counts: Vec<[u32; 256]> = keys
+            .par_chunks(chunk)
+            .map(|ks| {
+                let mut c = [0u32; 256];
+                for &k in ks {
+                    c[byte(k)] += 1;
+                }
+                c
+            })
+            .collect();
+        // Where each (chunk, byte) run starts: all smaller bytes first, then earlier chunks.
+        let mut starts = vec![[0u32; 256]; counts.len()];
+        let mut acc = 0u32;
+        let mut skip = false;
+        for b in 0..256 {
+            let before = acc;
+            for (c, cnt) in counts.iter().enumerate() {
+                starts[c][b] = acc;
+                acc += cnt[b];
+            }
+            skip |= (acc - before) as usize == n;
         }
-        if count.contains(&keys.len()) {
+        if skip {
             continue;
         }
-        let mut acc = 0;
-        for c in count.iter_mut() {
-            let n = *c;
-            *c = acc;
-            acc += n;
-        }
-        for &k in &keys {
-            let b = (k >> shift) as usize & 255;
-            tmp[count[b]] = k;
-            count[b] += 1;
-        }
+        let out = Disjoint::new(&mut tmp);
+        keys.par_chunks(chunk).zip(&starts).zip(&counts).for_each(|((ks, start), cnt)| {
+            // SAFETY: the runs of different (chunk, byte) pairs do not overlap, and together
+            // they tile `0..n`.
+            let mut runs: Vec<&mut [u64]> =
+                (0..256).map(|b| unsafe { out.seg(start[b] as usize, cnt[b] as usize) }).collect();
+            let mut next = [0usize; 256];
+            for &k in ks {
+                let b = byte(k);
+                runs[b][next[b]] = k;
+                next[b] += 1;
+            }
+        });
         std::mem::swap(&mut keys, &mut tmp);
     }
     keys
 }
+
+/// Keys per chunk of the parallel radix sort, at least (smaller sorts run on one thread, where
+/// waking the workers would cost more than it saves).
+const RADIX_CHUNK: usize = 1 << 14;
 
 /// A hint to fetch the cache line at `p`, for writing when `WRITE` (x86-64; nothing elsewhere).
 #[inline(always)]
@@ -447,6 +486,15 @@ mod tests {
         want.sort_unstable();
         assert_eq!(radix_sort_high(keys), want);
         assert!(radix_sort_high(Vec::new()).is_empty());
+        // Several chunks on four threads and many ties: the chunked passes must keep the order
+        // of equal depths (ids in order, as `bin` builds them).
+        let keys: Vec<u64> = (0..5 * RADIX_CHUNK as u32 + 17)
+            .map(|i| sort_key((rng.uniform() * 3000.0).floor() * 1.7 + 0.5, i))
+            .collect();
+        let mut want = keys.clone();
+        want.sort_unstable();
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(4).build().unwrap();
+        assert_eq!(pool.install(|| radix_sort_high(keys)), want);
     }
 
     #[test]

@@ -434,6 +434,64 @@ fn reusing_a_projection_changes_no_bit() {
     }
 }
 
+/// The forward runs runs of tiles as parallel tasks, and the bins' radix sort cuts its keys into
+/// chunks per thread: on every path, one thread and seven give the same bits, in every output
+/// (the per-Gaussian weight sums included) and every gradient. 169 tiles of 8 px, so seven
+/// threads split them into runs of one tile.
+#[test]
+fn thread_count_changes_no_bit() {
+    let (n, res, m, ce) = (40_000, 104u32, 4usize, 5usize);
+    let surfels = scene(44, n);
+    let camera = bench_camera(res, res);
+    let (colf, extf) = feature_tables(44, n, m, ce);
+    let (g3, g1, ge) = upstream_grads((res * res) as usize, ce);
+    let grads = OutputGrads {
+        color: Some(&g3),
+        alpha: Some(&g1),
+        depth: Some(&g1),
+        normal: Some(&g3),
+        distortion: Some(&g1),
+        extra: Some(&ge),
+    };
+    let (c, e) = features(&colf, &extf, m, ce);
+    let input = RenderInput {
+        surfels: &surfels,
+        camera: &camera,
+        colors: c,
+        extra: Some(e),
+        background: Background::Color([0.2, 0.1, 0.4]),
+    };
+    let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+    for path in Simd::available() {
+        let cfg = RasterConfig { simd: path, tile: 8, distortion: true, ..Default::default() };
+        let run = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+            pool.install(|| {
+                let (out, st) = render(&input, &cfg);
+                let g = backward(&input, &cfg, &st, &out, &grads);
+                let outs = [
+                    &out.color,
+                    &out.alpha,
+                    &out.depth,
+                    &out.median_depth,
+                    &out.normal,
+                    &out.distortion,
+                    &out.extra,
+                    &out.accum_weight,
+                ]
+                .map(|v| bits(v));
+                (outs, grad_arrays(&g))
+            })
+        };
+        let (a, b) = (run(1), run(7));
+        assert!(a.0[1].iter().any(|&x| f32::from_bits(x) > 0.99), "{}: nothing saturates", path.name());
+        assert_eq!(a.0, b.0, "{}: outputs", path.name());
+        for ((name, x), (_, y)) in a.1.iter().zip(&b.1) {
+            assert_eq!(x, y, "{}: {name}", path.name());
+        }
+    }
+}
+
 /// Random feature tables of `n` Gaussians: colours in [0, 1) and `ce` normal-distributed extra
 /// channels, both from `m` vertices.
 fn feature_tables(seed: u64, n: usize, m: usize, ce: usize) -> (Vec<f32>, Vec<f32>) {
