@@ -343,10 +343,18 @@ pub(crate) fn view_dir<F: Float>(inp: &ShadeInputs<F>, i: usize) -> [F; 3] {
 /// The per-vertex specular lobes of Gaussian i (entries past M repeat the last vertex).
 #[inline]
 pub(crate) fn lobes<F: Float>(vx: &Vertices<F>, wo: [F; 3], m: usize) -> [Lobe<F>; MAX_VERTICES] {
-    std::array::from_fn(|mm| {
-        let mm = mm.min(m - 1);
-        lobe(vx.n[mm], wo, vx.r[mm])
-    })
+    past_m_repeat_last(m, |mm| lobe(vx.n[mm], wo, vx.r[mm]))
+}
+
+/// `[f(0), .., f(m-1), f(m-1), ..]`, calling `f` only M times (the entries past M are copies,
+/// where computing them again cost a third of the per-Gaussian set-up at M = 4).
+#[inline]
+fn past_m_repeat_last<T: Copy>(m: usize, mut f: impl FnMut(usize) -> T) -> [T; MAX_VERTICES] {
+    let mut out = [f(0); MAX_VERTICES];
+    for mm in 1..MAX_VERTICES {
+        out[mm] = if mm < m { f(mm) } else { out[m - 1] };
+    }
+    out
 }
 
 /// The per-vertex diffuse weights of Gaussian i (`t = 1 - E(n.v, r)` when layered, else 1).
@@ -357,10 +365,7 @@ pub(crate) fn diffuse_weights<F: Float>(
     m: usize,
     diffuse: Diffuse,
 ) -> [DiffuseWeight<F>; MAX_VERTICES] {
-    std::array::from_fn(|mm| {
-        let mm = mm.min(m - 1);
-        diffuse.weight(dot(vx.n[mm], wo), vx.r[mm])
-    })
+    past_m_repeat_last(m, |mm| diffuse.weight(dot(vx.n[mm], wo), vx.r[mm]))
 }
 
 /// Everything of Gaussian i that does not depend on the light direction: its vertices, the
