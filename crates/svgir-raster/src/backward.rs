@@ -314,15 +314,39 @@ fn background_grad<F: Real>(bg: &BackgroundOf<F>, gc: Option<&[F]>, final_t: &[F
         (BackgroundOf::Color(_), None) => vec![F::ZERO; 3],
         (BackgroundOf::Image(_), None) => vec![F::ZERO; npx * 3],
         (BackgroundOf::Color(_), Some(gc)) => {
+            // Chunks of pixels in parallel, their sums added in order: the same value at any
+            // thread count.
+            const PX: usize = 4096;
+            let sums: Vec<[F; 3]> = final_t
+                .par_chunks(PX)
+                .zip(gc.par_chunks(3 * PX))
+                .map(|(t, g)| {
+                    let mut s = [F::ZERO; 3];
+                    for (tp, gp) in t.iter().zip(g.chunks_exact(3)) {
+                        for ch in 0..3 {
+                            s[ch] += *tp * gp[ch];
+                        }
+                    }
+                    s
+                })
+                .collect();
             let mut s = [F::ZERO; 3];
-            for p in 0..npx {
+            for part in sums {
                 for ch in 0..3 {
-                    s[ch] += final_t[p] * gc[p * 3 + ch];
+                    s[ch] += part[ch];
                 }
             }
             s.to_vec()
         }
-        (BackgroundOf::Image(_), Some(gc)) => (0..npx * 3).map(|i| final_t[i / 3] * gc[i]).collect(),
+        (BackgroundOf::Image(_), Some(gc)) => {
+            let mut v = filled(npx * 3, F::ZERO);
+            v.par_chunks_mut(3).zip(gc.par_chunks(3)).zip(final_t).with_min_len(1024).for_each(|((o, g), t)| {
+                for ch in 0..3 {
+                    o[ch] = *t * g[ch];
+                }
+            });
+            v
+        }
     }
 }
 

@@ -256,7 +256,6 @@ impl Stage1 {
         let t1 = Instant::now();
 
         let (w, h) = (view.camera.width() as usize, view.camera.height() as usize);
-        let npix = w * h;
         // The loss sees the photo's colour correction applied to the render.
         let corrected = self.exposure.as_ref().map(|e| exposure::apply(&e.params[view_idx], &out.color));
         let color = corrected.as_deref().unwrap_or(&out.color);
@@ -274,7 +273,7 @@ impl Stage1 {
             &ObjectiveTarget { rgb: &gt, alpha: &target.alpha, dilated: &target.dilated },
             &view.camera,
         );
-        let mse = color.iter().zip(&gt).map(|(a, b)| ((a - b) as f64).powi(2)).sum::<f64>() / (npix * 3) as f64;
+        let mse = crate::losses::mse(color, &gt, false);
         if let Some(e) = &mut self.exposure {
             let (v_color, v_params) = exposure::apply_backward(&e.params[view_idx], &out.color, &obj.v_color);
             obj.v_color = v_color;

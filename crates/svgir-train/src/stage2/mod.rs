@@ -176,18 +176,21 @@ pub(crate) fn stand_in_colours(
     m: usize,
     color: &mut [f32],
 ) -> usize {
-    let mut count = 0;
-    for (i, ((v, w), sh)) in visible.iter().zip(accum_weight).zip(sh_colors).enumerate() {
-        if !(*v && *w > 0.0 && *w < min_weight) {
-            continue;
-        }
-        let lin = sh.map(|c| srgb_to_linear(c.clamp(0.0, 1.0)));
-        for px in color[i * m * 3..(i + 1) * m * 3].chunks_exact_mut(3) {
-            px.copy_from_slice(&lin);
-        }
-        count += 1;
-    }
-    count
+    color
+        .par_chunks_exact_mut(m * 3)
+        .zip(visible.par_iter().zip(accum_weight).zip(sh_colors))
+        .with_min_len(1024)
+        .map(|(vertices, ((v, w), sh))| {
+            if !(*v && *w > 0.0 && *w < min_weight) {
+                return 0;
+            }
+            let lin = sh.map(|c| srgb_to_linear(c.clamp(0.0, 1.0)));
+            for px in vertices.chunks_exact_mut(3) {
+                px.copy_from_slice(&lin);
+            }
+            1
+        })
+        .sum()
 }
 
 impl Stage2 {
@@ -598,9 +601,7 @@ impl Stage2 {
         self.times.backward += secs(t2, t3);
         self.times.optimizer += secs(t3, t4);
 
-        let mse = |a: &[f32]| {
-            a.iter().zip(&gt).map(|(x, y)| ((x.clamp(0.0, 1.0) - y) as f64).powi(2)).sum::<f64>() / gt.len() as f64
-        };
+        let mse = |a: &[f32]| crate::losses::mse(a, &gt, true);
         Ok(Stage2Step {
             iteration: self.iteration,
             loss,
