@@ -55,6 +55,25 @@ pub fn zeroed<T: bytemuck::Zeroable + Copy + Send + Sync>(n: usize) -> Vec<T> {
     filled(n, T::zeroed())
 }
 
+/// `add(&mut acc[i], &part[i])` for each part in order, for every `i`: the elements in parallel
+/// chunks, each element's sum in part order, so the result has the bits of the serial loop
+/// over the parts. For per-task partial sums (say of the light's gradient) reduced after a
+/// parallel loop.
+pub fn add_parts_in_order<T: Send + Sync, P: AsRef<[T]> + Sync>(
+    acc: &mut [T],
+    parts: &[P],
+    add: impl Fn(&mut T, &T) + Sync,
+) {
+    const ELEMS: usize = 256;
+    acc.par_chunks_mut(ELEMS).enumerate().for_each(|(c, a)| {
+        for p in parts {
+            for (x, y) in a.iter_mut().zip(&p.as_ref()[c * ELEMS..]) {
+                add(x, y);
+            }
+        }
+    });
+}
+
 /// A mutable slice that parallel tasks write at once, each in segments no other task touches.
 ///
 /// Splitting a slice into `&mut` pieces needs the pieces to be contiguous runs; the pixels of an
@@ -141,6 +160,28 @@ mod tests {
             }
         });
         assert_eq!(img, (1..=(w * h) as u32).collect::<Vec<_>>());
+    }
+
+    #[test]
+    fn parts_add_in_order_with_the_serial_bits() {
+        // Values whose f32 sum depends on the order.
+        let parts: Vec<Vec<f32>> = (0..9)
+            .map(|p| (0..1000).map(|i| ((i * 31 + p * 7) % 97) as f32 * 10f32.powi(p % 5 - 2)).collect())
+            .collect();
+        let mut want = vec![0.5f32; 1000];
+        for p in &parts {
+            for (a, x) in want.iter_mut().zip(p) {
+                *a += x;
+            }
+        }
+        let mut got = vec![0.5f32; 1000];
+        rayon::ThreadPoolBuilder::new().num_threads(3).build().unwrap().install(|| {
+            add_parts_in_order(&mut got, &parts, |a, x| *a += x);
+        });
+        assert_eq!(
+            got.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+            want.iter().map(|x| x.to_bits()).collect::<Vec<_>>()
+        );
     }
 
     #[test]

@@ -23,6 +23,7 @@ use crate::shade::{gaussian, samples, FibTable, Frame, Gaussian, LaneScratch, Sh
 use crate::{expect_len, PbrError};
 use rayon::prelude::*;
 #[cfg(target_arch = "x86_64")]
+use svgir_core::par::add_parts_in_order;
 use svgir_core::simd::Simd;
 use svgir_shading::float::dot;
 use svgir_shading::split::{half, spec_grad};
@@ -181,12 +182,13 @@ pub fn shade_backward_cached<F: Float>(
             part
         })
         .collect();
-    for (v_env, v_rho) in partials.into_iter().flatten() {
-        for (acc, x) in grads.v_env.iter_mut().zip(v_env) {
-            for c in 0..3 {
-                acc[c] += x[c];
-            }
+    let (v_envs, v_rhos): (Vec<Vec<[F; 3]>>, Vec<F>) = partials.into_iter().flatten().unzip();
+    add_parts_in_order(&mut grads.v_env, &v_envs, |acc, x| {
+        for c in 0..3 {
+            acc[c] += x[c];
         }
+    });
+    for v_rho in v_rhos {
         grads.v_rho += v_rho;
     }
     Ok(grads)

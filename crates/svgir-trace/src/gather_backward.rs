@@ -22,6 +22,7 @@ use crate::gather_lanes::lane_kernels;
 use crate::microbuffer::{MicroBuffer, NO_HIT};
 use crate::TraceError;
 use rayon::prelude::*;
+use svgir_core::par::add_parts_in_order;
 use svgir_core::simd::Simd;
 use svgir_core::EnvMap;
 use svgir_shading::float::dot;
@@ -226,13 +227,12 @@ pub(crate) fn backward_generic<F: Float>(
             Some(v_env)
         })
         .collect();
-    for p in partials.into_iter().flatten() {
-        for (acc, x) in grads.v_env.iter_mut().zip(p) {
-            for c in 0..3 {
-                acc[c] += x[c];
-            }
+    let parts: Vec<Vec<[F; 3]>> = partials.into_iter().flatten().collect();
+    add_parts_in_order(&mut grads.v_env, &parts, |acc, x| {
+        for c in 0..3 {
+            acc[c] += x[c];
         }
-    }
+    });
     grads
 }
 
