@@ -85,8 +85,8 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     let mut entry_grads = filled(bins.ids.len() * dim, F::ZERO);
     sw.lap("buffers");
     {
-        // One task per tile (its entries are a contiguous run of `entry_grads`): finer than the
-        // forward's rows of tiles, since the back-to-front walk's cost is more uneven.
+        // One task per tile (its entries are a contiguous run of `entry_grads`), as uneven in
+        // cost as the forward's tiles.
         let elens = bins.ranges.iter().map(|r| (r[1] - r[0]) as usize * dim);
         let tiles: Vec<(usize, &mut [F])> = split_lens(&mut entry_grads, elens).into_iter().enumerate().collect();
         let ctx = Ctx {
