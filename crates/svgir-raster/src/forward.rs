@@ -1,10 +1,10 @@
 //! Forward compositing (SPEC 1, Eqn 3): preprocess, bin, then per tile front to back.
 //!
-//! Work split: one rayon task per run of consecutive tiles ([`tile_runs`], several per thread,
+//! Work split: one rayon task per run of consecutive tiles (`tile_runs`, several per thread,
 //! since tiles differ tenfold in cost); a tile writes its own pixels of every output image (a
-//! run in each of its rows, through [`Disjoint`]) and its own range of tile-list entries. Inside a tile the loop is Gaussian-outer,
-//! pixel-inner over the Gaussian's box clipped to the tile, so a Gaussian costs only the pixels it
-//! can touch. Each box row is first evaluated branch-free into a small buffer
+//! run in each of its rows, through [`Disjoint`]) and its own range of tile-list entries.
+//! Inside a tile the loop is Gaussian-outer, pixel-inner over the Gaussian's box clipped to the
+//! tile, so a Gaussian costs only the pixels it can touch. Each box row is first evaluated branch-free into a small buffer
 //! ([`crate::splat::eval_row`], vectorisable), then composited pixel by pixel into one tile-local
 //! accumulator record per pixel, copied to the output images at the end of the tile. The tile stops
 //! when every pixel has hit the transmittance floor. Per-Gaussian data is read from per-entry

@@ -251,7 +251,7 @@ pub fn bin<F: Real>(splats: &[Splat<F>], width: u32, height: u32, tile: u32) -> 
 /// Each pass runs on the rayon workers: the keys are cut into chunks, each chunk counts its
 /// bytes, the counts give every (chunk, byte) its own run of the output (byte-major, chunks in
 /// order, which keeps the sort stable), and the chunks scatter into their runs at once. Below
-/// [`RADIX_CHUNK`] keys there is one chunk, the serial sort.
+/// `RADIX_CHUNK` keys there is one chunk, the serial sort.
 pub fn radix_sort_high(mut keys: Vec<u64>) -> Vec<u64> {
     let n = keys.len();
     let chunk = n.div_ceil(2 * rayon::current_num_threads()).max(RADIX_CHUNK);
