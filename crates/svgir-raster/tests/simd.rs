@@ -9,7 +9,7 @@
 mod common;
 
 use common::P64;
-use svgir_core::Surfels;
+use svgir_core::{Camera, Surfels};
 use svgir_raster::bench::{bench_camera, random_scene};
 use svgir_raster::{
     backward, backward_generic, render, render_generic, Background, BackgroundOf, ColorSourceOf, FeaturesOf, Grads,
@@ -453,14 +453,7 @@ fn thread_count_changes_no_bit() {
         distortion: Some(&g1),
         extra: Some(&ge),
     };
-    let (c, e) = features(&colf, &extf, m, ce);
-    let input = RenderInput {
-        surfels: &surfels,
-        camera: &camera,
-        colors: c,
-        extra: Some(e),
-        background: Background::Color([0.2, 0.1, 0.4]),
-    };
+    let input = feature_input(&surfels, &camera, (&colf, &extf, m, ce), [0.2, 0.1, 0.4]);
     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
     for path in Simd::available() {
         let cfg = RasterConfig { simd: path, tile: 8, distortion: true, ..Default::default() };
@@ -509,6 +502,18 @@ fn features<'a>(c: &'a [f32], e: &'a [f32], m: usize, ce: usize) -> (ColorSource
     )
 }
 
+/// A render of `surfels` from `camera` over the colour `bg`, with colours and `ce` extra channels
+/// from `m` vertices of the tables `(colours, extra, m, ce)`.
+fn feature_input<'a>(
+    surfels: &'a Surfels,
+    camera: &'a Camera,
+    (c, e, m, ce): (&'a [f32], &'a [f32], usize, usize),
+    bg: [f32; 3],
+) -> RenderInput<'a> {
+    let (colors, extra) = features(c, e, m, ce);
+    RenderInput { surfels, camera, colors, extra: Some(extra), background: Background::Color(bg) }
+}
+
 /// What stage 2 relies on to shade only the Gaussians a view blends: a Gaussian whose
 /// `accum_weight` is 0 has its features never read (or only times a zero weight), so replacing
 /// them changes no output and no gradient, on every path; and its feature gradients are 0.
@@ -526,14 +531,7 @@ fn features_of_unweighted_gaussians_are_never_read() {
     let grads = OutputGrads { color: Some(&g3), extra: Some(&ge), ..Default::default() };
     for path in Simd::available() {
         let cfg = RasterConfig { simd: path, ..Default::default() };
-        let (c0, e0) = features(&colf, &extf, m, ce);
-        let in0 = RenderInput {
-            surfels: &surfels,
-            camera: &camera,
-            colors: c0,
-            extra: Some(e0),
-            background: Background::Color([0.3, 0.6, 0.1]),
-        };
+        let in0 = feature_input(&surfels, &camera, (&colf, &extf, m, ce), [0.3, 0.6, 0.1]);
         let (a, sa) = render(&in0, &cfg);
         let unweighted: Vec<usize> = (0..n).filter(|&i| a.accum_weight[i] == 0.0).collect();
         let seen_unweighted = unweighted.iter().filter(|&&i| a.max_radius[i] > 0.0).count();
