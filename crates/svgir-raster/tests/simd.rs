@@ -104,6 +104,19 @@ fn upstream_grads(npx: usize, ce: usize) -> (Vec<f32>, Vec<f32>, Vec<f32>) {
     (ramp(npx * 3, 7919, 500.0), ramp(npx, 104_729, 300.0), ramp(npx * ce, 6151, 450.0))
 }
 
+/// Upstream gradients on every output: `g3` on colour and normal, `g1` on alpha, depth and
+/// (with `dist`) distortion, `ge` on the extra channels.
+fn every_grad<'a>(g3: &'a [f32], g1: &'a [f32], dist: bool, ge: Option<&'a [f32]>) -> OutputGrads<'a> {
+    OutputGrads {
+        color: Some(g3),
+        alpha: Some(g1),
+        depth: Some(g1),
+        normal: Some(g3),
+        distortion: dist.then_some(g1),
+        extra: ge,
+    }
+}
+
 /// A scene with a few large, opaque splats in front (early stop, long rows) over the random
 /// object.
 fn scene(seed: u64, n: usize) -> Surfels {
@@ -162,14 +175,7 @@ fn check_scene_tiles(
     let colf: Vec<f32> = (0..n * cm * 3).map(|_| rng.uniform()).collect();
     let extf: Vec<f32> = (0..n * me * ce).map(|_| rng.normal()).collect();
     let (g3, g1, ge) = upstream_grads(npx, ce);
-    let grads = OutputGrads {
-        color: Some(&g3),
-        alpha: Some(&g1),
-        depth: Some(&g1),
-        normal: Some(&g3),
-        distortion: dist.then_some(&g1[..]),
-        extra: (ce > 0).then_some(&ge[..]),
-    };
+    let grads = every_grad(&g3, &g1, dist, (ce > 0).then_some(&ge[..]));
     let input = RenderInput {
         surfels: &surfels,
         camera: &camera,
@@ -349,14 +355,7 @@ fn frozen_geometry_changes_only_the_geometry_gradients() {
                 let full = RasterConfig { simd: path, distortion: dist, geometry, ..Default::default() };
                 let frozen = RasterConfig { geometry_grads: false, ..full };
                 let (out, st) = render(&input, &full);
-                let grads = OutputGrads {
-                    color: Some(&g3),
-                    alpha: Some(&g1),
-                    depth: Some(&g1),
-                    normal: Some(&g3),
-                    distortion: Some(&g1),
-                    extra: extra.map(|_| ge.as_slice()),
-                };
+                let grads = every_grad(&g3, &g1, true, extra.map(|_| ge.as_slice()));
                 let ga = backward(&input, &full, &st, &out, &grads);
                 let gb = backward(&input, &frozen, &st, &out, &grads);
                 let what = format!("{} {kind} dist {dist} geometry {geometry}", path.name());
@@ -385,14 +384,7 @@ fn reusing_a_projection_changes_no_bit() {
     let npx = (res * res) as usize;
     let (colf, extf) = feature_tables(43, n, m, ce);
     let (g3, g1, ge) = upstream_grads(npx, ce);
-    let grads = OutputGrads {
-        color: Some(&g3),
-        alpha: Some(&g1),
-        depth: Some(&g1),
-        normal: Some(&g3),
-        distortion: None,
-        extra: Some(&ge),
-    };
+    let grads = every_grad(&g3, &g1, false, Some(&ge));
     let sh_input = RenderInput {
         surfels: &surfels,
         camera: &camera,
@@ -445,14 +437,7 @@ fn thread_count_changes_no_bit() {
     let camera = bench_camera(res, res);
     let (colf, extf) = feature_tables(44, n, m, ce);
     let (g3, g1, ge) = upstream_grads((res * res) as usize, ce);
-    let grads = OutputGrads {
-        color: Some(&g3),
-        alpha: Some(&g1),
-        depth: Some(&g1),
-        normal: Some(&g3),
-        distortion: Some(&g1),
-        extra: Some(&ge),
-    };
+    let grads = every_grad(&g3, &g1, true, Some(&ge));
     let input = feature_input(&surfels, &camera, (&colf, &extf, m, ce), [0.2, 0.1, 0.4]);
     let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
     for path in Simd::available() {
