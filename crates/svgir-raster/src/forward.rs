@@ -4,11 +4,12 @@
 //! since tiles differ tenfold in cost); a tile writes its own pixels of every output image (a
 //! run in each of its rows, through [`Disjoint`]) and its own range of tile-list entries.
 //! Inside a tile the loop is Gaussian-outer, pixel-inner over the Gaussian's box clipped to the
-//! tile, so a Gaussian costs only the pixels it can touch. Each box row is first evaluated branch-free into a small buffer
-//! ([`crate::splat::eval_row`], vectorisable), then composited pixel by pixel into one tile-local
-//! accumulator record per pixel, copied to the output images at the end of the tile. The tile stops
-//! when every pixel has hit the transmittance floor. Per-Gaussian data is read from per-entry
-//! copies ([`crate::tiles::TileRec`]) so the loop streams through memory.
+//! tile, so a Gaussian costs only the pixels it can touch. Each box row is first evaluated
+//! branch-free into a small buffer ([`crate::splat::eval_row`], vectorisable), then composited
+//! pixel by pixel into one tile-local accumulator record per pixel, copied to the output images
+//! at the end of the tile. The tile stops when every pixel has hit the transmittance floor.
+//! Per-Gaussian data is read from per-entry copies ([`crate::tiles::TileRec`]) so the loop
+//! streams through memory.
 //!
 //! Saved for backward ([`ForwardStateOf`]): splats, SH colours, tile lists, per pixel the final T,
 //! the number of tile-list entries up to the last composited one, and the distortion moments
@@ -174,7 +175,7 @@ impl<'a, F> Outputs<'a, F> {
 /// The forward's tasks: runs of consecutive tiles, about [`TASKS_PER_THREAD`] per worker. A
 /// tile's cost follows how many entries it holds and how soon its pixels saturate, which varies
 /// tenfold over an object's image, so the tasks are smaller than an even share.
-pub(crate) fn tile_runs(ntiles: usize, threads: usize) -> Vec<std::ops::Range<usize>> {
+pub(crate) fn tile_runs(ntiles: usize, threads: usize) -> Vec<Range<usize>> {
     let per = ntiles.div_ceil(TASKS_PER_THREAD * threads.max(1)).max(1);
     (0..ntiles).step_by(per).map(|a| a..(a + per).min(ntiles)).collect()
 }
