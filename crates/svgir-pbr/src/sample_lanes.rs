@@ -193,12 +193,13 @@ pub(crate) unsafe fn samples8(
 
     // The taps (`Taps::at` of the cached coordinates): truncation is floor for fx, fy >= 0.
     let (coords, width, height) = cache.coords(s0, LANES);
-    let (mut fx, mut fy) = ([0f32; LANES], [0f32; LANES]);
-    for (l, xy) in coords.iter().enumerate() {
-        fx[l] = xy[0];
-        fy[l] = xy[1];
-    }
-    let (fx, fy) = (_mm256_loadu_ps(fx.as_ptr()), _mm256_loadu_ps(fy.as_ptr()));
+    // The eight (fx, fy) pairs as two rows: two loads of four pairs, then shuffles (moves only).
+    let xy = coords.as_ptr() as *const f32;
+    let (lo, hi) = (_mm256_loadu_ps(xy), _mm256_loadu_ps(xy.add(LANES)));
+    // Per 128-bit half: x0 x1 x4 x5 | x2 x3 x6 x7 (and y), then the 64-bit pairs reordered.
+    let unpair = |v: __m256| _mm256_castpd_ps(_mm256_permute4x64_pd::<0b11_01_10_00>(_mm256_castps_pd(v)));
+    let fx = unpair(_mm256_shuffle_ps::<0b10_00_10_00>(lo, hi));
+    let fy = unpair(_mm256_shuffle_ps::<0b11_01_11_01>(lo, hi));
     let (x0, y0) = (_mm256_cvttps_epi32(fx), _mm256_cvttps_epi32(fy));
     let one_i = _mm256_set1_epi32(1);
     let x1 = _mm256_min_epi32(_mm256_add_epi32(x0, one_i), _mm256_set1_epi32(width as i32 - 1));

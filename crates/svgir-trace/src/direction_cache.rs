@@ -126,6 +126,7 @@ impl DirectionCache {
 
     /// The clamped `(fx, fy)` of samples `s..s + len` and the map size `(width, height)` they
     /// index ([`DirectionCache::taps`] is `Taps::at` of one of them).
+    #[inline]
     pub fn coords(&self, s: usize, len: usize) -> (&[[f32; 2]], u32, u32) {
         (&self.coords[s..s + len], self.width, self.height)
     }
