@@ -22,8 +22,8 @@ use crate::shade::{as_f32_inputs, as_f32_mut, lane_kernels};
 use crate::shade::{gaussian, samples, FibTable, Frame, Gaussian, LaneScratch, ShadeInputs};
 use crate::{expect_len, PbrError};
 use rayon::prelude::*;
-#[cfg(target_arch = "x86_64")]
 use svgir_core::par::add_parts_in_order;
+#[cfg(target_arch = "x86_64")]
 use svgir_core::simd::Simd;
 use svgir_shading::float::dot;
 use svgir_shading::split::{half, spec_grad};
