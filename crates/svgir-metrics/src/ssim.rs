@@ -9,6 +9,8 @@
 //!
 //! Work split: channels in turn; each blur is separable (horizontal then vertical pass), rows in
 //! parallel with rayon, the five moments (x, y, x^2, y^2, xy) filtered together in one sweep.
+//! The row loops are plain Rust; on x86-64 with AVX2 they run a second build of the same code
+//! for 256-bit registers ([`wide`]), which gives the same floats.
 //! Nothing is saved for backward: the backward pass recomputes the moments.
 
 use rayon::prelude::*;
@@ -88,8 +90,8 @@ const LANES: usize = 8;
 /// Each output sums its 11 taps in ascending order from zero, [`LANES`] outputs at a time in
 /// registers, so the passes vectorise and give the same floats as the tap-by-tap sums of
 /// `tests::blur_reference` (a skipped zero-padding tap adds an exact zero). At 400 x 400 a
-/// five-plane blur takes about 1.1 ms against the tap-by-tap form's 1.6 (2 threads); an AVX2
-/// build of the same loops measured no faster.
+/// five-plane blur takes about 1.1 ms against the tap-by-tap form's 1.6 (2 threads). Where the
+/// CPU has AVX2 the taps run an AVX2 build of the same loop ([`wide`]): the same floats.
 /// The window is symmetric, so with `same` this operator is its own adjoint (used by backward).
 /// `tmp` and `out` are scratch reused between calls (their old contents are ignored); the result is
 /// `out[..k_planes * wo * ho]`.
@@ -172,6 +174,23 @@ pub(crate) fn sized<T: Real>(v: &mut Vec<T>, n: usize) {
 /// zero: along a padded row with `stride` 1, down 11 rows of `stride` floats otherwise.
 #[inline]
 fn taps<T: Real>(src: &[T], stride: usize, out: &mut [T], g: &[T; WINDOW]) {
+    #[cfg(target_arch = "x86_64")]
+    if wide() {
+        // SAFETY: `wide` found AVX2 on this CPU.
+        return unsafe { taps_avx2(src, stride, out, g) };
+    }
+    taps_body(src, stride, out, g)
+}
+
+/// [`taps`] compiled for AVX2: the same operations in the same order on 8-float registers.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+pub(crate) unsafe fn taps_avx2<T: Real>(src: &[T], stride: usize, out: &mut [T], g: &[T; WINDOW]) {
+    taps_body(src, stride, out, g)
+}
+
+#[inline(always)]
+pub(crate) fn taps_body<T: Real>(src: &[T], stride: usize, out: &mut [T], g: &[T; WINDOW]) {
     let mut chunks = out.chunks_exact_mut(LANES);
     let mut x = 0;
     for o in &mut chunks {
@@ -188,6 +207,15 @@ fn taps<T: Real>(src: &[T], stride: usize, out: &mut [T], g: &[T; WINDOW]) {
     for (i, o) in chunks.into_remainder().iter_mut().enumerate() {
         *o = g.iter().enumerate().fold(T::ZERO, |s, (k, &gk)| s + gk * src[k * stride + x + i]);
     }
+}
+
+/// Whether the row loops run their AVX2 builds: where `svgir_core::simd` picks a SIMD path
+/// (`SVGIR_SIMD=scalar` keeps the baseline build). The operations and their order are the
+/// same, so are the floats; only the registers are wider.
+#[inline]
+pub(crate) fn wide() -> bool {
+    use svgir_core::simd::Simd;
+    cfg!(target_arch = "x86_64") && Simd::Auto.resolve() != Simd::Scalar
 }
 
 /// Scratch of one SSIM pass: stacked source planes (for [`blur`]; the moments write theirs row by
@@ -221,15 +249,14 @@ pub(crate) fn moments<T: Real>(
     let source_row = |r: usize, row: &mut [T]| {
         let (q, y) = (r / h, r % h);
         let (ra, rb) = (&a[y * w * n..(y + 1) * w * n], &b[y * w * n..(y + 1) * w * n]);
-        for ((d, pa), pb) in row.iter_mut().zip(ra.chunks_exact(n)).zip(rb.chunks_exact(n)) {
-            let (x, y) = (pa[c], pb[c]);
-            *d = match q {
-                0 => x,
-                1 => y,
-                2 => x * x,
-                3 => y * y,
-                _ => x * y,
-            };
+        // One loop per plane, not a `match` per pixel.
+        let (xs, ys) = (ra.chunks_exact(n).map(|p| p[c]), rb.chunks_exact(n).map(|p| p[c]));
+        match q {
+            0 => row.iter_mut().zip(xs).for_each(|(d, x)| *d = x),
+            1 => row.iter_mut().zip(ys).for_each(|(d, y)| *d = y),
+            2 => row.iter_mut().zip(xs).for_each(|(d, x)| *d = x * x),
+            3 => row.iter_mut().zip(ys).for_each(|(d, y)| *d = y * y),
+            _ => row.iter_mut().zip(xs.zip(ys)).for_each(|(d, (x, y))| *d = x * y),
         }
     };
     blur_rows(source_row, 5, w, h, &gaussian_window(), same, &mut bufs.tmp, &mut bufs.out)

@@ -14,14 +14,14 @@ use rayon::prelude::*;
 
 use crate::error::Result;
 use crate::real::Real;
-use crate::ssim::{gather5, moments, sized, BlurBuffers, Shape, SsimVariant, C1, C2};
+use crate::ssim::{moments, sized, BlurBuffers, Shape, SsimVariant, C1, C2};
 
 /// 3DGS SSIM of `a` against `b` and its gradient `v_a` (d SSIM / d a, same layout as `a`).
 pub fn ssim_with_grad<T: Real>(a: &[T], b: &[T], shape: Shape) -> Result<(T, Vec<T>)> {
     shape.check(a, b, SsimVariant::GaussianSplatting)?;
     let n = shape.channels;
     let inv_count = T::from_f64(1.0 / a.len() as f64);
-    let (two, c1, c2) = (T::from_f64(2.0), T::from_f64(C1), T::from_f64(C2));
+    let two = T::from_f64(2.0);
     let mut total = 0.0f64;
     let mut v_a = svgir_core::par::filled(a.len(), T::ZERO);
     let (mut fwd, mut bwd) = (BlurBuffers::default(), BlurBuffers::default());
@@ -42,35 +42,104 @@ pub fn ssim_with_grad<T: Real>(a: &[T], b: &[T], shape: Shape) -> Result<(T, Vec
             .zip(row_sums.par_iter_mut())
             .enumerate()
             .for_each(|(y, (((r_mu, r_e11), r_e12), row_sum))| {
-                let mut sum = 0.0f64;
-                for x in 0..w {
-                    let p = gather5(m, np, y * w + x);
-                    let (mu1, mu2) = (p[0], p[1]);
-                    let a1 = two * mu1 * mu2 + c1;
-                    let a2 = two * (p[4] - mu1 * mu2) + c2;
-                    let b1 = mu1 * mu1 + mu2 * mu2 + c1;
-                    let b2 = (p[2] - mu1 * mu1) + (p[3] - mu2 * mu2) + c2;
-                    let s_map = (a1 * a2) / (b1 * b2);
-                    sum += s_map.to_f64();
-                    let s = s_map * inv_count;
-                    r_mu[x] = s * (two * mu2 / a1 - two * mu2 / a2 - two * mu1 / b1 + two * mu1 / b2);
-                    r_e11[x] = -s / b2;
-                    r_e12[x] = two * s / a2;
-                }
-                *row_sum = sum;
+                *row_sum = map_row(m, np, y * w, inv_count, r_mu, r_e11, r_e12);
             });
         // Rows summed in order: the value does not depend on the thread count.
         total += row_sums.iter().sum::<f64>();
         bwd.blur(3, w, h, true);
         let back = &bwd.out;
         let (q_mu, q_e11, q_e12) = (&back[..np], &back[np..2 * np], &back[2 * np..]);
-        v_a.par_chunks_exact_mut(n).zip(a.par_chunks_exact(n)).zip(b.par_chunks_exact(n)).enumerate().for_each(
-            |(i, ((va, pa), pb))| {
-                va[c] = q_mu[i] + two * pa[c] * q_e11[i] + pb[c] * q_e12[i];
+        // A row per task (a pixel per task spent more on rayon than on the sum).
+        v_a.par_chunks_mut(w * n).zip(a.par_chunks(w * n)).zip(b.par_chunks(w * n)).enumerate().for_each(
+            |(y, ((va, pa), pb))| {
+                for (x, ((va, pa), pb)) in
+                    va.chunks_exact_mut(n).zip(pa.chunks_exact(n)).zip(pb.chunks_exact(n)).enumerate()
+                {
+                    let i = y * w + x;
+                    va[c] = q_mu[i] + two * pa[c] * q_e11[i] + pb[c] * q_e12[i];
+                }
             },
         );
     }
     Ok((T::from_f64(total / a.len() as f64), v_a))
+}
+
+/// One row of the SSIM map from the moments `m` (rows of `np`-pixel planes, this row from pixel
+/// `at`): the partials `r_mu`, `r_e11`, `r_e12` (scaled by `inv_count`), and the row's map sum in
+/// pixel order (f64).
+fn map_row<T: Real>(
+    m: &[T],
+    np: usize,
+    at: usize,
+    inv_count: T,
+    r_mu: &mut [T],
+    r_e11: &mut [T],
+    r_e12: &mut [T],
+) -> f64 {
+    #[cfg(target_arch = "x86_64")]
+    if crate::ssim::wide() {
+        // SAFETY: `wide` found AVX2 on this CPU.
+        return unsafe { map_row_avx2(m, np, at, inv_count, r_mu, r_e11, r_e12) };
+    }
+    map_row_body(m, np, at, inv_count, r_mu, r_e11, r_e12)
+}
+
+/// [`map_row`] compiled for AVX2 (the same operations in the same order).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2")]
+unsafe fn map_row_avx2<T: Real>(
+    m: &[T],
+    np: usize,
+    at: usize,
+    inv_count: T,
+    r_mu: &mut [T],
+    r_e11: &mut [T],
+    r_e12: &mut [T],
+) -> f64 {
+    map_row_body(m, np, at, inv_count, r_mu, r_e11, r_e12)
+}
+
+/// Pixels per block of [`map_row_body`]: the map values of a block are formed in a loop without a
+/// carried dependency (so it vectorises) and then added to the row's sum one by one.
+const MAP_BLOCK: usize = 64;
+
+#[inline(always)]
+fn map_row_body<T: Real>(
+    m: &[T],
+    np: usize,
+    at: usize,
+    inv_count: T,
+    r_mu: &mut [T],
+    r_e11: &mut [T],
+    r_e12: &mut [T],
+) -> f64 {
+    let (two, c1, c2) = (T::from_f64(2.0), T::from_f64(C1), T::from_f64(C2));
+    let w = r_mu.len();
+    let plane = |q: usize| &m[q * np + at..q * np + at + w];
+    let (p_mu1, p_mu2, p_e11, p_e22, p_e12) = (plane(0), plane(1), plane(2), plane(3), plane(4));
+    let mut sum = 0.0f64;
+    let mut s_map = [T::ZERO; MAP_BLOCK];
+    for x0 in (0..w).step_by(MAP_BLOCK) {
+        let n = MAP_BLOCK.min(w - x0);
+        for i in 0..n {
+            let x = x0 + i;
+            let (mu1, mu2) = (p_mu1[x], p_mu2[x]);
+            let a1 = two * mu1 * mu2 + c1;
+            let a2 = two * (p_e12[x] - mu1 * mu2) + c2;
+            let b1 = mu1 * mu1 + mu2 * mu2 + c1;
+            let b2 = (p_e11[x] - mu1 * mu1) + (p_e22[x] - mu2 * mu2) + c2;
+            let sm = (a1 * a2) / (b1 * b2);
+            s_map[i] = sm;
+            let s = sm * inv_count;
+            r_mu[x] = s * (two * mu2 / a1 - two * mu2 / a2 - two * mu1 / b1 + two * mu1 / b2);
+            r_e11[x] = -s / b2;
+            r_e12[x] = two * s / a2;
+        }
+        for &sm in &s_map[..n] {
+            sum += sm.to_f64();
+        }
+    }
+    sum
 }
 
 #[cfg(test)]
@@ -104,6 +173,56 @@ mod tests {
                 assert!((fd - grad[i]).abs() < 1e-7 + 1e-5 * fd.abs(), "{w}x{h}x{ch} i={i}: fd {fd} vs {}", grad[i]);
             }
             assert!(max_g > 1e-3, "gradient should not be trivially zero: {max_g}");
+        }
+    }
+
+    /// The AVX2 builds of the row loops give the baseline build's floats, bit for bit: the
+    /// blur taps (`ssim::taps`, through the moments and the backward blur) and the map rows, in
+    /// f32 and f64, on rows longer and shorter than a block.
+    #[test]
+    fn wide_row_loops_give_the_baseline_bits() {
+        if !crate::ssim::wide() {
+            eprintln!("no AVX2 on this CPU (or SVGIR_SIMD=scalar): the AVX2 row loops are not checked");
+            return;
+        }
+        #[cfg(target_arch = "x86_64")]
+        {
+            let mut rng = Rng::new(17);
+            for w in [5usize, 64, 131] {
+                let m64: Vec<f64> =
+                    (0..5 * w).map(|i| if i < 2 * w { rng.uniform_f64() } else { 0.6 * rng.uniform_f64() }).collect();
+                let m32: Vec<f32> = m64.iter().map(|&x| x as f32).collect();
+                fn rows<T: Real>(m: &[T], w: usize, wide: bool) -> (f64, Vec<T>) {
+                    let mut r = vec![T::ZERO; 3 * w];
+                    let (a, rest) = r.split_at_mut(w);
+                    let (b, c) = rest.split_at_mut(w);
+                    let inv = T::from_f64(1.0 / 7.0);
+                    // SAFETY: `wide` found AVX2 above.
+                    let sum = if wide {
+                        unsafe { map_row_avx2(m, w, 0, inv, a, b, c) }
+                    } else {
+                        map_row_body(m, w, 0, inv, a, b, c)
+                    };
+                    (sum, r)
+                }
+                let bits64 = |v: (f64, Vec<f64>)| (v.0.to_bits(), v.1.iter().map(|x| x.to_bits()).collect::<Vec<_>>());
+                let bits32 = |v: (f64, Vec<f32>)| (v.0.to_bits(), v.1.iter().map(|x| x.to_bits()).collect::<Vec<_>>());
+                assert_eq!(bits64(rows(&m64, w, true)), bits64(rows(&m64, w, false)), "f64 map row, width {w}");
+                assert_eq!(bits32(rows(&m32, w, true)), bits32(rows(&m32, w, false)), "f32 map row, width {w}");
+                let g = crate::ssim::gaussian_window::<f32>();
+                let src: Vec<f32> = (0..11 * (w + 10)).map(|_| rng.uniform()).collect();
+                for stride in [1, w + 10] {
+                    let (mut o1, mut o2) = (vec![0f32; w], vec![0f32; w]);
+                    // SAFETY: as above.
+                    unsafe { crate::ssim::taps_avx2(&src, stride, &mut o1, &g) };
+                    crate::ssim::taps_body(&src, stride, &mut o2, &g);
+                    assert_eq!(
+                        o1.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                        o2.iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                        "taps, width {w}, stride {stride}"
+                    );
+                }
+            }
         }
     }
 
