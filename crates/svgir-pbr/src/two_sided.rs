@@ -61,16 +61,22 @@ pub fn negated<F: Float>(normals: &[F]) -> Vec<F> {
     normals.par_iter().with_min_len(4096).map(|&x| -x).collect()
 }
 
-/// Shade the front side, then add the back side's output (`scratch` holds it between calls).
+/// Shade the front side and the back side (into `scratch`, which holds it between calls), then
+/// add the back side's output. The two sides run side by side: each is a parallel loop over
+/// all Gaussians that shades few of them on the back side, and neither fills many cores alone.
 pub fn shade_sides_into<F: Float>(
     front: &Side<F>,
     back: Option<&Side<F>>,
     out: &mut ShadeOutput<F>,
     scratch: &mut ShadeOutput<F>,
 ) -> Result<(), PbrError> {
-    shade_into_cached(&front.inputs, front.cache, out)?;
-    let Some(back) = back else { return Ok(()) };
-    shade_into_cached(&back.inputs, back.cache, scratch)?;
+    let Some(back) = back else { return shade_into_cached(&front.inputs, front.cache, out) };
+    let (f, b) = rayon::join(
+        || shade_into_cached(&front.inputs, front.cache, out),
+        || shade_into_cached(&back.inputs, back.cache, scratch),
+    );
+    f?;
+    b?;
     if scratch.color.len() != out.color.len() {
         return Err(PbrError::SizeMismatch {
             what: "back-side shading",
@@ -93,9 +99,13 @@ pub fn shade_sides_backward<F: Float>(
     back: Option<&Side<F>>,
     v_color: &[F],
 ) -> Result<PbrGrads<F>, PbrError> {
-    let mut g = shade_backward_cached(&front.inputs, front.cache, v_color)?;
-    let Some(back) = back else { return Ok(g) };
-    let mut b = shade_backward_cached(&back.inputs, back.cache, v_color)?;
+    let Some(back) = back else { return shade_backward_cached(&front.inputs, front.cache, v_color) };
+    // Side by side, as the forward.
+    let (g, b) = rayon::join(
+        || shade_backward_cached(&front.inputs, front.cache, v_color),
+        || shade_backward_cached(&back.inputs, back.cache, v_color),
+    );
+    let (mut g, mut b) = (g?, b?);
     // The back side shades with -n_m: d/dn_m = -d/d(-n_m).
     b.v_normals.par_iter_mut().with_min_len(4096).for_each(|x| *x = -*x);
     if !g.add_scaled(&b, F::ONE) {

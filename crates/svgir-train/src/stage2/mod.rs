@@ -425,7 +425,10 @@ impl Stage2 {
             extra: None,
             background: Background::Color(bg),
         };
-        let (sh_out, sh_state) = render(&sh_input, &sh_raster);
+        // The materials do not depend on the SH pass: activated beside it.
+        let ((sh_out, sh_state), act) =
+            rayon::join(|| render(&sh_input, &sh_raster), || self.materials.activated(&self.normals));
+        let act = act?;
         let visible = visible_of(&sh_out.max_radius);
         let (front_vis, back_vis) = self.sides(cam, &visible, self.back.is_some());
         // L_rc is estimated on a random subset of the Gaussians seen on their oriented side
@@ -442,7 +445,6 @@ impl Stage2 {
         let min_w = cfg.shade_min_weight;
         let (front_shade, back_shade) =
             (weighted(&front_vis, &sh_out.accum_weight, min_w), weighted(&back_vis, &sh_out.accum_weight, min_w));
-        let act = self.materials.activated(&self.normals)?;
         let env_rad = self.env.radiance();
         let front = Side {
             inputs: ShadeInputs {
@@ -468,12 +470,19 @@ impl Stage2 {
         let back_normals = back_shading.as_ref().map(|_| negated(&act.normals));
         let back = render::back_side(&front, back_shading.as_ref(), &back_shade, back_normals.as_deref());
         let (mut shaded, mut scratch) = (ShadeOutput::colour_only(), ShadeOutput::colour_only());
-        shade_sides_into(&front, back.as_ref(), &mut shaded, &mut scratch)?;
+        // The extra channels (materials and facing normals) do not depend on the shading.
+        let (shading, (facing, extra)) = rayon::join(
+            || shade_sides_into(&front, back.as_ref(), &mut shaded, &mut scratch),
+            || {
+                let facing = self.facing(cam);
+                let extra = extra_features(&act, &facing);
+                (facing, extra)
+            },
+        );
+        shading?;
         if min_w > 0.0 {
             stand_in_colours(sh_state.sh_colors(), &visible, &sh_out.accum_weight, min_w, m, &mut shaded.color);
         }
-        let facing = self.facing(cam);
-        let extra = extra_features(&act, &facing);
         let pbr_input = RenderInput {
             surfels: &self.surfels,
             camera: cam,
@@ -495,9 +504,6 @@ impl Stage2 {
             extra: &pbr_out.extra,
             sh_color: &sh_out.color,
         };
-        let obj = stage2_objective(wts, &outputs, &target, cam);
-        let mut loss = obj.loss;
-
         // Radiance consistency (Eqn 14/16).
         let cons_in = ConsistencyInputs {
             mb: &self.mb,
@@ -514,44 +520,64 @@ impl Stage2 {
                 ..GatherParams::default()
             },
         };
-        let mut cons_loss = 0.0;
-        let cons_grads = if cfg.consistency && cfg.indirect {
+        // The image terms, the consistency term and the per-Gaussian penalties read disjoint
+        // inputs, so they run side by side (none alone fills many cores at 256 x 256); the
+        // loss adds them in the same order as before.
+        let consistency = || -> Result<_, PbrError> {
+            if !(cfg.consistency && cfg.indirect) {
+                return Ok(None);
+            }
             let c = radiance_consistency(&cons_in)?;
-            cons_loss = c.loss;
-            loss += wts.consistency * c.loss;
-            Some(radiance_consistency_backward(&cons_in, &c, wts.consistency)?)
-        } else {
-            None
+            let g = radiance_consistency_backward(&cons_in, &c, wts.consistency)?;
+            Ok(Some((c.loss, g)))
         };
-        let (reg, v_reg) = self.materials.offset_penalty();
+        let penalties = || (self.materials.offset_penalty(), self.env.tv_l2(self.active_lights().map(|l| l.mask())));
+        let (obj, (cons, ((reg, v_reg), (tv, v_tv)))) =
+            rayon::join(|| stage2_objective(wts, &outputs, &target, cam), || rayon::join(consistency, penalties));
+        let mut loss = obj.loss;
+        let mut cons_loss = 0.0;
+        let cons_grads = cons?.map(|(l, g)| {
+            cons_loss = l;
+            loss += wts.consistency * l;
+            g
+        });
         loss += wts.normal_offset * reg;
-        let (tv, v_tv) = self.env.tv_l2(self.active_lights().map(|l| l.mask()));
         loss += wts.env_tv * tv;
         let t2 = Instant::now();
 
         // 4. Backward.
-        let g_pbr = backward(
-            &pbr_input,
-            &self.raster,
-            &pbr_state,
-            &pbr_out,
-            &OutputGrads {
-                color: Some(&obj.v_color),
-                alpha: Some(&obj.v_alpha),
-                depth: Some(&obj.v_depth),
-                normal: None,
-                distortion: None,
-                extra: Some(&obj.v_extra),
+        // The SH pass's backward runs beside the PBR pass's and the shading's, which it does not
+        // feed.
+        let (g_sh, pbr_grads) = rayon::join(
+            || {
+                backward(
+                    &sh_input,
+                    &sh_raster,
+                    &sh_state,
+                    &sh_out,
+                    &OutputGrads { color: Some(&obj.v_sh_color), ..Default::default() },
+                )
+            },
+            || -> Result<_, PbrError> {
+                let g_pbr = backward(
+                    &pbr_input,
+                    &self.raster,
+                    &pbr_state,
+                    &pbr_out,
+                    &OutputGrads {
+                        color: Some(&obj.v_color),
+                        alpha: Some(&obj.v_alpha),
+                        depth: Some(&obj.v_depth),
+                        normal: None,
+                        distortion: None,
+                        extra: Some(&obj.v_extra),
+                    },
+                );
+                let pg = shade_sides_backward(&front, back.as_ref(), &g_pbr.v_color_features)?;
+                Ok((g_pbr, pg))
             },
         );
-        let g_sh = backward(
-            &sh_input,
-            &sh_raster,
-            &sh_state,
-            &sh_out,
-            &OutputGrads { color: Some(&obj.v_sh_color), ..Default::default() },
-        );
-        let mut pg: PbrGrads = shade_sides_backward(&front, back.as_ref(), &g_pbr.v_color_features)?;
+        let (g_pbr, mut pg): (_, PbrGrads) = pbr_grads?;
         if let Some(c) = &cons_grads {
             pg.add_scaled(c, 1.0);
         }
