@@ -10,7 +10,7 @@
 //! Work split: channels in turn; each blur is separable (horizontal then vertical pass), rows in
 //! parallel with rayon, the five moments (x, y, x^2, y^2, xy) filtered together in one sweep.
 //! The row loops are plain Rust; on x86-64 with AVX2 they run a second build of the same code
-//! for 256-bit registers ([`wide`]), which gives the same floats.
+//! for 256-bit registers (`wide`), which gives the same floats.
 //! Nothing is saved for backward: the backward pass recomputes the moments.
 
 use rayon::prelude::*;
@@ -91,7 +91,7 @@ const LANES: usize = 8;
 /// registers, so the passes vectorise and give the same floats as the tap-by-tap sums of
 /// `tests::blur_reference` (a skipped zero-padding tap adds an exact zero). At 400 x 400 a
 /// five-plane blur takes about 1.1 ms against the tap-by-tap form's 1.6 (2 threads). Where the
-/// CPU has AVX2 the taps run an AVX2 build of the same loop ([`wide`]): the same floats.
+/// CPU has AVX2 the taps run an AVX2 build of the same loop (`wide`): the same floats.
 /// The window is symmetric, so with `same` this operator is its own adjoint (used by backward).
 /// `tmp` and `out` are scratch reused between calls (their old contents are ignored); the result is
 /// `out[..k_planes * wo * ho]`.
