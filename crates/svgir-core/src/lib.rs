@@ -17,6 +17,7 @@ pub mod dataset;
 pub mod envmap;
 pub mod float;
 pub mod image;
+pub mod morton;
 pub mod par;
 pub mod rng;
 pub mod sh;

@@ -89,6 +89,26 @@ impl Surfels {
         filter(&mut self.sh, keep);
     }
 
+    /// The Gaussians in the order `order`, a permutation of `0..len` (Gaussian `order[j]`
+    /// becomes Gaussian `j`).
+    pub fn reorder(&mut self, order: &[usize]) {
+        let mut seen = vec![false; self.len()];
+        assert!(
+            order.len() == self.len()
+                && order.iter().all(|&i| i < seen.len() && !std::mem::replace(&mut seen[i], true)),
+            "reorder needs a permutation of 0..{}",
+            self.len()
+        );
+        fn take<T: Copy>(v: &mut Vec<T>, order: &[usize]) {
+            *v = order.iter().map(|&i| v[i]).collect();
+        }
+        take(&mut self.positions, order);
+        take(&mut self.rotations, order);
+        take(&mut self.log_scales, order);
+        take(&mut self.opacity_logits, order);
+        take(&mut self.sh, order);
+    }
+
     /// All arrays have the same length and every value is finite.
     pub fn check(&self) -> Result<(), String> {
         let n = self.len();
@@ -188,6 +208,30 @@ mod tests {
         assert_eq!(s.len(), 1);
         assert_eq!(s.positions[0], Vec3::Y);
         assert!(s.check().is_ok());
+    }
+
+    /// Every array follows the permutation; a list that is not one is refused.
+    #[test]
+    fn reorder_moves_every_array() {
+        let mut s = Surfels::with_capacity(3, 0);
+        for i in 0..3 {
+            let f = i as f32;
+            s.push(Vec3::splat(f), Quat::from_rotation_z(f), Vec2::splat(-f), f, ShCoeffs::from_rgb([f / 4.0; 3]));
+        }
+        let want = |s: &Surfels, j: usize, i: usize| {
+            let f = i as f32;
+            s.positions[j] == Vec3::splat(f)
+                && s.rotations[j] == Quat::from_rotation_z(f)
+                && s.log_scales[j] == Vec2::splat(-f)
+                && s.opacity_logits[j] == f
+                && s.sh[j] == ShCoeffs::from_rgb([f / 4.0; 3])
+        };
+        s.reorder(&[2, 0, 1]);
+        assert!(want(&s, 0, 2) && want(&s, 1, 0) && want(&s, 2, 1));
+        for bad in [vec![0, 0, 1], vec![0, 1], vec![0, 1, 3]] {
+            let mut t = s.clone();
+            assert!(std::panic::catch_unwind(move || t.reorder(&bad)).is_err());
+        }
     }
 
     #[test]

@@ -194,8 +194,12 @@ pub(crate) fn stand_in_colours(
 }
 
 impl Stage2 {
-    /// Set up stage 2 on stage 1's `surfels`: orient normals, trace the micro-buffers, initialise materials and light.
+    /// Set up stage 2 on stage 1's `surfels`: put them in Morton order, orient normals, trace the
+    /// micro-buffers, initialise materials and light.
     pub fn new(config: Stage2Config, mut surfels: Surfels, dataset: &Dataset) -> Result<Self, PbrError> {
+        // The geometry is frozen from here on: put the Gaussians in Morton order of their
+        // centres once, so that the ones a view sees lie in runs of every per-Gaussian array.
+        surfels.reorder(&svgir_core::morton::morton_order(&surfels.positions));
         let cams: Vec<Camera> = dataset.train.iter().map(|v| v.camera).collect();
         orient_normals(&mut surfels, &cams, &raster_config());
         let t0 = Instant::now();
