@@ -4,7 +4,8 @@
 //! what the backward needs.
 
 use super::objective::{extra_features, EXTRA_CHANNELS, MIN_OPACITY};
-use super::{visible_of, weighted, Stage2};
+use super::shaded_set::{visible_of, weighted};
+use super::Stage2;
 use crate::composite::pbr_composite;
 use glam::Vec3;
 use svgir_core::Camera;
