@@ -31,12 +31,10 @@ pub fn morton_code(p: Vec3, lo: Vec3, hi: Vec3) -> u32 {
     spread(q(p.x, lo.x, hi.x)) | spread(q(p.y, lo.y, hi.y)) << 1 | spread(q(p.z, lo.z, hi.z)) << 2
 }
 
-/// The indices of `points` in Morton order over their bounding box; ties keep index order, so
-/// the order is a function of the points alone.
-pub fn morton_order(points: &[Vec3]) -> Vec<usize> {
-    let (lo, hi) = points
-        .iter()
-        .fold((Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)), |(lo, hi), p| (lo.min(*p), hi.max(*p)));
+/// The indices of `points` in Morton order over the box `[lo, hi]` (their bounds, e.g.
+/// [`crate::Surfels::bounds`]); ties keep index order, so the order is a function of the points
+/// and the box alone.
+pub fn morton_order(points: &[Vec3], lo: Vec3, hi: Vec3) -> Vec<usize> {
     let codes: Vec<u32> = points.iter().map(|p| morton_code(*p, lo, hi)).collect();
     let mut order: Vec<usize> = (0..points.len()).collect();
     order.sort_by_key(|&i| (codes[i], i));
@@ -64,7 +62,7 @@ mod tests {
             let j = (i * 37) % 64;
             pts.push(Vec3::new((j % 4) as f32, (j / 4 % 4) as f32, (j / 16) as f32));
         }
-        let order = morton_order(&pts);
+        let order = morton_order(&pts, Vec3::ZERO, Vec3::splat(3.0));
         let mut seen = order.clone();
         seen.sort();
         assert_eq!(seen, (0..64).collect::<Vec<_>>());

@@ -42,7 +42,9 @@ pub fn ssim_with_grad<T: Real>(a: &[T], b: &[T], shape: Shape) -> Result<(T, Vec
             .zip(row_sums.par_iter_mut())
             .enumerate()
             .for_each(|(y, (((r_mu, r_e11), r_e12), row_sum))| {
-                *row_sum = map_row(m, np, y * w, inv_count, r_mu, r_e11, r_e12);
+                let plane = |q: usize| &m[q * np + y * w..q * np + (y + 1) * w];
+                let moments = [plane(0), plane(1), plane(2), plane(3), plane(4)];
+                *row_sum = map_row(moments, inv_count, [r_mu, r_e11, r_e12]);
             });
         // Rows summed in order: the value does not depend on the thread count.
         total += row_sums.iter().sum::<f64>();
@@ -64,39 +66,23 @@ pub fn ssim_with_grad<T: Real>(a: &[T], b: &[T], shape: Shape) -> Result<(T, Vec
     Ok((T::from_f64(total / a.len() as f64), v_a))
 }
 
-/// One row of the SSIM map from the moments `m` (rows of `np`-pixel planes, this row from pixel
-/// `at`): the partials `r_mu`, `r_e11`, `r_e12` (scaled by `inv_count`), and the row's map sum in
-/// pixel order (f64).
-fn map_row<T: Real>(
-    m: &[T],
-    np: usize,
-    at: usize,
-    inv_count: T,
-    r_mu: &mut [T],
-    r_e11: &mut [T],
-    r_e12: &mut [T],
-) -> f64 {
+/// One row of the SSIM map from its five moments (mu1, mu2, e11, e22, e12, as the rows of
+/// [`moments`]' planes): the partials dS/dmu1, dS/de11, dS/de12 into `out` (scaled by
+/// `inv_count`), and the row's map sum in pixel order (f64).
+fn map_row<T: Real>(moments: [&[T]; 5], inv_count: T, out: [&mut [T]; 3]) -> f64 {
     #[cfg(target_arch = "x86_64")]
     if crate::ssim::wide() {
         // SAFETY: `wide` found AVX2 on this CPU.
-        return unsafe { map_row_avx2(m, np, at, inv_count, r_mu, r_e11, r_e12) };
+        return unsafe { map_row_avx2(moments, inv_count, out) };
     }
-    map_row_body(m, np, at, inv_count, r_mu, r_e11, r_e12)
+    map_row_body(moments, inv_count, out)
 }
 
 /// [`map_row`] compiled for AVX2 (the same operations in the same order).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn map_row_avx2<T: Real>(
-    m: &[T],
-    np: usize,
-    at: usize,
-    inv_count: T,
-    r_mu: &mut [T],
-    r_e11: &mut [T],
-    r_e12: &mut [T],
-) -> f64 {
-    map_row_body(m, np, at, inv_count, r_mu, r_e11, r_e12)
+unsafe fn map_row_avx2<T: Real>(moments: [&[T]; 5], inv_count: T, out: [&mut [T]; 3]) -> f64 {
+    map_row_body(moments, inv_count, out)
 }
 
 /// Pixels per block of [`map_row_body`]: the map values of a block are formed in a loop without a
@@ -104,19 +90,11 @@ unsafe fn map_row_avx2<T: Real>(
 const MAP_BLOCK: usize = 64;
 
 #[inline(always)]
-fn map_row_body<T: Real>(
-    m: &[T],
-    np: usize,
-    at: usize,
-    inv_count: T,
-    r_mu: &mut [T],
-    r_e11: &mut [T],
-    r_e12: &mut [T],
-) -> f64 {
+fn map_row_body<T: Real>(moments: [&[T]; 5], inv_count: T, out: [&mut [T]; 3]) -> f64 {
     let (two, c1, c2) = (T::from_f64(2.0), T::from_f64(C1), T::from_f64(C2));
+    let [p_mu1, p_mu2, p_e11, p_e22, p_e12] = moments;
+    let [r_mu, r_e11, r_e12] = out;
     let w = r_mu.len();
-    let plane = |q: usize| &m[q * np + at..q * np + at + w];
-    let (p_mu1, p_mu2, p_e11, p_e22, p_e12) = (plane(0), plane(1), plane(2), plane(3), plane(4));
     let mut sum = 0.0f64;
     let mut s_map = [T::ZERO; MAP_BLOCK];
     for x0 in (0..w).step_by(MAP_BLOCK) {
@@ -198,10 +176,11 @@ mod tests {
                     let (b, c) = rest.split_at_mut(w);
                     let inv = T::from_f64(1.0 / 7.0);
                     // SAFETY: `wide` found AVX2 above.
+                    let moments = [0, 1, 2, 3, 4].map(|q| &m[q * w..(q + 1) * w]);
                     let sum = if wide {
-                        unsafe { map_row_avx2(m, w, 0, inv, a, b, c) }
+                        unsafe { map_row_avx2(moments, inv, [a, b, c]) }
                     } else {
-                        map_row_body(m, w, 0, inv, a, b, c)
+                        map_row_body(moments, inv, [a, b, c])
                     };
                     (sum, r)
                 }
