@@ -20,7 +20,7 @@
 use crate::backward::{Ctx, OFF_C, OFF_COL, OFF_H, OFF_N, OFF_OP};
 use crate::forward::background_at;
 use crate::forward::FeatView;
-use crate::forward_simd::{eval_lanes, feat_weights, FeatLanes};
+use crate::forward_simd::{eval_lanes, feat_weights, FeatLanes, FEAT_AHEAD};
 use crate::interp::{normalised_coord_lanes, weight_grads_lanes, weights_lanes, MAX_VERTICES};
 use crate::lane_groups::{Group, Groups};
 use crate::simd::{Lanes, Simd};
@@ -97,8 +97,8 @@ struct Entry<'a, S: Lanes> {
     nrm: [S; 3],
     cf: &'a FeatView<'a, f32>,
     ef: &'a FeatView<'a, f32>,
-    colv: &'a FeatLanes<S>,
-    extv: &'a FeatLanes<S>,
+    colv: &'a FeatLanes<'a, S>,
+    extv: &'a FeatLanes<'a, S>,
     /// Carry the normal and depth gradients ([`crate::RasterConfig::geometry`]).
     geom: bool,
 }
@@ -163,7 +163,7 @@ impl<S: Lanes> Entry<'_, S> {
             if GEO {
                 let (wcu, wcv) = weight_grads_lanes(cf.vertices, ut, vt);
                 for vtx in 0..cf.vertices {
-                    let r = &colv.v[vtx * 3..vtx * 3 + 3];
+                    let r = [0, 1, 2].map(|ch| colv.at(vtx * 3 + ch));
                     let dot = gc[0].mul(r[0]).add(gc[1].mul(r[1])).add(gc[2].mul(r[2]));
                     gut = wcu[vtx].mul_add(dot, gut);
                     gvt = wcv[vtx].mul_add(dot, gvt);
@@ -201,7 +201,7 @@ impl<S: Lanes> Entry<'_, S> {
                     let k = n_col + vtx * ce + ch;
                     fsum[k] = cw.mul_add(ge, fsum[k]);
                     if GEO {
-                        dot = ge.mul_add(extv.v[vtx * ce + ch], dot);
+                        dot = ge.mul_add(extv.at(vtx * ce + ch), dot);
                     }
                 }
                 if GEO && ef.vertices > 1 {
@@ -346,9 +346,9 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
             }
         }
     }
-    // Per-entry feature values (broadcast) and per-lane sums of their gradients: the colour
+    // Per-entry feature rows (broadcast where read) and per-lane sums of their gradients: the colour
     // table's `M x 3` (interpolated colours only), then the extra table's `M x ce`.
-    let (mut colv, mut extv) = (FeatLanes::<S> { v: Vec::new() }, FeatLanes::<S> { v: Vec::new() });
+    let (mut colv, mut extv) = (FeatLanes::<S>::new(), FeatLanes::<S>::new());
     let zero = sp(0.0);
     let n_col = if ci { cf.vertices * 3 } else { 0 };
     let mut fsum = vec![zero; n_col + ef.vertices * ce];
@@ -365,6 +365,14 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
         }
         let s = &ctx.recs[e];
         if FEAT {
+            // Entries run back to front: the one `FEAT_AHEAD` places nearer the front is hinted.
+            if let Some(next) = e.checked_sub(FEAT_AHEAD).filter(|&n| n >= r0 as usize) {
+                let id = ctx.recs[next].id as usize;
+                if ci {
+                    cf.prefetch(id);
+                }
+                ef.prefetch(id);
+            }
             if ci {
                 colv.load(cf, s.id as usize);
             }

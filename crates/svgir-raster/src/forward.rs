@@ -62,6 +62,23 @@ impl<'a, F: Real> FeatView<'a, F> {
         }
     }
 
+    /// Hints the cache lines of Gaussian `g`'s rows. The tile kernels read the rows in entry
+    /// order, which is at random over the table, and `perf` found them waiting on those loads
+    /// (docs/performance.md), so they hint the entry a few places ahead.
+    #[inline(always)]
+    pub(crate) fn prefetch(&self, g: usize) {
+        let bytes = self.vertices * self.channels * std::mem::size_of::<F>();
+        if bytes == 0 {
+            return;
+        }
+        let start = self.data.as_ptr().wrapping_add(g * self.vertices * self.channels) as usize;
+        let mut line = start & !63;
+        while line < start + bytes {
+            crate::tiles::prefetch::<false, _>(line as *const u8);
+            line += 64;
+        }
+    }
+
     /// Feature channel values of Gaussian `g` at interpolation weights `w`, into `out[..channels]`.
     #[inline(always)]
     pub fn eval(&self, g: usize, w: &[F; MAX_VERTICES], out: &mut [F]) {

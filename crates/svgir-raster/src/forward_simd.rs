@@ -28,6 +28,7 @@ use crate::simd::Lanes;
 
 use crate::tiles::{columns_mask, TileBins, TileRec};
 use crate::{BackgroundOf, RasterConfig};
+use std::marker::PhantomData;
 use std::ops::Range;
 
 /// One lane group's evaluation; `alpha == 0` marks a skipped pixel.
@@ -89,20 +90,37 @@ const MED: usize = 11;
 const NCON: usize = 12;
 const ARRAYS: usize = 13;
 
-/// A feature table's values of one Gaussian, broadcast to lanes: `v[m * channels + c]`.
-pub(crate) struct FeatLanes<S> {
-    pub v: Vec<S>,
+/// How many entries ahead the tile kernels hint the feature rows ([`FeatView::prefetch`]).
+pub(crate) const FEAT_AHEAD: usize = 4;
+
+/// One Gaussian's row of a feature table, `[m * channels + c]`, broadcast to lanes where it is
+/// used. (Broadcasting the whole row into a buffer per entry cost more than the groups' reads:
+/// most entries have two or three groups.)
+pub(crate) struct FeatLanes<'a, S> {
+    row: &'a [f32],
+    lanes: PhantomData<S>,
 }
 
-impl<S: Lanes> FeatLanes<S> {
-    /// Broadcast Gaussian `g`'s rows of `f`.
+impl<'a, S: Lanes> FeatLanes<'a, S> {
+    pub(crate) fn new() -> Self {
+        Self { row: &[], lanes: PhantomData }
+    }
+
+    /// Points at Gaussian `g`'s row of `f`.
     #[inline(always)]
-    pub(crate) unsafe fn load(&mut self, f: &FeatView<f32>, g: usize) {
+    pub(crate) fn load(&mut self, f: &FeatView<'a, f32>, g: usize) {
         let n = f.vertices * f.channels;
-        self.v.clear();
-        for &x in &f.data[g * n..(g + 1) * n] {
-            self.v.push(S::splat(x));
-        }
+        self.row = &f.data[g * n..(g + 1) * n];
+    }
+
+    /// Value `i` of the row (`m * channels + c`), broadcast.
+    ///
+    /// # Safety
+    /// The lanes' CPU features are present and `i` lies in the row.
+    #[inline(always)]
+    pub(crate) unsafe fn at(&self, i: usize) -> S {
+        debug_assert!(i < self.row.len());
+        S::splat(*self.row.get_unchecked(i))
     }
 
     /// Channel `c` at vertex weights `w` (`FeatView::eval`'s operations: one vertex is copied,
@@ -111,11 +129,11 @@ impl<S: Lanes> FeatLanes<S> {
     pub(crate) unsafe fn eval(&self, f: &FeatView<f32>, w: &[S; MAX_VERTICES], c: usize) -> S {
         let ch = f.channels;
         if f.vertices == 1 {
-            return self.v[c];
+            return self.at(c);
         }
-        let mut out = w[0].mul(self.v[c]);
+        let mut out = w[0].mul(self.at(c));
         for m in 1..f.vertices {
-            out = w[m].mul_add(self.v[m * ch + c], out);
+            out = w[m].mul_add(self.at(m * ch + c), out);
         }
         out
     }
@@ -149,8 +167,8 @@ struct Composite<'a, S: Lanes> {
     geom: bool,
     cf: &'a FeatView<'a, f32>,
     ef: &'a FeatView<'a, f32>,
-    colv: &'a FeatLanes<S>,
-    extv: &'a FeatLanes<S>,
+    colv: &'a FeatLanes<'a, S>,
+    extv: &'a FeatLanes<'a, S>,
 }
 
 impl<S: Lanes> Composite<'_, S> {
@@ -251,7 +269,7 @@ unsafe fn tiles<S: Lanes, const DIST: bool, const FEAT: bool>(
     let ce = ef.channels;
     let ci = cf.vertices > 1;
     let mut buf = vec![0f32; np * (ARRAYS + ce)];
-    let (mut colv, mut extv) = (FeatLanes::<S> { v: Vec::new() }, FeatLanes::<S> { v: Vec::new() });
+    let (mut colv, mut extv) = (FeatLanes::<S>::new(), FeatLanes::<S>::new());
     let mut row_live = vec![0u64; tile];
     let mut groups = Groups::new(tile);
     for t in run {
@@ -269,6 +287,14 @@ unsafe fn tiles<S: Lanes, const DIST: bool, const FEAT: bool>(
                 break;
             }
             let s = &recs[e];
+            if FEAT {
+                if let Some(next) = recs[..r1 as usize].get(e + FEAT_AHEAD) {
+                    if ci {
+                        cf.prefetch(next.id as usize);
+                    }
+                    ef.prefetch(next.id as usize);
+                }
+            }
             groups.list::<S>(s, &tr, &row_live, stride);
             if FEAT {
                 if ci {
