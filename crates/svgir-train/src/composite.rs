@@ -18,7 +18,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use svgir_core::par::filled;
 
-use svgir_core::color::{linear_to_srgb as srgb, linear_to_srgb_grad as srgb_grad};
+use svgir_core::color::{linear_to_srgb as srgb, linear_to_srgb_with_grad as srgb_with_grad};
 
 /// One pixel's image value; `cover`: the photo's alpha ([`Coverage::Photo`]), `None` for the
 /// render's own opacity `o` (SPEC 3).
@@ -35,11 +35,11 @@ pub fn composite_px_backward(c: [f64; 3], o: f64, cover: Option<f64>, bg: [f32; 
     let mut v_c = [0.0; 3];
     let mut v_o = 0.0;
     for k in 0..3 {
-        let lin = c[k] / oc;
+        let (s, ds) = srgb_with_grad(c[k] / oc);
         if cover.is_none() {
-            v_o += v_i[k] * (srgb(lin) - bg[k] as f64);
+            v_o += v_i[k] * (s - bg[k] as f64);
         }
-        let v_lin = v_i[k] * m * srgb_grad(lin);
+        let v_lin = v_i[k] * m * ds;
         v_c[k] = v_lin / oc;
         if o > MIN_OPACITY {
             v_o -= v_lin * c[k] / (o * o);
