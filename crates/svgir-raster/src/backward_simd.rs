@@ -20,7 +20,7 @@
 use crate::backward::{Ctx, OFF_C, OFF_COL, OFF_H, OFF_N, OFF_OP};
 use crate::forward::background_at;
 use crate::forward::FeatView;
-use crate::forward_simd::{eval_lanes, feat_weights, FeatLanes, FEAT_AHEAD};
+use crate::forward_simd::{eval_lanes, feat_weights, prefetch_rows, FeatLanes, FEAT_AHEAD};
 use crate::interp::{normalised_coord_lanes, weight_grads_lanes, weights_lanes, MAX_VERTICES};
 use crate::lane_groups::{Group, Groups};
 use crate::simd::{Lanes, Simd};
@@ -367,11 +367,7 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
         if FEAT {
             // Entries run back to front: the one `FEAT_AHEAD` places nearer the front is hinted.
             if let Some(next) = e.checked_sub(FEAT_AHEAD).filter(|&n| n >= r0 as usize) {
-                let id = ctx.recs[next].id as usize;
-                if ci {
-                    cf.prefetch(id);
-                }
-                ef.prefetch(id);
+                prefetch_rows(cf, ef, ctx.recs[next].id as usize);
             }
             if ci {
                 colv.load(cf, s.id as usize);

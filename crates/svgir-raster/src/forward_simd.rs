@@ -93,6 +93,16 @@ const ARRAYS: usize = 13;
 /// How many entries ahead the tile kernels hint the feature rows ([`FeatView::prefetch`]).
 pub(crate) const FEAT_AHEAD: usize = 4;
 
+/// Hints Gaussian `g`'s rows of the tables the tile kernels read: the colour table where colours
+/// are interpolated (one colour per Gaussian comes with its record), and the extra table.
+#[inline(always)]
+pub(crate) fn prefetch_rows(cf: &FeatView<f32>, ef: &FeatView<f32>, g: usize) {
+    if cf.vertices > 1 {
+        cf.prefetch(g);
+    }
+    ef.prefetch(g);
+}
+
 /// One Gaussian's row of a feature table, `[m * channels + c]`, broadcast to lanes where it is
 /// used. (Broadcasting the whole row into a buffer per entry cost more than the groups' reads:
 /// most entries have two or three groups.)
@@ -289,10 +299,7 @@ unsafe fn tiles<S: Lanes, const DIST: bool, const FEAT: bool>(
             let s = &recs[e];
             if FEAT {
                 if let Some(next) = recs[..r1 as usize].get(e + FEAT_AHEAD) {
-                    if ci {
-                        cf.prefetch(next.id as usize);
-                    }
-                    ef.prefetch(next.id as usize);
+                    prefetch_rows(cf, ef, next.id as usize);
                 }
             }
             groups.list::<S>(s, &tr, &row_live, stride);
