@@ -109,6 +109,19 @@ impl Surfels {
         take(&mut self.sh, order);
     }
 
+    /// Put the Gaussians in Morton order of their centres over their bounds
+    /// ([`crate::morton`]), so that the ones a view sees lie in runs of every per-Gaussian
+    /// array; returns the permutation applied (as [`Self::reorder`] takes it) for arrays kept
+    /// beside the surfels.
+    pub fn sort_morton(&mut self) -> Vec<usize> {
+        let order = match self.bounds() {
+            Some((lo, hi)) => crate::morton::morton_order(&self.positions, lo, hi),
+            None => Vec::new(),
+        };
+        self.reorder(&order);
+        order
+    }
+
     /// All arrays have the same length and every value is finite.
     pub fn check(&self) -> Result<(), String> {
         let n = self.len();

@@ -148,6 +148,9 @@ pub struct BenchOptions {
     pub paths: Vec<Simd>,
     /// Timed calls per path (interleaved across paths, so they share the machine's noise).
     pub reps: usize,
+    /// Put the random Gaussians in Morton order of their centres, the order training keeps
+    /// them in, instead of the order they were drawn in.
+    pub morton: bool,
 }
 
 impl BenchOptions {
@@ -159,6 +162,7 @@ impl BenchOptions {
             gaussians: vec![10_000, 100_000, 300_000],
             paths: Simd::available(),
             reps: 5,
+            morton: false,
         }
     }
 }
@@ -205,7 +209,8 @@ pub fn bench_table(threads: usize) -> String {
 /// The random-scene table for the given sizes, counts, threads and paths (see [`BenchOptions`]).
 pub fn bench_table_with(o: &BenchOptions) -> String {
     let mut s = String::new();
-    let _ = writeln!(s, "svgir-raster bench, random object scene: SH degree 3, colour + all aux outputs");
+    let order = if o.morton { "Morton order" } else { "drawn order" };
+    let _ = writeln!(s, "svgir-raster bench, random object scene ({order}): SH degree 3, colour + all aux outputs");
     let _ = writeln!(s, "machine: {}", machine_line());
     header(&mut s);
     let mut paths: Vec<Simd> = o.paths.iter().map(|p| p.resolve()).collect();
@@ -214,7 +219,11 @@ pub fn bench_table_with(o: &BenchOptions) -> String {
     for t in thread_counts(o.threads) {
         let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().expect("rayon pool");
         for &n in &o.gaussians {
-            let mut surfels = Some(random_scene(n, 7));
+            let mut scene = random_scene(n, 7);
+            if o.morton {
+                scene.sort_morton();
+            }
+            let mut surfels = Some(scene);
             for &res in &o.sizes {
                 let problem = Problem::with_surfels(surfels.take().expect("scene"), res);
                 bench_problem(

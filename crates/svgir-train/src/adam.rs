@@ -140,6 +140,17 @@ impl AdamGroup {
         filter(&mut self.v);
     }
 
+    /// Put the rows in the order `order`, a permutation of the rows (row `order[j]` becomes row
+    /// `j`), as [`svgir_core::Surfels::reorder`] does to the parameters.
+    pub fn permute_rows(&mut self, order: &[usize]) {
+        assert_eq!(order.len(), self.rows(), "{}: permutation of {} rows for {}", self.name, order.len(), self.rows());
+        let s = self.stride;
+        let permute =
+            |x: &mut Vec<f32>| *x = order.iter().flat_map(|&r| x[r * s..(r + 1) * s].iter().copied()).collect();
+        permute(&mut self.m);
+        permute(&mut self.v);
+    }
+
     /// Append `rows` rows of zero moments.
     pub fn append_rows(&mut self, rows: usize) {
         self.m.resize(self.m.len() + rows * self.stride, 0.0);
@@ -227,6 +238,32 @@ mod tests {
             adam.step(&mut p, &g);
         }
         assert!(p.iter().all(|x| x.abs() < 0.05), "{p:?}");
+    }
+
+    /// Rows are updated independently, so moving the rows (parameters, gradients and moments
+    /// alike) between two steps moves the results and nothing else.
+    #[test]
+    fn permuted_rows_step_as_before() {
+        let mut rng = svgir_core::Rng::new(9);
+        let (stride, rows) = (3, 50);
+        let mut a = AdamGroup::new("x", 0.01, stride, rows);
+        let mut p: Vec<f32> = (0..rows * stride).map(|_| rng.normal()).collect();
+        let g1: Vec<f32> = (0..rows * stride).map(|_| rng.normal()).collect();
+        let g2: Vec<f32> = (0..rows * stride).map(|_| rng.normal()).collect();
+        a.step(&mut p, &g1);
+        let mut order: Vec<usize> = (0..rows).collect();
+        order.reverse();
+        order.swap(3, 17);
+        let permute =
+            |x: &[f32]| -> Vec<f32> { order.iter().flat_map(|&r| x[r * stride..(r + 1) * stride].to_vec()).collect() };
+        let (mut b, mut q) = (a.clone(), permute(&p));
+        b.permute_rows(&order);
+        assert_eq!(b.m, permute(&a.m));
+        assert_ne!(b.m, a.m);
+        a.step(&mut p, &g2);
+        b.step(&mut q, &permute(&g2));
+        assert_eq!(q, permute(&p));
+        assert_eq!((b.m, b.v), (permute(&a.m), permute(&a.v)));
     }
 
     #[test]

@@ -329,6 +329,14 @@ impl Stage1 {
                     &mut self.rng,
                 ));
                 self.stats = DensifyStats::new(self.surfels.len());
+                // Densification appends its children at the end, so the Gaussians a view sees
+                // drift apart in every per-Gaussian array; Morton order puts them back in runs
+                // (a seventh off lego's tile kernels, docs/performance.md). The statistics were
+                // just zeroed, so only the Adam moments follow the parameters.
+                let order = self.surfels.sort_morton();
+                for g in self.groups.iter_mut() {
+                    g.permute_rows(&order);
+                }
             }
             if cfg.resets_opacity_at(it) {
                 reset_opacity(&mut self.surfels, &mut self.groups[3]);

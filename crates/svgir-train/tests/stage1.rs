@@ -53,6 +53,23 @@ fn training_raises_test_psnr_well_above_its_start() {
     assert!(end > start + 6.0 && end > 20.0, "test PSNR {start:.2} -> {end:.2}");
 }
 
+/// After a densification step the Gaussians are in Morton order of their centres, the children
+/// included (their Adam moments follow them: `permuted_rows_step_as_before`).
+#[test]
+fn densification_leaves_the_gaussians_in_morton_order() {
+    let Some(ds) = scene() else { return };
+    let mut t = trainer(&ds, 60);
+    let start = t.surfels.len();
+    for _ in 0..30 {
+        t.step(&ds);
+    }
+    let s = &t.surfels;
+    assert_ne!(s.len(), start, "no densification ran");
+    let (lo, hi) = s.bounds().unwrap();
+    let codes: Vec<u32> = s.positions.iter().map(|p| svgir_core::morton::morton_code(*p, lo, hi)).collect();
+    assert!(codes.windows(2).all(|w| w[0] <= w[1]), "not in Morton order");
+}
+
 #[test]
 fn resume_continues_bit_identically() {
     let Some(ds) = scene() else { return };

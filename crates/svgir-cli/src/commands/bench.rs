@@ -32,6 +32,10 @@ pub struct BenchArgs {
     /// raster: how many test cameras (spread over the test set) to time with --ply.
     #[arg(long, default_value_t = 5)]
     pub views: usize,
+    /// raster: put the Gaussians (--ply's or the random ones) in Morton order of their centres
+    /// before timing, the order training keeps them in, instead of the file's or drawn order.
+    #[arg(long)]
+    pub morton: bool,
     /// raster: background colour r,g,b for --ply.
     #[arg(long, default_value = "1,1,1", value_parser = super::eval::parse_rgb)]
     pub background: [f32; 3],
@@ -57,23 +61,27 @@ fn parse_simd(s: &str) -> Result<svgir_raster::Simd, String> {
 }
 
 /// `svgir bench raster --ply --data`: the scene's timing table.
-fn raster_scene(ply: &Path, data: &Path, views: usize, background: [f32; 3], threads: usize) -> Result<String> {
-    let (surfels, _) = svgir_io::read_gaussians_ply(ply)?;
+fn raster_scene(args: &BenchArgs, ply: &Path, data: &Path, threads: usize) -> Result<String> {
+    let (mut surfels, _) = svgir_io::read_gaussians_ply(ply)?;
+    if args.morton {
+        surfels.sort_morton();
+    }
     let opts = svgir_io::LoadOptions::default();
     let ds = svgir_io::load_dataset(data, &opts)?;
     let pool = if ds.test.is_empty() { &ds.train } else { &ds.test };
     anyhow::ensure!(!pool.is_empty(), "{}: no views to take cameras from", data.display());
-    let k = views.clamp(1, pool.len());
+    let k = args.views.clamp(1, pool.len());
     let cams: Vec<_> = (0..k).map(|i| pool[i * pool.len() / k].camera).collect();
     let mut s = format!(
-        "svgir-raster bench, trained scene {} ({} Gaussians, SH degree {}), {} cameras of {}\n",
+        "svgir-raster bench, trained scene {} ({} Gaussians, SH degree {}, {} order), {} cameras of {}\n",
         ply.display(),
         surfels.len(),
         surfels.sh_degree,
+        if args.morton { "Morton" } else { "file" },
         k,
         data.display()
     );
-    s += &svgir_raster::bench::bench_scene(surfels, &cams, background, threads, 5);
+    s += &svgir_raster::bench::bench_scene(surfels, &cams, args.background, threads, args.reps.max(1));
     Ok(s)
 }
 
@@ -88,7 +96,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
     let threads = rayon::current_num_threads();
     let table = match args.kernel {
         Kernel::Raster => match (&args.ply, &args.data) {
-            (Some(ply), Some(data)) => raster_scene(ply, data, args.views, args.background, threads)?,
+            (Some(ply), Some(data)) => raster_scene(&args, ply, data, threads)?,
             (Some(ply), None) => anyhow::bail!("--ply {}: raster needs --data for the cameras", ply.display()),
             _ => {
                 let mut o = svgir_raster::bench::BenchOptions::full(threads);
@@ -102,6 +110,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
                     o.paths = args.simd.clone();
                 }
                 o.reps = args.reps.max(1);
+                o.morton = args.morton;
                 svgir_raster::bench::bench_table_with(&o)
             }
         },

@@ -155,9 +155,7 @@ impl Stage2 {
     pub fn new(config: Stage2Config, mut surfels: Surfels, dataset: &Dataset) -> Result<Self, PbrError> {
         // The geometry is frozen from here on: put the Gaussians in Morton order of their
         // centres once, so that the ones a view sees lie in runs of every per-Gaussian array.
-        if let Some((lo, hi)) = surfels.bounds() {
-            surfels.reorder(&svgir_core::morton::morton_order(&surfels.positions, lo, hi));
-        }
+        surfels.sort_morton();
         let cams: Vec<Camera> = dataset.train.iter().map(|v| v.camera).collect();
         orient_normals(&mut surfels, &cams, &raster_config());
         let t0 = Instant::now();
