@@ -145,8 +145,13 @@ impl AdamGroup {
     pub fn permute_rows(&mut self, order: &[usize]) {
         assert_eq!(order.len(), self.rows(), "{}: permutation of {} rows for {}", self.name, order.len(), self.rows());
         let s = self.stride;
-        let permute =
-            |x: &mut Vec<f32>| *x = order.iter().flat_map(|&r| x[r * s..(r + 1) * s].iter().copied()).collect();
+        let permute = |x: &mut Vec<f32>| {
+            let mut out = Vec::with_capacity(x.len());
+            for &r in order {
+                out.extend_from_slice(&x[r * s..(r + 1) * s]);
+            }
+            *x = out;
+        };
         permute(&mut self.m);
         permute(&mut self.v);
     }

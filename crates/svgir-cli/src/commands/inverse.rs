@@ -516,18 +516,29 @@ pub fn run(args: InverseArgs) -> Result<()> {
         // and sun searches that run between iterations.
         let (t, its) = (&s2.times, s2.iteration.max(1) as f64);
         let ms2 = 1e3 * (t.forward + t.loss + t.backward + t.optimizer) / its;
+        let wall_ms = 1e3 * start.elapsed().as_secs_f64() / (s2.iteration - first_iteration).max(1) as f64;
         eprintln!(
             "stage 2: {ms2:.1} ms per iteration (forward {:.1}, loss {:.1}, backward {:.1}, Adam {:.1}); {:.1} ms of wall time per iteration in this session",
             1e3 * t.forward / its,
             1e3 * t.loss / its,
             1e3 * t.backward / its,
             1e3 * t.optimizer / its,
-            1e3 * start.elapsed().as_secs_f64() / (s2.iteration - first_iteration).max(1) as f64,
+            wall_ms,
         );
         if let Some((ms1, threads1)) = stage1_iteration_ms(&args.run) {
             eprintln!(
                 "stage 2 / stage 1 per iteration: {:.1}x (stage 1: {ms1:.1} ms averaged over its run on {threads1} threads, RUN/timings.json)",
                 ms2 / ms1
+            );
+        }
+        if let Some(f) = stage1_final_ms(&args.run) {
+            eprintln!(
+                "stage 2 / stage 1 per iteration on the same Gaussians: {:.1}x (stage 1: {:.1} ms over its iterations {}-{} with the final {} Gaussians, RUN/metrics.jsonl; stage 2's wall time per iteration in this session against stage 1's, both with everything between iterations)",
+                wall_ms / f.ms,
+                f.ms,
+                f.from,
+                f.to,
+                f.gaussians
             );
         }
     }
@@ -600,6 +611,36 @@ fn stage1_iteration_ms(run: &Path) -> Option<(f64, u64)> {
     (ms > 0.0).then_some((ms, v["threads"].as_u64().unwrap_or(0)))
 }
 
+/// Stage 1's training time per iteration once its model had its final size (no densification or
+/// pruning any more), from the last uninterrupted stretch of `run`'s `metrics.jsonl` rows with
+/// the final Gaussian count.
+struct Stage1Final {
+    ms: f64,
+    from: u64,
+    to: u64,
+    gaussians: u64,
+}
+
+/// [`Stage1Final`] of `run`, `None` without a log or with a stretch under 100 iterations.
+fn stage1_final_ms(run: &Path) -> Option<Stage1Final> {
+    let text = std::fs::read_to_string(run.join("metrics.jsonl")).ok()?;
+    // Step rows only (the evaluation rows carry no Gaussian count).
+    let rows: Vec<(u64, f64, u64)> = text
+        .lines()
+        .filter_map(|l| serde_json::from_str::<serde_json::Value>(l).ok())
+        .filter_map(|v| Some((v["iteration"].as_u64()?, v["train_s"].as_f64()?, v["num_gaussians"].as_u64()?)))
+        .collect();
+    let &(to, end_s, gaussians) = rows.last()?;
+    // Back from the end while the count holds and the clock runs back (a resumed run restarts
+    // `train_s`).
+    let mut first = rows.len() - 1;
+    while first > 0 && rows[first - 1].2 == gaussians && rows[first - 1].1 < rows[first].1 {
+        first -= 1;
+    }
+    let (from, start_s, _) = rows[first];
+    (to >= from + 100).then(|| Stage1Final { ms: 1e3 * (end_s - start_s) / (to - from) as f64, from, to, gaussians })
+}
+
 /// Replace the learned light by the dataset's training light (diagnostics; reads ground truth).
 fn set_true_light(s2: &mut Stage2, dataset: &Dataset) -> Result<()> {
     let light = dataset.train_light.as_ref().context("--oracle-light: the dataset names no training light")?;
@@ -622,4 +663,32 @@ fn write_env_previews(s2: &Stage2, ds: &Dataset, out: &Path) -> Result<()> {
         svgir_io::write_png(out.join("env_true.png"), &tone(&truth), 8)?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The stretch is the last one with the final count and a running clock: rows before a
+    /// change of count or before a resume (the clock restarts) are left out.
+    #[test]
+    fn stage1_final_stretch_skips_growth_and_resumes() {
+        let dir = std::env::temp_dir().join(format!("svgir_final_ms_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let row = |it: u64, s: f64, n: u64| format!("{{\"iteration\":{it},\"train_s\":{s},\"num_gaussians\":{n}}}\n");
+        let eval = "{\"iteration\":300,\"train_s\":2.0,\"test\":{\"psnr\":30.0}}\n";
+        // Growth to 900 at iteration 200, a resume at 400 (clock back to 0), then 400-1000.
+        let log = [row(100, 1.0, 500), row(200, 2.0, 900), eval.to_string(), row(300, 3.0, 900), row(400, 4.0, 900)]
+            .concat()
+            + &row(500, 0.5, 900)
+            + &row(1000, 3.0, 900);
+        std::fs::write(dir.join("metrics.jsonl"), log).unwrap();
+        let f = stage1_final_ms(&dir).unwrap();
+        assert_eq!((f.from, f.to, f.gaussians), (500, 1000, 900));
+        assert!((f.ms - 5.0).abs() < 1e-9, "{}", f.ms);
+        // Too short a stretch gives no figure.
+        std::fs::write(dir.join("metrics.jsonl"), row(100, 1.0, 500) + &row(150, 2.0, 900)).unwrap();
+        assert!(stage1_final_ms(&dir).is_none());
+        std::fs::remove_dir_all(&dir).ok();
+    }
 }
