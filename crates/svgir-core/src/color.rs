@@ -23,7 +23,8 @@ pub fn linear_to_srgb<F: Float>(c: F) -> F {
     }
 }
 
-/// d linear_to_srgb / dc, for backpropagating through the PBR image's tone curve (SPEC 3).
+/// d linear_to_srgb / dc (SPEC 3's tone curve) on its own: the per-function oracle that
+/// [`linear_to_srgb_with_grad`], which the PBR image's backward calls, is tested against.
 #[inline]
 pub fn linear_to_srgb_grad<F: Float>(c: F) -> F {
     if c <= F::ZERO {
