@@ -12,7 +12,9 @@
 //! Work split: one rayon task per tile, Gaussian-outer (in reverse list order) and
 //! pixel-inner as in the forward; gradients go to a per-entry buffer (one slot per (Gaussian,
 //! tile) pair, owned by that tile), then each Gaussian sums its entries in a fixed order. No
-//! atomics, no racy `+=`, bit-reproducible for a given input (SPEC 9.4, 9.9).
+//! atomics, no racy `+=`, bit-reproducible for a given input (SPEC 9.4, 9.9). An entry that
+//! composited nothing in the forward (zero saved weight: faint everywhere, or behind pixels that
+//! had already finished) has no gradient and is passed by before its pixels are listed.
 //!
 //! With [`crate::RasterConfig::geometry`] off, `gD` and `gN` are read as zero whatever is passed
 //! (the SIMD kernels then skip their terms). With [`crate::RasterConfig::geometry_grads`] off,
@@ -517,6 +519,11 @@ fn backward_tile_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
             row_act[rc as usize / 64] |= 1u64 << (rc % 64);
             next_act += 1;
         }
+        // An entry that composited no pixel has no gradient (its pixels' transmittance passed
+        // it unchanged): nothing to list.
+        if st.entry_weight[e] == F::ZERO {
+            continue;
+        }
         let sp = &ctx.recs[e];
         let gid = sp.id as usize;
         let bx = EntryBox::new(sp, &tr);
@@ -653,6 +660,59 @@ fn backward_tile_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
         slot[OFF_OP] += sg.opacity;
         for j in 0..3 {
             slot[OFF_N + j] += v_n[j];
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use crate::bench::{random_scene, Problem};
+    use crate::simd::Simd;
+    use crate::{backward, render, Grads, RasterConfig};
+
+    fn bits(g: &Grads) -> Vec<Vec<u32>> {
+        let b = |v: Vec<f32>| v.into_iter().map(f32::to_bits).collect::<Vec<u32>>();
+        vec![
+            b(g.v_positions.iter().flat_map(|v| v.to_array()).collect()),
+            b(g.v_rotations.iter().flat_map(|v| v.to_array()).collect()),
+            b(g.v_log_scales.iter().flat_map(|v| v.to_array()).collect()),
+            b(g.v_opacity_logits.clone()),
+            b(g.v_sh.iter().flat_map(|c| c.0.iter().flatten().copied()).collect()),
+            b(g.v_background.clone()),
+            b(g.v_mean2d_norm.clone()),
+        ]
+    }
+
+    /// Passing by the entries that composited nothing in the forward changes no gradient bit, on
+    /// every path: the same backward with no entry marked empty gives the same gradients. Every
+    /// other Gaussian is made nearly opaque, so pixels finish after a few layers and many entries
+    /// further back in a tile find none of their pixels still open.
+    #[test]
+    fn entries_that_composited_nothing_are_passed_by_without_a_bit_changed() {
+        let mut surfels = random_scene(30_000, 11);
+        for o in surfels.opacity_logits.iter_mut().step_by(2) {
+            *o = 6.0;
+        }
+        let p = Problem::with_surfels(surfels, 64);
+        let (input, grads) = (p.input(), p.grads());
+        for path in Simd::available() {
+            let cfg = RasterConfig { simd: path, distortion: true, ..Default::default() };
+            let (out, mut st) = render(&input, &cfg);
+            let empty = st.entry_weight.iter().filter(|&&w| w == 0.0).count();
+            assert!(
+                empty * 4 > st.entry_weight.len(),
+                "{}: only {empty} of {} entries composited nothing",
+                path.name(),
+                st.entry_weight.len()
+            );
+            let passed_by = bits(&backward(&input, &cfg, &st, &out, &grads));
+            st.entry_weight.fill(1.0);
+            let listed = bits(&backward(&input, &cfg, &st, &out, &grads));
+            assert!(passed_by[3].iter().any(|&b| f32::from_bits(b) != 0.0), "{}: no opacity gradient", path.name());
+            for (k, (a, b)) in passed_by.iter().zip(&listed).enumerate() {
+                let differ = a.iter().zip(b).filter(|(x, y)| x != y).count();
+                assert_eq!(differ, 0, "{}: gradient array {k} differs in {differ} of {} values", path.name(), a.len());
+            }
         }
     }
 }

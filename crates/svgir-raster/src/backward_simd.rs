@@ -363,6 +363,10 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
             row_act[rc as usize / 64] |= 1u64 << (rc % 64);
             next_act += 1;
         }
+        // As the scalar kernel: an entry that composited nothing is passed by unlisted.
+        if st.entry_weight[e] == 0.0 {
+            continue;
+        }
         let s = &ctx.recs[e];
         if FEAT {
             // Entries run back to front: the one `FEAT_AHEAD` places nearer the front is hinted.

@@ -14,7 +14,8 @@
 //! Saved for backward ([`ForwardStateOf`]): splats, SH colours, tile lists, per pixel the final T,
 //! the number of tile-list entries up to the last composited one, and the distortion moments
 //! `M1 = sum w m`, `M2 = sum w m^2`. Per-Gaussian accumulated weights are summed per entry and then
-//! reduced per Gaussian in entry order (deterministic).
+//! reduced per Gaussian in entry order (deterministic); the per-entry sums are saved too, and an
+//! entry whose sum is zero composited nothing, so the backward passes it by.
 //!
 //! With [`crate::RasterConfig::geometry`] off, the normal, depth and median-depth accumulators
 //! are skipped (those outputs stay 0) and everything else keeps its bits.
@@ -299,7 +300,8 @@ pub(crate) fn render_projected<F: Real, P: GaussianParams<F> + ?Sized>(
         })
         .collect();
     sw.lap("reduce");
-    let state = ForwardStateOf { proj, final_t, n_contrib, moment1: m1, moment2: m2, phases: sw.finish() };
+    let state =
+        ForwardStateOf { proj, final_t, n_contrib, moment1: m1, moment2: m2, entry_weight: wsum, phases: sw.finish() };
     (out, state)
 }
 

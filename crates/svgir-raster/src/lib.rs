@@ -273,6 +273,10 @@ pub struct ForwardStateOf<F> {
     pub(crate) n_contrib: Vec<u32>,
     pub(crate) moment1: Vec<F>,
     pub(crate) moment2: Vec<F>,
+    /// Per (tile, Gaussian) entry, the weight `alpha T` it composited over its pixels: zero
+    /// exactly when it composited none (or the tile finished before it), which lets the backward
+    /// pass it by without listing its pixels.
+    pub(crate) entry_weight: Vec<F>,
     /// Wall time of the forward's phases.
     pub phases: PhaseTimes,
 }

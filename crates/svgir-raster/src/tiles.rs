@@ -404,6 +404,15 @@ impl EntryBox {
         live_span_or_empty(live, self.tx0, xa, xb)
     }
 
+    /// Whether any pixel of the box is set in `live` (per tile row, its live columns; the tile's
+    /// first row is `ty0`). A box with none has nothing left to composite in this tile.
+    #[inline(always)]
+    pub(crate) fn any_live(&self, live: &[u64], ty0: usize) -> bool {
+        let cols = columns_mask(self.x0 - self.tx0, self.x1.max(self.x0) - self.tx0);
+        let rows = self.rows.start - ty0..self.rows.end.max(self.rows.start) - ty0;
+        live[rows].iter().any(|&l| l & cols != 0)
+    }
+
     /// The box's columns `[x0, x1)` inside the tile.
     #[inline(always)]
     pub(crate) fn columns(&self) -> (usize, usize) {
