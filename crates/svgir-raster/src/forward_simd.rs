@@ -26,7 +26,7 @@ use crate::interp::{normalised_coord_lanes, weights_lanes, MAX_VERTICES};
 use crate::lane_groups::{Group, Groups};
 use crate::simd::Lanes;
 
-use crate::tiles::{columns_mask, EntryBox, TileBins, TileRec};
+use crate::tiles::{columns_mask, TileBins, TileRec};
 use crate::{BackgroundOf, RasterConfig};
 use std::marker::PhantomData;
 use std::ops::Range;
@@ -303,11 +303,10 @@ unsafe fn tiles<S: Lanes, const DIST: bool, const FEAT: bool>(
                 }
             }
             // Boxes whose pixels have all finished (common behind opaque surfaces, while the
-            // tile's other pixels are still open) are passed by before their rows are listed.
-            if !EntryBox::new(s, &tr).any_live(&row_live, ty0) {
+            // tile's other pixels are still open) are passed by.
+            if !groups.list::<S>(s, &tr, &row_live, stride) {
                 continue;
             }
-            groups.list::<S>(s, &tr, &row_live, stride);
             if FEAT {
                 if ci {
                     colv.load(cf, s.id as usize);

@@ -252,8 +252,17 @@ impl Groups {
     /// `N` rows at a time in lanes, then per row no branch (an empty row gives one empty piece;
     /// every piece index goes to both lists and is counted in the one it belongs to; only a row
     /// longer than `n` pixels loops), and groups are built from pieces only as they run.
+    ///
+    /// Returns false, with no groups listed, when no pixel of the box is live: nothing is left
+    /// for the entry in this tile (in the forward, boxes behind pixels that have all finished).
     #[inline(always)]
-    pub(crate) unsafe fn list<S: Lanes>(&mut self, s: &TileRec<f32>, tr: &[u32; 4], live: &[u64], stride: usize) {
+    pub(crate) unsafe fn list<S: Lanes>(
+        &mut self,
+        s: &TileRec<f32>,
+        tr: &[u32; 4],
+        live: &[u64],
+        stride: usize,
+    ) -> bool {
         let n = S::N;
         self.n = n;
         self.pieces.clear();
@@ -262,6 +271,9 @@ impl Groups {
         self.short.clear();
         let (tx0, ty0) = (tr[0] as usize, tr[2] as usize);
         let bx = EntryBox::new(s, tr);
+        if !bx.any_live(live, ty0) {
+            return false;
+        }
         let rows = bx.rows.clone();
         let bounded = s.conic.bounded();
         if bounded {
@@ -335,6 +347,7 @@ impl Groups {
                 _ => unreachable!(),
             }
         }
+        true
     }
 }
 
