@@ -29,7 +29,9 @@ use crate::preprocess::{assume_init, uninit_vec, Splat};
 use crate::preprocess_backward::{gaussian_backward, opacity_logit_grad, GradSlots, ParamGrad, SplatGradSum};
 use crate::preprocess_backward_simd::{gaussian_backward_block, Inputs, BLOCK};
 use crate::real::Real;
-use crate::splat::{eval_row, hit_from_row, intersect_backward, row_offsets, row_setup, RowEval, SplatGrad};
+use crate::splat::{
+    eval_row, hit_from_row, intersect_backward, plane_setup, row_offsets, row_setup, RowEval, SplatGrad,
+};
 use crate::tiles::{prefetch, EntryBox, TileBins, TileRec};
 use crate::{
     BackgroundOf, ColorSourceOf, ForwardStateOf, GaussianParams, GradsOf, OutputGradsOf, RasterConfig, RenderInputOf,
@@ -527,6 +529,7 @@ fn backward_tile_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
         let sp = &ctx.recs[e];
         let gid = sp.id as usize;
         let bx = EntryBox::new(sp, &tr);
+        let plane = plane_setup(&sp.h);
         let slot = &mut eg[(e - e_tile0) * dim..(e - e_tile0 + 1) * dim];
         let mut sg = SplatGrad::<F>::default();
         let mut v_n = [F::ZERO; 3];
@@ -536,7 +539,7 @@ fn backward_tile_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
             // Only pixels that composited this entry.
             let Some((yf, xa, xb)) = bx.row_span::<F>(&sp.conic, y, row_act[y - ty0]) else { continue };
             let row = (y - ty0) * tile;
-            let rs = row_setup(&sp.h, yf);
+            let rs = row_setup(&plane, yf);
             eval_row(&sp.h, sp.center, sp.opacity, &rs, yf, xa, xb - xa, near, &offs, ev);
             let xa_f = F::c(xa as f64) + half;
             for x in xa..xb {

@@ -20,7 +20,7 @@
 use crate::backward::{Ctx, OFF_C, OFF_COL, OFF_H, OFF_N, OFF_OP};
 use crate::forward::background_at;
 use crate::forward::FeatView;
-use crate::forward_simd::{eval_lanes, feat_weights, prefetch_rows, FeatLanes, FEAT_AHEAD};
+use crate::forward_simd::{eval_lanes, feat_weights, prefetch_rows, FeatLanes, PlaneLanes, FEAT_AHEAD};
 use crate::interp::{normalised_coord_lanes, weight_grads_lanes, weights_lanes, MAX_VERTICES};
 use crate::lane_groups::{Group, Groups};
 use crate::simd::{Lanes, Simd};
@@ -88,6 +88,7 @@ struct Entry<'a, S: Lanes> {
     base: *mut f32,
     np: usize,
     s: &'a TileRec<f32>,
+    plane: PlaneLanes<S>,
     near: f32,
     m_scale: f32,
     /// Interpolated colour gradients in the feature sums (`M x 3`, or 0 for one colour).
@@ -124,7 +125,7 @@ impl<S: Lanes> Entry<'_, S> {
         let (h6, h7) = (sp(s.h[6]), sp(s.h[7]));
         let (o, c0v) = (sp(s.opacity), sp(s.center[0]));
         let x = gr.x::<S, PACKED>();
-        let rows = gr.rows::<S, PACKED>();
+        let rows = self.plane.rows(gr.y::<S, PACKED>());
         let ev = eval_lanes::<S>(s, &rows, x, near);
         let m = S::and(S::from_bits(gr.lb), ev.alpha.ne(zero));
         let yv = rows.y;
@@ -385,6 +386,7 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
             base,
             np,
             s,
+            plane: PlaneLanes::new(s),
             near,
             m_scale,
             n_col,

@@ -24,7 +24,7 @@ use crate::interp::{normalised_coord, weights, MAX_VERTICES};
 use crate::phases::Stopwatch;
 use crate::preprocess::{preprocess, Cam};
 use crate::real::Real;
-use crate::splat::{eval_row, row_offsets, row_setup, RowEval};
+use crate::splat::{eval_row, plane_setup, row_offsets, row_setup, RowEval};
 use crate::tiles::{bin, columns_mask, gather_records, EntryBox, TileBins, TileRec};
 use crate::{
     BackgroundOf, ColorSourceOf, ForwardStateOf, GaussianParams, Projection, RasterConfig, RenderInputOf,
@@ -430,12 +430,13 @@ fn render_tiles_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
             let s = &recs[e];
             let g = s.id as usize;
             let bx = EntryBox::new(s, &tr);
+            let plane = plane_setup(&s.h);
             let local = (e - r0 as usize + 1) as u32;
             let mut ws = F::ZERO;
             for y in bx.rows.clone() {
                 let Some((yf, xa, xb)) = bx.row_span::<F>(&s.conic, y, row_live[y - ty0]) else { continue };
                 let row = (y - ty0) * tile;
-                let rs = row_setup(&s.h, yf);
+                let rs = row_setup(&plane, yf);
                 eval_row(&s.h, s.center, s.opacity, &rs, yf, xa, xb - xa, near, &offs, &mut ev);
                 for x in xa..xb {
                     let i = x - xa;

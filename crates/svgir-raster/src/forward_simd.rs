@@ -25,7 +25,7 @@ use crate::forward::{background_at, FeatView, Outputs};
 use crate::interp::{normalised_coord_lanes, weights_lanes, MAX_VERTICES};
 use crate::lane_groups::{Group, Groups};
 use crate::simd::Lanes;
-
+use crate::splat::plane_setup;
 use crate::tiles::{columns_mask, TileBins, TileRec};
 use crate::{BackgroundOf, RasterConfig};
 use std::marker::PhantomData;
@@ -50,6 +50,31 @@ pub(crate) struct RowLanes<S> {
     pub a: [S; 3],
     pub b: [S; 3],
     pub y: S,
+}
+
+/// An entry's hit-plane constants ([`crate::splat::PlaneSetup`]) broadcast to lanes, from which
+/// each lane group forms its rows' setups.
+pub(crate) struct PlaneLanes<S> {
+    a: [S; 3],
+    bw: [S; 3],
+    b0: [S; 3],
+}
+
+impl<S: Lanes> PlaneLanes<S> {
+    #[inline(always)]
+    pub(crate) unsafe fn new(rec: &TileRec<f32>) -> Self {
+        let p = plane_setup(&rec.h);
+        let sp = |v: [f32; 3]| [S::splat(v[0]), S::splat(v[1]), S::splat(v[2])];
+        Self { a: sp(p.a), bw: sp(p.bw), b0: sp(p.b0) }
+    }
+
+    /// [`crate::splat::row_setup`] on the rows with centres `y`, lane by lane (the same
+    /// operations, so the same bits).
+    #[inline(always)]
+    pub(crate) unsafe fn rows(&self, y: S) -> RowLanes<S> {
+        let b = |j: usize| y.mul(self.bw[j]).sub(self.b0[j]);
+        RowLanes { a: self.a, b: [b(0), b(1), b(2)], y }
+    }
 }
 
 /// [`crate::splat::eval_row`]'s per-pixel arithmetic at pixel centres `x` on the rows `r` (same
@@ -165,6 +190,7 @@ struct Composite<'a, S: Lanes> {
     base: *mut f32,
     np: usize,
     s: &'a TileRec<f32>,
+    plane: PlaneLanes<S>,
     near: f32,
     m_scale: f32,
     t_stop: f32,
@@ -198,7 +224,7 @@ impl<S: Lanes> Composite<'_, S> {
         let (ci, ce) = (cf.vertices > 1, ef.channels);
         let interp = ci || (ce > 0 && ef.vertices > 1);
         let x = gr.x::<S, PACKED>();
-        let ev = eval_lanes::<S>(self.s, &gr.rows::<S, PACKED>(), x, self.near);
+        let ev = eval_lanes::<S>(self.s, &self.plane.rows(gr.y::<S, PACKED>()), x, self.near);
         let live = S::and(S::from_bits(gr.lb), ev.alpha.ne(sp(0.0)));
         let tcur = ld(T);
         let test = tcur.mul(sp(1.0).sub(ev.alpha));
@@ -319,6 +345,7 @@ unsafe fn tiles<S: Lanes, const DIST: bool, const FEAT: bool>(
                 base: buf.as_mut_ptr(),
                 np,
                 s,
+                plane: PlaneLanes::new(s),
                 near: cfg.near,
                 m_scale: cfg.far / (cfg.far - cfg.near),
                 t_stop: cfg.t_stop,

@@ -13,9 +13,7 @@
 // so the operations inside need no block of their own.
 #![allow(unsafe_op_in_unsafe_fn)]
 
-use crate::forward_simd::RowLanes;
 use crate::simd::Lanes;
-use crate::splat::{row_setup, RowSetup};
 use crate::tiles::{EntryBox, TileRec};
 
 /// One lane group of a (tile, Gaussian) entry: pixels of the Gaussian's box, narrowed by the
@@ -31,8 +29,6 @@ use crate::tiles::{EntryBox, TileRec};
 /// instead of stalling on a mispredicted branch between them.
 #[derive(Clone, Copy, Default)]
 pub(crate) struct Group {
-    /// Each half's row setup (a wide group uses the first).
-    pub rs: [RowSetup<f32>; 2],
     /// Each half's row centre y.
     pub yf: [f32; 2],
     /// Centre x of each half's first pixel.
@@ -58,15 +54,13 @@ impl Group {
         }
     }
 
-    /// The lanes' row inputs.
+    /// The lanes' row centre y.
     #[inline(always)]
-    pub(crate) unsafe fn rows<S: Lanes, const PACKED: bool>(&self) -> RowLanes<S> {
-        let f = |lo: f32, hi: f32| if PACKED { S::halves(lo, hi) } else { S::splat(lo) };
-        let [r0, r1] = &self.rs;
-        RowLanes {
-            a: [f(r0.a[0], r1.a[0]), f(r0.a[1], r1.a[1]), f(r0.a[2], r1.a[2])],
-            b: [f(r0.b[0], r1.b[0]), f(r0.b[1], r1.b[1]), f(r0.b[2], r1.b[2])],
-            y: f(self.yf[0], self.yf[1]),
+    pub(crate) unsafe fn y<S: Lanes, const PACKED: bool>(&self) -> S {
+        if PACKED {
+            S::halves(self.yf[0], self.yf[1])
+        } else {
+            S::splat(self.yf[0])
         }
     }
 
@@ -234,7 +228,6 @@ unsafe fn chord_pixels_lanes<S: Lanes>(lo: S, hi: S, x0: usize, x1: usize) -> (S
 /// One row piece of at most `n` pixels, before it is placed in a group.
 #[derive(Clone, Copy)]
 struct Piece {
-    rs: RowSetup<f32>,
     yf: f32,
     x0: f32,
     at: u32,
@@ -306,7 +299,6 @@ impl Groups {
             // `[xa, xb)`: the live span, empty (`xa == xb`) when the row has none.
             let (xa, xb) = bx.live_span_or_empty(chord, lv);
             let yf = (y as f64 + 0.5) as f32;
-            let rs = row_setup(&s.h, yf);
             let mut k = xa;
             loop {
                 let (c0, lanes) = (k - tx0, (xb - k).min(n));
@@ -314,15 +306,7 @@ impl Groups {
                 let x0 = (k as f64 + 0.5) as f32;
                 let lb = (lv >> c0) as u32 & ((1u64 << lanes) - 1) as u32;
                 // SAFETY: at most `cap` pieces are written (see above), within the reserves.
-                pieces.add(np).write(Piece {
-                    rs,
-                    yf,
-                    x0,
-                    at: (ry * stride + c0) as u32,
-                    ry: ry as u16,
-                    c0: c0 as u16,
-                    lb,
-                });
+                pieces.add(np).write(Piece { yf, x0, at: (ry * stride + c0) as u32, ry: ry as u16, c0: c0 as u16, lb });
                 wide.add(nw).write(np as u16);
                 short.add(ns).write(np as u16);
                 let (is_short, some) = (lanes <= n / 2, lb != 0);
@@ -361,7 +345,6 @@ impl Piece {
             None => self.lb,
         };
         Group {
-            rs: [self.rs, h.rs],
             yf: [self.yf, h.yf],
             x0: [self.x0, h.x0],
             at: [self.at, h.at],
@@ -383,7 +366,7 @@ mod tests {
     use svgir_core::rng::Rng;
 
     /// Every pixel the scalar kernels visit (box rows narrowed by the chord and the live masks)
-    /// lies in exactly one lane group, at the right x, row setup and tile index; and small
+    /// lies in exactly one lane group, at the right x, y and tile index; and small
     /// splats do produce packed groups.
     #[test]
     fn groups_cover_the_scalar_spans_once() {
@@ -426,10 +409,12 @@ mod tests {
                 unsafe { groups.list::<F8>(s, &tr, &live, stride) };
                 let mut got = std::collections::BTreeSet::new();
                 let mut lanes = |g: &Group, is_packed: bool| {
-                    let mut xs = [0f32; 8];
+                    let (mut xs, mut ys) = ([0f32; 8], [0f32; 8]);
                     unsafe {
                         let x = if is_packed { g.x::<F8, true>() } else { g.x::<F8, false>() };
                         x.store(xs.as_mut_ptr());
+                        let y = if is_packed { g.y::<F8, true>() } else { g.y::<F8, false>() };
+                        y.store(ys.as_mut_ptr());
                     }
                     for l in 0..8 {
                         if g.lb >> l & 1 == 0 {
@@ -440,8 +425,7 @@ mod tests {
                         let (y, x) = (ry + tr[2] as usize, c + tr[0] as usize);
                         assert_eq!(g.at[h] as usize + col, ry * stride + c, "tile index");
                         assert_eq!(xs[l], x as f32 + 0.5, "pixel centre");
-                        assert_eq!(g.yf[h], y as f32 + 0.5, "row centre");
-                        assert_eq!(g.rs[h].a, row_setup(&s.h, g.yf[h]).a, "row setup");
+                        assert_eq!(ys[l], y as f32 + 0.5, "row centre");
                         assert!(got.insert((y, x)), "pixel ({x}, {y}) in two groups");
                     }
                 };

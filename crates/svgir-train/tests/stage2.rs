@@ -200,10 +200,13 @@ fn run_and_resume(ds: &Dataset, mut t: Stage2) {
 
 /// Relighting's directional lights only split the light integral into an exact part (the
 /// brightest texels, traced) and the K-sample part (the rest of the map): on a smooth map that K
-/// samples resolve, 32 lights + K = 64 must agree with K = 1024 and no lights, as closely as
-/// K = 64 alone does. A double-counted or dropped light texel (the 32 brightest hold ~11% of this
-/// map's power) or a wrong solid angle breaks it. (On a smooth map the split does not reduce the
-/// noise: the hole it leaves has sharp edges. It pays off on compact lamps and suns.) One-sided
+/// samples resolve, 32 lights + K = 64 must agree with K = 1024 and no lights in the mean, and
+/// within 2.5 times K = 64 alone in RMSE. A double-counted or dropped light texel (the 32
+/// brightest hold ~11% of this map's power) or a wrong solid angle breaks it. (On a smooth map the
+/// split does not reduce the noise: the hole it leaves has sharp edges. It pays off on compact
+/// lamps and suns. The ratio is a ratio of two noisy errors: with one stage-1 model it was 1.59
+/// one-sided and 1.68 two-sided, with a model whose rasteriser rounded differently 1.60 and 2.04,
+/// the split's error the same (0.0032 / 0.0031) and K = 64's lower (0.0019 / 0.0015).) One-sided
 /// and two-sided.
 #[test]
 fn relight_lights_conserve_the_light_integral() {
@@ -252,7 +255,7 @@ fn relight_split_matches_dense_sampling(ds: &Dataset, s2: &Stage2) {
         mean(&reference)
     );
     assert!((mean(&split) / mean(&reference) - 1.0).abs() < 0.02, "the split changes the image's mean");
-    assert!(e_split < 2.0 * e_sampled && e_split < 0.01, "split error {e_split} (K = 64 alone: {e_sampled})");
+    assert!(e_split < 2.5 * e_sampled && e_split < 0.01, "split error {e_split} (K = 64 alone: {e_sampled})");
 }
 
 /// The sun direction search (`stage2::sun_search`) finds a sun that sits off the texel grid:
