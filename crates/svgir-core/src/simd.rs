@@ -319,6 +319,30 @@ mod x86 {
         };
     }
 
+    /// `m ? a : b` per lane, as `_mm256_blendv_ps`, but out of LLVM's sight.
+    ///
+    /// Given `store(p, blendv(m, x, load(p)))` -- how the kernels write the lanes of a mask to
+    /// their tile arrays -- LLVM emits one `vmaskmovps` store instead of the blend and a plain
+    /// store. On AMD Zen 3 that masked store is slow, and a masked store does not forward to
+    /// the next entry's load of the same pixels: the forward tile kernel spent about a quarter
+    /// of its samples behind those stores, and the blend with a plain store took it from 80 to
+    /// 54-59 ms on one thread (docs/performance.md, "Masked stores on AVX2"). The blend in
+    /// `asm!` is the same instruction, so every lane keeps its bits.
+    #[target_feature(enable = "avx")]
+    #[inline]
+    unsafe fn blend_opaque(m: __m256, a: __m256, b: __m256) -> __m256 {
+        let r: __m256;
+        std::arch::asm!(
+            "vblendvps {r}, {b}, {a}, {m}",
+            r = lateout(ymm_reg) r,
+            a = in(ymm_reg) a,
+            b = in(ymm_reg) b,
+            m = in(ymm_reg) m,
+            options(pure, nomem, nostack)
+        );
+        r
+    }
+
     /// 8 f32 lanes with vector masks (AVX2).
     #[derive(Clone, Copy)]
     pub struct F8(__m256);
@@ -348,7 +372,7 @@ mod x86 {
         }
         #[inline(always)]
         unsafe fn select(m: __m256, a: Self, b: Self) -> Self {
-            F8(_mm256_blendv_ps(b.0, a.0, m))
+            F8(blend_opaque(m, a.0, b.0))
         }
         #[inline(always)]
         unsafe fn and(a: __m256, b: __m256) -> __m256 {
