@@ -453,3 +453,62 @@ mod x86 {
         }
     }
 }
+
+#[cfg(all(test, target_arch = "x86_64"))]
+mod tests {
+    use super::*;
+
+    /// `select`, `store_where` and `store2_where` of every 8-lane mask, against the lanes
+    /// picked one by one: the AVX2 blend is written in `asm!`, whose operand order no compiler
+    /// checks.
+    unsafe fn masked_lanes_are_picked<S: Lanes>() {
+        let a: [f32; 8] = std::array::from_fn(|i| i as f32 + 0.5);
+        let b: [f32; 8] = std::array::from_fn(|i| -(i as f32) - 10.0);
+        for bits in 0..256u32 {
+            let m = S::from_bits(bits);
+            assert_eq!(S::bits(m), bits);
+            let want: [f32; 8] = std::array::from_fn(|i| if bits >> i & 1 == 1 { a[i] } else { b[i] });
+            let mut got = [0f32; 8];
+            S::select(m, S::load(a.as_ptr()), S::load(b.as_ptr())).store(got.as_mut_ptr());
+            assert_eq!(got, want, "select, mask {bits:08b}");
+            let mut mem = b;
+            S::load(a.as_ptr()).store_where(m, mem.as_mut_ptr());
+            assert_eq!(mem, want, "store_where, mask {bits:08b}");
+            // The two halves to two places, with untouched floats between them.
+            let mut mem2 = [7f32; 12];
+            mem2[..4].copy_from_slice(&b[..4]);
+            mem2[8..].copy_from_slice(&b[4..]);
+            let p = mem2.as_mut_ptr();
+            S::load(a.as_ptr()).store2_where(m, p, p.add(8));
+            assert_eq!(mem2[..4], want[..4], "store2_where low half, mask {bits:08b}");
+            assert_eq!(mem2[8..], want[4..], "store2_where high half, mask {bits:08b}");
+            assert_eq!(mem2[4..8], [7.0; 4], "store2_where wrote between the halves");
+        }
+    }
+
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn check_avx2() {
+        masked_lanes_are_picked::<F8>();
+    }
+
+    #[target_feature(enable = "avx512f,avx512vl,avx2,fma")]
+    unsafe fn check_avx512() {
+        masked_lanes_are_picked::<F8k>();
+    }
+
+    #[test]
+    fn masked_writes_pick_the_mask_lanes() {
+        if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
+            // SAFETY: the features were just detected.
+            unsafe { check_avx2() };
+        } else {
+            eprintln!("SKIPPED: this CPU has no AVX2, so the 8-lane type cannot run here");
+        }
+        if std::is_x86_feature_detected!("avx512f") && std::is_x86_feature_detected!("avx512vl") {
+            // SAFETY: the features were just detected.
+            unsafe { check_avx512() };
+        } else {
+            eprintln!("SKIPPED: this CPU has no AVX-512, so the mask-register type is not checked here");
+        }
+    }
+}
