@@ -240,7 +240,12 @@ pub fn activate_backward<F: Real>(
 ) -> Result<MaterialGrads<F>, PbrError> {
     check_shapes(m, normals.len(), albedo_raw, roughness_raw, normal_offset)?;
     check_shapes(m, normals.len(), v_albedo, v_roughness, v_normals)?;
+    // A Gaussian no view pixel saw has zero gradients (about half of them per view): returning
+    // the zero itself gives the product's bits (its sign included) without the `exp`.
     let dsig = |x: F, g: F, scale: f64| {
+        if g == F::ZERO {
+            return g;
+        }
         let s = sigmoid(x);
         g * F::from_f64(scale) * s * (F::ONE - s)
     };

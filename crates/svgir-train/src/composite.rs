@@ -28,14 +28,39 @@ pub fn composite_px(c: [f64; 3], o: f64, cover: Option<f64>, bg: [f32; 3]) -> [f
     [0, 1, 2].map(|k| srgb(c[k] / oc) * m + bg[k] as f64 * (1.0 - m))
 }
 
+/// [`composite_px`] with each channel's tone value and slope `(srgb(x), srgb'(x))`, which the
+/// backward reads instead of calling `powf` again (the value is `composite_px`'s for every
+/// colour but NaN).
+fn composite_px_toned(c: [f64; 3], o: f64, cover: Option<f64>, bg: [f32; 3]) -> ([f64; 3], [Tone; 3]) {
+    let oc = o.max(MIN_OPACITY);
+    let m = cover.unwrap_or(o);
+    let tone = [0, 1, 2].map(|k| srgb_with_grad(c[k] / oc));
+    ([0, 1, 2].map(|k| tone[k].0 * m + bg[k] as f64 * (1.0 - m)), tone)
+}
+
+/// A channel's `(srgb(x), d srgb / dx)` at its straight colour `x = C / max(O, eps)`.
+type Tone = (f64, f64);
+
 /// Gradients of one pixel: `(dL/dC, dL/dO)` given `dL/dI`.
 pub fn composite_px_backward(c: [f64; 3], o: f64, cover: Option<f64>, bg: [f32; 3], v_i: [f64; 3]) -> ([f64; 3], f64) {
+    composite_px_backward_toned(c, o, cover, bg, v_i, &composite_px_toned(c, o, cover, bg).1)
+}
+
+/// [`composite_px_backward`] with the forward's tone values and slopes.
+fn composite_px_backward_toned(
+    c: [f64; 3],
+    o: f64,
+    cover: Option<f64>,
+    bg: [f32; 3],
+    v_i: [f64; 3],
+    tone: &[Tone; 3],
+) -> ([f64; 3], f64) {
     let oc = o.max(MIN_OPACITY);
     let m = cover.unwrap_or(o);
     let mut v_c = [0.0; 3];
     let mut v_o = 0.0;
     for k in 0..3 {
-        let (s, ds) = srgb_with_grad(c[k] / oc);
+        let (s, ds) = tone[k];
         if cover.is_none() {
             v_o += v_i[k] * (s - bg[k] as f64);
         }
@@ -69,15 +94,66 @@ fn cover_of(cover: Option<&[f32]>, p: usize) -> Option<f64> {
 
 /// The whole image (RGB, 3 per pixel); `cover`: one alpha per pixel, or `None` for the render's.
 pub fn pbr_composite(color: &[f32], alpha: &[f32], cover: Option<&[f32]>, bg: [f32; 3]) -> Vec<f32> {
+    composite_image(color, alpha, cover, bg, false).0
+}
+
+/// [`pbr_composite`], keeping what its backward needs ([`PbrComposite::backward`]).
+pub fn pbr_composite_keep<'a>(
+    color: &'a [f32],
+    alpha: &'a [f32],
+    cover: Option<&'a [f32]>,
+    bg: [f32; 3],
+) -> (Vec<f32>, PbrComposite<'a>) {
+    let (image, tone) = composite_image(color, alpha, cover, bg, true);
+    (image, PbrComposite { color, alpha, cover, bg, tone })
+}
+
+/// The image, and with `keep` each channel's tone value and slope (f64, so the backward has the
+/// bits it would compute itself: the `powf` calls were a tenth of stage 2's loss phase).
+fn composite_image(
+    color: &[f32],
+    alpha: &[f32],
+    cover: Option<&[f32]>,
+    bg: [f32; 3],
+    keep: bool,
+) -> (Vec<f32>, Vec<Tone>) {
     let mut image = filled(alpha.len() * 3, 0.0f32);
-    image.par_chunks_mut(3 * CHUNK).enumerate().for_each(|(k, out)| {
-        for (i, o) in out.chunks_exact_mut(3).enumerate() {
+    if !keep {
+        image.par_chunks_mut(3 * CHUNK).enumerate().for_each(|(k, out)| {
+            for (i, o) in out.chunks_exact_mut(3).enumerate() {
+                let p = k * CHUNK + i;
+                let v = composite_px(px(color, p), alpha[p] as f64, cover_of(cover, p), bg);
+                o.iter_mut().zip(v).for_each(|(o, v)| *o = v as f32);
+            }
+        });
+        return (image, Vec::new());
+    }
+    let mut tone = filled(alpha.len() * 3, (0.0, 0.0));
+    image.par_chunks_mut(3 * CHUNK).zip(tone.par_chunks_mut(3 * CHUNK)).enumerate().for_each(|(k, (out, tn))| {
+        for (i, (o, t)) in out.chunks_exact_mut(3).zip(tn.chunks_exact_mut(3)).enumerate() {
             let p = k * CHUNK + i;
-            let v = composite_px(px(color, p), alpha[p] as f64, cover_of(cover, p), bg);
+            let (v, tp) = composite_px_toned(px(color, p), alpha[p] as f64, cover_of(cover, p), bg);
             o.iter_mut().zip(v).for_each(|(o, v)| *o = v as f32);
+            t.copy_from_slice(&tp);
         }
     });
-    image
+    (image, tone)
+}
+
+/// A composited image's inputs and tone values, for its backward.
+pub struct PbrComposite<'a> {
+    color: &'a [f32],
+    alpha: &'a [f32],
+    cover: Option<&'a [f32]>,
+    bg: [f32; 3],
+    tone: Vec<Tone>,
+}
+
+impl PbrComposite<'_> {
+    /// `(dL/dC, dL/dO)` for the whole image, the bits of [`pbr_composite_backward`].
+    pub fn backward(&self, v_image: &[f32]) -> (Vec<f32>, Vec<f32>) {
+        composite_backward(self.color, self.alpha, self.cover, self.bg, v_image, Some(&self.tone))
+    }
 }
 
 /// `(dL/dC, dL/dO)` for the whole image.
@@ -88,12 +164,28 @@ pub fn pbr_composite_backward(
     bg: [f32; 3],
     v_image: &[f32],
 ) -> (Vec<f32>, Vec<f32>) {
+    composite_backward(color, alpha, cover, bg, v_image, None)
+}
+
+fn composite_backward(
+    color: &[f32],
+    alpha: &[f32],
+    cover: Option<&[f32]>,
+    bg: [f32; 3],
+    v_image: &[f32],
+    tone: Option<&[Tone]>,
+) -> (Vec<f32>, Vec<f32>) {
     let mut v_color = filled(color.len(), 0.0);
     let mut v_alpha = filled(alpha.len(), 0.0);
     v_color.par_chunks_mut(3 * CHUNK).zip(v_alpha.par_chunks_mut(CHUNK)).enumerate().for_each(|(k, (vcs, vos))| {
         for (i, (vc_out, vo_out)) in vcs.chunks_exact_mut(3).zip(vos.iter_mut()).enumerate() {
             let p = k * CHUNK + i;
-            let (vc, vo) = composite_px_backward(px(color, p), alpha[p] as f64, cover_of(cover, p), bg, px(v_image, p));
+            let (c, o, cv) = (px(color, p), alpha[p] as f64, cover_of(cover, p));
+            let v_i = px(v_image, p);
+            let (vc, vo) = match tone {
+                Some(t) => composite_px_backward_toned(c, o, cv, bg, v_i, &[t[3 * p], t[3 * p + 1], t[3 * p + 2]]),
+                None => composite_px_backward(c, o, cv, bg, v_i),
+            };
             vc_out.iter_mut().zip(vc).for_each(|(o, v)| *o = v as f32);
             *vo_out = vo as f32;
         }
@@ -133,6 +225,27 @@ mod tests {
                 let fd = (loss(c, o + h) - loss(c, o - h)) / (2.0 * h);
                 assert!((fd - vo).abs() < 1e-5 * fd.abs().max(1.0), "case {case} O: {fd} vs {vo}");
             }
+        }
+    }
+
+    #[test]
+    fn kept_tone_gives_the_bits_of_the_plain_backward() {
+        let mut rng = Rng::new(3);
+        let n = 3 * CHUNK + 17;
+        let alpha: Vec<f32> = (0..n).map(|p| if p % 7 == 0 { 0.0 } else { rng.uniform() }).collect();
+        let color: Vec<f32> = (0..3 * n).map(|i| alpha[i / 3] * 2.0 * rng.uniform().powi(3)).collect();
+        let v_image: Vec<f32> = (0..3 * n).map(|_| rng.normal()).collect();
+        let cover: Vec<f32> = (0..n).map(|_| rng.uniform()).collect();
+        let bg = [0.1, 0.5, 0.9];
+        for cv in [None, Some(&cover[..])] {
+            let (image, kept) = pbr_composite_keep(&color, &alpha, cv, bg);
+            let plain = pbr_composite(&color, &alpha, cv, bg);
+            let (vc, vo) = kept.backward(&v_image);
+            let (wc, wo) = pbr_composite_backward(&color, &alpha, cv, bg, &v_image);
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
+            assert_eq!(bits(&image), bits(&plain));
+            assert_eq!(bits(&vc), bits(&wc));
+            assert_eq!(bits(&vo), bits(&wo));
         }
     }
 

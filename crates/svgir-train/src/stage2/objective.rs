@@ -13,7 +13,7 @@
 //! (`tests/objective_stage2.rs`), not only its parts.
 
 use super::config::Stage2Weights;
-use crate::composite::{pbr_composite, pbr_composite_backward};
+use crate::composite::pbr_composite_keep;
 use crate::losses::depth_normal::depth_normal_loss;
 use crate::losses::l1::l1_loss;
 use crate::losses::smoothness::{depth_guide, edge_aware_smoothness_with, EdgeWeights, BACKGROUND_GUIDE};
@@ -153,12 +153,12 @@ pub fn stage2_objective(
         v_x.par_iter_mut().zip(&g).with_min_len(CHUNK).for_each(|(v, g)| *v -= wts.ssim * g);
         (wts.l1 * l1 + wts.ssim * (1.0 - ssim), v_x)
     };
-    let image = pbr_composite(out.color, out.alpha, cover, bg);
+    let (image, composite) = pbr_composite_keep(out.color, out.alpha, cover, bg);
     let ((loss_pbr, v_image), (loss_sh, v_sh_color)) = rayon::join(|| photo(&image), || photo(out.sh_color));
     let mut loss = loss_pbr;
     loss += loss_sh;
 
-    let (v_color, mut v_alpha) = pbr_composite_backward(out.color, out.alpha, cover, bg, &v_image);
+    let (v_color, mut v_alpha) = composite.backward(&v_image);
 
     // Material buffers (opacity detached in the division) with edge-aware smoothness
     // (Eqn 17) against the photo, and the shading-normal / depth-normal loss (Eqn 18).
