@@ -482,6 +482,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
     let pb = progress::bar(s2.config.iterations, "stage 2");
     pb.set_position(s2.iteration);
     let first_iteration = s2.iteration;
+    let traced_before = s2.trace_seconds;
     let start = std::time::Instant::now();
     while !s2.is_done() {
         let st = s2.step(&dataset)?;
@@ -518,12 +519,13 @@ pub fn run(args: InverseArgs) -> Result<()> {
         let ms2 = 1e3 * (t.forward + t.loss + t.backward + t.optimizer) / its;
         let wall_ms = 1e3 * start.elapsed().as_secs_f64() / (s2.iteration - first_iteration).max(1) as f64;
         eprintln!(
-            "stage 2: {ms2:.1} ms per iteration (forward {:.1}, loss {:.1}, backward {:.1}, Adam {:.1}); {:.1} ms of wall time per iteration in this session",
+            "stage 2: {ms2:.1} ms per iteration (forward {:.1}, loss {:.1}, backward {:.1}, Adam {:.1}); {:.1} ms of wall time per iteration in this session, {:.1} of them the lights' visibility traces",
             1e3 * t.forward / its,
             1e3 * t.loss / its,
             1e3 * t.backward / its,
             1e3 * t.optimizer / its,
             wall_ms,
+            1e3 * (s2.trace_seconds - traced_before) / (s2.iteration - first_iteration).max(1) as f64,
         );
         if let Some((ms1, threads1)) = stage1_iteration_ms(&args.run) {
             eprintln!(
