@@ -77,6 +77,24 @@ impl<S: Lanes> Sums<S> {
     }
 }
 
+/// `out[k] += v[k].hsum()` for every k, eight sums at a time ([`Lanes::hsum8`], the same bits).
+#[inline(always)]
+unsafe fn add_hsums<S: Lanes>(v: &[S], out: &mut [f32]) {
+    let mut chunks = v.chunks_exact(8);
+    let mut k = 0;
+    for c in &mut chunks {
+        let c: &[S; 8] = c.try_into().expect("chunks of eight");
+        let s = S::hsum8(c);
+        for (o, x) in out[k..k + 8].iter_mut().zip(s) {
+            *o += x;
+        }
+        k += 8;
+    }
+    for (o, f) in out[k..].iter_mut().zip(chunks.remainder()) {
+        *o += f.hsum();
+    }
+}
+
 #[inline(always)]
 unsafe fn hsum3<S: Lanes>(v: &[S; 3]) -> [f32; 3] {
     [v[0].hsum(), v[1].hsum(), v[2].hsum()]
@@ -412,33 +430,45 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
         }
         let slot = &mut eg[(e - e_tile0) * dim..(e - e_tile0 + 1) * dim];
         if FEAT && ci {
-            for (k, f) in fsum[..n_col].iter().enumerate() {
-                slot[OFF_COL + k] += f.hsum();
-            }
-        } else {
-            let v_col = hsum3(&sm.v_col);
-            for ch in 0..3 {
-                slot[OFF_COL + ch] += v_col[ch];
-            }
+            add_hsums(&fsum[..n_col], &mut slot[OFF_COL..OFF_COL + n_col]);
         }
         if FEAT {
-            for (k, f) in fsum[n_col..].iter().enumerate() {
-                slot[ctx.off_ext + k] += f.hsum();
-            }
+            let n_ext = fsum.len() - n_col;
+            add_hsums(&fsum[n_col..], &mut slot[ctx.off_ext..ctx.off_ext + n_ext]);
         }
-        slot[OFF_OP] += sm.opacity.hsum();
+        let one_colour = !(FEAT && ci);
         if !GEO {
+            if one_colour {
+                let v_col = hsum3(&sm.v_col);
+                for ch in 0..3 {
+                    slot[OFF_COL + ch] += v_col[ch];
+                }
+            }
+            slot[OFF_OP] += sm.opacity.hsum();
             // The geometry slots stay zero (`crate::RasterConfig::geometry_grads`).
             continue;
         }
-        let v_n = hsum3(&sm.v_n);
+        // The entry's per-lane sums eight at a time ([`Lanes::hsum8`]: the bits of one by one).
+        let z = sp(0.0);
+        let col = if one_colour { sm.v_col } else { [z; 3] };
+        let (n, hd, c, g) = (&sm.v_n, &sm.h_depth, &sm.center, &sm.gp);
+        let a = S::hsum8(&[n[0], n[1], n[2], hd[0], hd[1], hd[2], c[0], c[1]]);
+        let (gx, gy) = (&sm.gp_x, &sm.gp_y);
+        let b = S::hsum8(&[sm.opacity, g[0], g[1], g[2], gx[0], gx[1], gx[2], gy[0]]);
+        let d = S::hsum8(&[gy[1], gy[2], col[0], col[1], col[2], z, z, z]);
+        if one_colour {
+            for ch in 0..3 {
+                slot[OFF_COL + ch] += d[2 + ch];
+            }
+        }
+        slot[OFF_OP] += b[0];
         let sg = SplatGrad::from_sums(
-            hsum3(&sm.h_depth),
-            [sm.center[0].hsum(), sm.center[1].hsum()],
-            sm.opacity.hsum(),
-            hsum3(&sm.gp),
-            hsum3(&sm.gp_x),
-            hsum3(&sm.gp_y),
+            [a[3], a[4], a[5]],
+            [a[6], a[7]],
+            b[0],
+            [b[1], b[2], b[3]],
+            [b[4], b[5], b[6]],
+            [b[7], d[0], d[1]],
         );
         let v_h = sg.h_grad(&s.h);
         for j in 0..9 {
@@ -447,7 +477,7 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
         slot[OFF_C] += sg.center[0];
         slot[OFF_C + 1] += sg.center[1];
         for j in 0..3 {
-            slot[OFF_N + j] += v_n[j];
+            slot[OFF_N + j] += a[j];
         }
     }
 }
