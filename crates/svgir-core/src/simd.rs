@@ -540,18 +540,7 @@ mod tests {
 
     #[test]
     fn eight_sums_at_once_keep_each_sums_bits() {
-        if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
-            // SAFETY: the features were just detected.
-            unsafe { sums_avx2() };
-        } else {
-            eprintln!("SKIPPED: this CPU has no AVX2, so the 8-lane type cannot run here");
-        }
-        if std::is_x86_feature_detected!("avx512f") && std::is_x86_feature_detected!("avx512vl") {
-            // SAFETY: the features were just detected.
-            unsafe { sums_avx512() };
-        } else {
-            eprintln!("SKIPPED: this CPU has no AVX-512, so the mask-register type is not checked here");
-        }
+        on_each_lane_type(sums_avx2, sums_avx512);
     }
 
     #[target_feature(enable = "avx2,fma")]
@@ -566,15 +555,21 @@ mod tests {
 
     #[test]
     fn masked_writes_pick_the_mask_lanes() {
+        on_each_lane_type(check_avx2, check_avx512);
+    }
+
+    /// Runs `avx2` where the CPU has AVX2 and FMA and `avx512` where it has AVX-512F+VL, saying
+    /// which were skipped.
+    fn on_each_lane_type(avx2: unsafe fn(), avx512: unsafe fn()) {
         if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
             // SAFETY: the features were just detected.
-            unsafe { check_avx2() };
+            unsafe { avx2() };
         } else {
             eprintln!("SKIPPED: this CPU has no AVX2, so the 8-lane type cannot run here");
         }
         if std::is_x86_feature_detected!("avx512f") && std::is_x86_feature_detected!("avx512vl") {
             // SAFETY: the features were just detected.
-            unsafe { check_avx512() };
+            unsafe { avx512() };
         } else {
             eprintln!("SKIPPED: this CPU has no AVX-512, so the mask-register type is not checked here");
         }
