@@ -8,7 +8,8 @@
 //!
 //! Per pixel and independent, so forward and backward are plain loops over pixels, split into
 //! rows of pixels across threads (each pixel's value does not depend on the split); computed in
-//! f64 so the same per-pixel functions are the finite-difference oracle.
+//! f64 so the same per-pixel functions are the finite-difference oracle. Training's forward keeps
+//! each channel's sRGB value and slope (`pbr_composite_keep`), so its backward needs no `powf`.
 
 /// Opacity floor of the division (SPEC 3).
 pub const MIN_OPACITY: f64 = 1e-5;
