@@ -95,40 +95,27 @@ fn cover_of(cover: Option<&[f32]>, p: usize) -> Option<f64> {
 
 /// The whole image (RGB, 3 per pixel); `cover`: one alpha per pixel, or `None` for the render's.
 pub fn pbr_composite(color: &[f32], alpha: &[f32], cover: Option<&[f32]>, bg: [f32; 3]) -> Vec<f32> {
-    composite_image(color, alpha, cover, bg, false).0
+    let mut image = filled(alpha.len() * 3, 0.0f32);
+    image.par_chunks_mut(3 * CHUNK).enumerate().for_each(|(k, out)| {
+        for (i, o) in out.chunks_exact_mut(3).enumerate() {
+            let p = k * CHUNK + i;
+            let v = composite_px(px(color, p), alpha[p] as f64, cover_of(cover, p), bg);
+            o.iter_mut().zip(v).for_each(|(o, v)| *o = v as f32);
+        }
+    });
+    image
 }
 
-/// [`pbr_composite`], keeping what its backward needs ([`PbrComposite::backward`]).
+/// [`pbr_composite`], keeping each channel's tone value and slope for its backward
+/// ([`PbrComposite::backward`]): in f64, so the backward has the bits it would compute itself
+/// (the `powf` calls were a tenth of stage 2's loss phase).
 pub fn pbr_composite_keep<'a>(
     color: &'a [f32],
     alpha: &'a [f32],
     cover: Option<&'a [f32]>,
     bg: [f32; 3],
 ) -> (Vec<f32>, PbrComposite<'a>) {
-    let (image, tone) = composite_image(color, alpha, cover, bg, true);
-    (image, PbrComposite { color, alpha, cover, bg, tone })
-}
-
-/// The image, and with `keep` each channel's tone value and slope (f64, so the backward has the
-/// bits it would compute itself: the `powf` calls were a tenth of stage 2's loss phase).
-fn composite_image(
-    color: &[f32],
-    alpha: &[f32],
-    cover: Option<&[f32]>,
-    bg: [f32; 3],
-    keep: bool,
-) -> (Vec<f32>, Vec<Tone>) {
     let mut image = filled(alpha.len() * 3, 0.0f32);
-    if !keep {
-        image.par_chunks_mut(3 * CHUNK).enumerate().for_each(|(k, out)| {
-            for (i, o) in out.chunks_exact_mut(3).enumerate() {
-                let p = k * CHUNK + i;
-                let v = composite_px(px(color, p), alpha[p] as f64, cover_of(cover, p), bg);
-                o.iter_mut().zip(v).for_each(|(o, v)| *o = v as f32);
-            }
-        });
-        return (image, Vec::new());
-    }
     let mut tone = filled(alpha.len() * 3, (0.0, 0.0));
     image.par_chunks_mut(3 * CHUNK).zip(tone.par_chunks_mut(3 * CHUNK)).enumerate().for_each(|(k, (out, tn))| {
         for (i, (o, t)) in out.chunks_exact_mut(3).zip(tn.chunks_exact_mut(3)).enumerate() {
@@ -138,7 +125,7 @@ fn composite_image(
             t.copy_from_slice(&tp);
         }
     });
-    (image, tone)
+    (image, PbrComposite { color, alpha, cover, bg, tone })
 }
 
 /// A composited image's inputs and tone values, for its backward.
