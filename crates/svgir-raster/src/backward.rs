@@ -21,7 +21,7 @@
 //! the SIMD kernels compute only the opacity, colour and feature sums; either path then returns
 //! zero geometry gradients.
 
-use crate::forward::{background_at, split_lens, FeatView};
+use crate::forward::{background_at, heaviest_first, split_lens, FeatView};
 use crate::interp::{normalised_coord, weight_grads, weights, MAX_VERTICES};
 use crate::phases::Stopwatch;
 use crate::preprocess::Cam;
@@ -90,7 +90,8 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     sw.lap("buffers");
     {
         // One task per tile (its entries are a contiguous run of `entry_grads`), as uneven in
-        // cost as the forward's tiles.
+        // cost as the forward's tiles: heaviest first, one at a time to whichever thread is
+        // free (`heaviest_first`).
         let elens = bins.ranges.iter().map(|r| (r[1] - r[0]) as usize * dim);
         let tiles: Vec<(usize, &mut [F])> = split_lens(&mut entry_grads, elens).into_iter().enumerate().collect();
         let ctx = Ctx {
@@ -107,7 +108,8 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
             dim,
             off_ext,
         };
-        tiles.into_par_iter().for_each_init(
+        let tiles = heaviest_first(tiles, |(t, _)| bins.entry_count(*t));
+        tiles.par_bridge().for_each_init(
             || Scratch::new(bins.tile as usize, ce),
             |scr, (t, eg)| {
                 backward_tile(&ctx, t, eg, scr);

@@ -1,7 +1,7 @@
 //! Forward compositing (SPEC 1, Eqn 3): preprocess, bin, then per tile front to back.
 //!
 //! Work split: one rayon task per run of consecutive tiles (`tile_runs`, several per thread,
-//! since tiles differ tenfold in cost); a tile writes its own pixels of every output image (a
+//! since tiles differ tenfold in cost), the heaviest runs first (`heaviest_first`); a tile writes its own pixels of every output image (a
 //! run in each of its rows, through [`Disjoint`]) and its own range of tile-list entries.
 //! Inside a tile the loop is Gaussian-outer, pixel-inner over the Gaussian's box clipped to the
 //! tile, so a Gaussian costs only the pixels it can touch. Each box row is first evaluated
@@ -201,6 +201,22 @@ pub(crate) fn tile_runs(ntiles: usize, threads: usize) -> Vec<Range<usize>> {
 /// Forward tasks per worker thread (see [`tile_runs`]).
 const TASKS_PER_THREAD: usize = 8;
 
+/// `tasks` ordered by descending `cost` (ties in their given order), for a `par_bridge`, which
+/// hands them out one at a time to whichever thread is free. A tile's cost follows its entry
+/// count, and the heavy tiles of an object in the middle of the view sit next to each other:
+/// split by rayon's default halving, one thread could be left with a run of them while the other
+/// waited; taken heaviest first, the pass ends on light tasks. On one thread the given order is
+/// kept (neighbouring tiles share Gaussians, which are then still in cache). Only the order in
+/// which the tasks run changes, not what any of them computes.
+pub(crate) fn heaviest_first<T>(tasks: Vec<T>, cost: impl Fn(&T) -> usize) -> std::vec::IntoIter<T> {
+    if rayon::current_num_threads() < 2 {
+        return tasks.into_iter();
+    }
+    let mut keyed: Vec<(usize, T)> = tasks.into_iter().map(|t| (cost(&t), t)).collect();
+    keyed.sort_by_key(|(c, _)| std::cmp::Reverse(*c));
+    keyed.into_iter().map(|(_, t)| t).collect::<Vec<T>>().into_iter()
+}
+
 /// Splits `v` into consecutive chunks of the given lengths.
 pub(crate) fn split_lens<T>(mut v: &mut [T], lens: impl Iterator<Item = usize>) -> Vec<&mut [T]> {
     let mut out = Vec::new();
@@ -281,7 +297,8 @@ pub(crate) fn render_projected<F: Real, P: GaussianParams<F> + ?Sized>(
             wsum: Disjoint::new(&mut wsum),
         };
         sw.lap("buffers");
-        tile_runs(bins.ranges.len(), rayon::current_num_threads()).into_par_iter().for_each(|run| {
+        let runs = tile_runs(bins.ranges.len(), rayon::current_num_threads());
+        heaviest_first(runs, |run| run.clone().map(|t| bins.entry_count(t)).sum()).par_bridge().for_each(|run| {
             render_tiles(&outs, run, bins, recs, &cf, &ef, &input.background, cfg, w, h);
         });
     }
@@ -520,5 +537,23 @@ fn render_tiles_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
                 r.extra[i * ce..(i + 1) * ce].copy_from_slice(&acc_extra[li * ce..(li + 1) * ce]);
             }
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::heaviest_first;
+
+    /// Several threads get the tasks by descending cost, equal costs in their given order; one
+    /// thread gets them as given.
+    #[test]
+    fn heaviest_first_orders_by_cost_on_several_threads_only() {
+        let tasks = vec![(0, 3), (1, 9), (2, 3), (3, 0), (4, 9), (5, 5)];
+        let order = |threads: usize| {
+            let pool = rayon::ThreadPoolBuilder::new().num_threads(threads).build().expect("pool");
+            pool.install(|| heaviest_first(tasks.clone(), |&(_, c)| c).map(|(i, _)| i).collect::<Vec<_>>())
+        };
+        assert_eq!(order(2), [1, 4, 5, 0, 2, 3]);
+        assert_eq!(order(1), [0, 1, 2, 3, 4, 5]);
     }
 }

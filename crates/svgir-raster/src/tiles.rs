@@ -125,6 +125,12 @@ pub struct TileBins {
 }
 
 impl TileBins {
+    /// Entries (Gaussians) binned to tile `t`.
+    pub fn entry_count(&self, t: usize) -> usize {
+        let [a, b] = self.ranges[t];
+        (b - a) as usize
+    }
+
     /// Pixel rectangle `[x0, x1, y0, y1]` of tile `t`.
     pub fn tile_rect(&self, t: usize, width: u32, height: u32) -> [u32; 4] {
         let tx = t as u32 % self.tiles_x;

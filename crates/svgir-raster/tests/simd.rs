@@ -429,10 +429,11 @@ fn reusing_a_projection_changes_no_bit() {
     }
 }
 
-/// The forward runs runs of tiles as parallel tasks, and the bins' radix sort cuts its keys into
-/// chunks per thread: on every path, one thread and seven give the same bits, in every output
-/// (the per-Gaussian weight sums included) and every gradient. 169 tiles of 8 px, so seven
-/// threads split them into runs of one tile.
+/// The forward runs runs of tiles as parallel tasks, the backward one task per tile, both
+/// heaviest first on several threads and in tile order on one, and the bins' radix sort cuts its
+/// keys into chunks per thread: on every path, one thread and seven give the same bits, in every
+/// output (the per-Gaussian weight sums included) and every gradient. 169 tiles of 8 px, so
+/// seven threads split them into runs of one tile.
 #[test]
 fn thread_count_changes_no_bit() {
     let (n, res, m, ce) = (40_000, 104u32, 4usize, 5usize);
