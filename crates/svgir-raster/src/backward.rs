@@ -9,8 +9,8 @@
 //! front with a running suffix sum, and `T_i = T_{i+1} / (1 - alpha_i)` recovered from the saved
 //! final T (as 3DGS).
 //!
-//! Work split: one rayon task per tile, Gaussian-outer (in reverse list order) and
-//! pixel-inner as in the forward; gradients go to a per-entry buffer (one slot per (Gaussian,
+//! Work split: one rayon task per tile, the heaviest tiles first (`heaviest_first`),
+//! Gaussian-outer (in reverse list order) and pixel-inner as in the forward; gradients go to a per-entry buffer (one slot per (Gaussian,
 //! tile) pair, owned by that tile), then each Gaussian sums its entries in a fixed order. No
 //! atomics, no racy `+=`, bit-reproducible for a given input (SPEC 9.4, 9.9). An entry that
 //! composited nothing in the forward (zero saved weight: faint everywhere, or behind pixels that

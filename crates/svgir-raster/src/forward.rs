@@ -1,8 +1,9 @@
 //! Forward compositing (SPEC 1, Eqn 3): preprocess, bin, then per tile front to back.
 //!
 //! Work split: one rayon task per run of consecutive tiles (`tile_runs`, several per thread,
-//! since tiles differ tenfold in cost), the heaviest runs first (`heaviest_first`); a tile writes its own pixels of every output image (a
-//! run in each of its rows, through [`Disjoint`]) and its own range of tile-list entries.
+//! since tiles differ tenfold in cost), the heaviest runs first (`heaviest_first`); a tile
+//! writes its own pixels of every output image (a run in each of its rows, through
+//! [`Disjoint`]) and its own range of tile-list entries.
 //! Inside a tile the loop is Gaussian-outer, pixel-inner over the Gaussian's box clipped to the
 //! tile, so a Gaussian costs only the pixels it can touch. Each box row is first evaluated
 //! branch-free into a small buffer ([`crate::splat::eval_row`], vectorisable), then composited
