@@ -47,7 +47,7 @@ pub fn synthetic_microbuffer(n: usize, k: usize, seed: u64) -> MicroBuffer {
         first_hit.push(hit);
         uv.push([unorm16(rng.range(0.001, 0.999)), unorm16(rng.range(0.001, 0.999))]);
     }
-    MicroBuffer { k, normals, xi, vis, radiance, first_hit, uv }
+    MicroBuffer { k, normals, xi, vis, radiance, first_hit, uv, interleave: Default::default() }
 }
 
 /// Positions 2-4 units from a camera at the origin, each Gaussian seen from its normal's side

@@ -60,7 +60,7 @@ pub struct Consistency {
 
 /// `k_j` for Gaussian j seen along the unit view ray `view` (camera -> p_j), if any.
 pub fn mirror_pick(mb: &MicroBuffer, j: usize, view: Vec3) -> Option<u32> {
-    mirror_pick_with(mb, &FibTable::new(mb.k), j, view)
+    mirror_pick_with(mb, &mb.table(), j, view)
 }
 
 /// [`mirror_pick`] with the micro-buffer's Fibonacci table built once by the caller. The
@@ -86,7 +86,7 @@ fn mirror_pick_with(mb: &MicroBuffer, table: &FibTable, j: usize, view: Vec3) ->
 /// The (j, k_j) pairs of all visible Gaussians that have one, in increasing j.
 pub fn select_pairs(mb: &MicroBuffer, positions: &[Vec3], camera_center: Vec3, visible: &[bool]) -> Vec<(u32, u32)> {
     let n = mb.len().min(positions.len()).min(visible.len());
-    let table = FibTable::new(mb.k);
+    let table = mb.table();
     (0..n)
         .into_par_iter()
         .with_min_len(256)

@@ -456,7 +456,7 @@ pub fn shade_into_cached<F: Float>(
     for (buf, len) in [(&mut out.color, len), (&mut out.direct, split_len), (&mut out.indirect, split_len)] {
         svgir_core::par::refill(buf, len, F::ZERO);
     }
-    let table = FibTable::new(inp.mb.k);
+    let table = inp.mb.table();
     let lane = lane_kernels::<F>(inp.params.simd);
     // Without the split, the direct and indirect parts go to per-task scratch (scalar kernel)
     // or are not formed (lane kernel).

@@ -123,7 +123,7 @@ pub fn shade_backward_cached<F: Float>(
         return Ok(grads);
     }
     let block = block_size(n);
-    let table = FibTable::new(inp.mb.k);
+    let table = inp.mb.table();
     #[cfg(target_arch = "x86_64")]
     let lane = lane_kernels::<F>(inp.params.simd);
     let partials: Vec<Option<(Vec<[F; 3]>, F)>> = grads

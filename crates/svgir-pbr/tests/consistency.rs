@@ -26,6 +26,7 @@ fn picks_the_occluded_direction_nearest_the_mirror() {
         radiance: vec![[0; 3]; k],
         first_hit: vec![NO_HIT; k],
         uv: vec![[0; 2]; k],
+        interleave: Default::default(),
     };
     // View ray coming down at 45 degrees along +x: the mirror direction is (1, 0, 1)/sqrt2.
     let view = Vec3::new(1.0, 0.0, -1.0).normalize();

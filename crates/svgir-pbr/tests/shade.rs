@@ -545,3 +545,109 @@ fn two_sided_gradients_match_finite_differences_f64_and_flip_the_surfel() {
         assert!(two[2 * m * 3..3 * m * 3].iter().any(|&x| x > 0.0));
     }
 }
+
+/// Interleaved direction subsets (`MicroBuffer::interleaved`): the mean of the `stride`
+/// subsets' colours and gradients is the full K-direction result (SPEC 4's sum regrouped, the
+/// directional lights carried whole by each subset), in f64 with the generic kernels and in f32
+/// with the lane kernels; each subset alone differs from it.
+#[test]
+fn interleaved_subsets_average_to_the_full_sum() {
+    let (n, m, k, stride) = (60usize, 4usize, 48usize, 4usize);
+    let mut c = case(n, m, k, 21);
+    c.lights = random_lights(&c.geom, n, 3, 5);
+    let cache = DirectionCache::new(&c.mb, &c.geom).unwrap();
+    let subs: Vec<(MicroBuffer, DirectionCache)> = (0..stride)
+        .map(|p| {
+            let sub = c.mb.interleaved(stride, p).unwrap();
+            let sub_cache = cache.interleaved(&sub).unwrap();
+            (sub, sub_cache)
+        })
+        .collect();
+    let act64 = activate(m, &c.albedo, &c.rough, &c.offset, &c.mb.normals).unwrap();
+    let env64 = env_radiance(&c.env);
+    let act32 = synthetic_materials(n, m, 21).activated(&c.mb.normals).unwrap();
+    let flat = |g: &PbrGrads<f64>| {
+        [g.v_albedo.clone(), g.v_roughness.clone(), g.v_normals.clone(), g.v_env.concat(), vec![g.v_rho]]
+    };
+    let flat32 = |g: &PbrGrads<f32>| {
+        flat(&PbrGrads {
+            v_albedo: g.v_albedo.iter().map(|&x| x as f64).collect(),
+            v_roughness: g.v_roughness.iter().map(|&x| x as f64).collect(),
+            v_normals: g.v_normals.iter().map(|&x| x as f64).collect(),
+            v_env: g.v_env.iter().map(|t| t.map(|x| x as f64)).collect(),
+            v_rho: g.v_rho as f64,
+        })
+    };
+    let close = |a: &[f64], b: &[f64], tol: f64, what: &str| {
+        let scale = b.iter().fold(1e-12f64, |s, x| s.max(x.abs()));
+        let err = a.iter().zip(b).fold(0.0f64, |e, (x, y)| e.max((x - y).abs()));
+        assert!(err <= tol * scale, "{what}: max error {err:e} against max {scale:e}");
+        err / scale
+    };
+    let g32: Vec<f32> = c.g.iter().map(|&x| x as f32).collect();
+    for mode in [Mode::Traced, Mode::Off] {
+        for params in [
+            ShadeParams::default(),
+            ShadeParams { visibility: false, env_max: 1.5, diffuse: Diffuse::Layered, ..ShadeParams::default() },
+        ] {
+            // f64, generic kernels.
+            let full_in = inputs(&c, &act64.view(), mode, params, &env64, c.rho);
+            let full = shade(&full_in).unwrap();
+            let full_g = flat(&shade_backward_cached(&full_in, Some(&cache), &c.g).unwrap());
+            let mut mean = vec![0.0f64; full.color.len()];
+            let mut mean_g = full_g.clone().map(|v| vec![0.0f64; v.len()]);
+            for (sub, sub_cache) in &subs {
+                let sub_in = ShadeInputs { mb: sub, ..full_in };
+                let mut out = ShadeOutput::new();
+                shade_into_cached(&sub_in, Some(sub_cache), &mut out).unwrap();
+                assert_eq!(out, shade(&sub_in).unwrap(), "the cache keeps the bits");
+                let own = close(&out.color, &full.color, 1.0, "one subset");
+                assert!(own > 1e-4, "{mode:?}: one subset alone equals the full sum ({own:e})");
+                mean.iter_mut().zip(&out.color).for_each(|(a, b)| *a += b / stride as f64);
+                let g = flat(&shade_backward_cached(&sub_in, Some(sub_cache), &c.g).unwrap());
+                mean_g
+                    .iter_mut()
+                    .zip(&g)
+                    .for_each(|(a, b)| a.iter_mut().zip(b).for_each(|(x, y)| *x += y / stride as f64));
+            }
+            close(&mean, &full.color, 1e-12, "f64 colour");
+            for (j, (a, b)) in mean_g.iter().zip(&full_g).enumerate() {
+                close(a, b, 1e-11, &format!("f64 gradient {j} {mode:?} {params:?}"));
+            }
+            // f32, the lane kernels where the CPU has them.
+            let in32 = ShadeInputs {
+                mb: &c.mb,
+                positions: &c.positions,
+                camera_center: Vec3::ZERO,
+                visible: &c.visible,
+                mats: act32.view(),
+                env_geom: &c.geom,
+                env: &c.geom.data,
+                indirect: if mode == Mode::Traced { Indirect::Traced { rho: 0.7 } } else { Indirect::Off },
+                params,
+                lights: c.lights.as_ref(),
+            };
+            let mut full32 = ShadeOutput::colour_only();
+            shade_into_cached(&in32, Some(&cache), &mut full32).unwrap();
+            let full32_g = flat32(&shade_backward_cached(&in32, Some(&cache), &g32).unwrap());
+            let mut mean = vec![0.0f64; full32.color.len()];
+            let mut mean_g = full32_g.clone().map(|v| vec![0.0f64; v.len()]);
+            for (sub, sub_cache) in &subs {
+                let sub_in = ShadeInputs { mb: sub, ..in32 };
+                let mut out = ShadeOutput::colour_only();
+                shade_into_cached(&sub_in, Some(sub_cache), &mut out).unwrap();
+                mean.iter_mut().zip(&out.color).for_each(|(a, b)| *a += *b as f64 / stride as f64);
+                let g = flat32(&shade_backward_cached(&sub_in, Some(sub_cache), &g32).unwrap());
+                mean_g
+                    .iter_mut()
+                    .zip(&g)
+                    .for_each(|(a, b)| a.iter_mut().zip(b).for_each(|(x, y)| *x += y / stride as f64));
+            }
+            let full32_c: Vec<f64> = full32.color.iter().map(|&x| x as f64).collect();
+            close(&mean, &full32_c, 2e-6, "f32 colour");
+            for (j, (a, b)) in mean_g.iter().zip(&full32_g).enumerate() {
+                close(a, b, 2e-5, &format!("f32 gradient {j} {mode:?} {params:?}"));
+            }
+        }
+    }
+}

@@ -86,6 +86,18 @@ impl FibTable {
         let g: Vec<f64> = (0..count).map(|k| (k as f64 * golden).rem_euclid(std::f64::consts::TAU)).collect();
         Self { z, r, c: g.iter().map(|g| g.cos() as f32).collect(), s: g.iter().map(|g| g.sin() as f32).collect() }
     }
+
+    /// Rows `phase, phase + stride, ..` of the table for `count` directions (`count / stride`
+    /// rows, each with the bits of the full table's row): one of the `stride` interleaved
+    /// subsets that an iteration may shade in place of all `count` directions.
+    pub fn interleaved(count: usize, stride: usize, phase: usize) -> Self {
+        let full = Self::new(count);
+        if stride <= 1 {
+            return full;
+        }
+        let pick = |v: &[f32]| v.iter().skip(phase).step_by(stride).copied().collect();
+        Self { z: pick(&full.z), r: pick(&full.r), c: pick(&full.c), s: pick(&full.s) }
+    }
 }
 
 /// One Gaussian's hemisphere frame: its normal, tangents and azimuth offset `xi`, so that
@@ -175,6 +187,20 @@ mod tests {
         let n = Vec3::new(0.3, -0.2, 0.9).normalize();
         let mean = (0..384).map(|k| hemisphere_dir(n, k, 384, 1.0)).sum::<Vec3>() / 384.0;
         assert!((mean.dot(n) - 0.5).abs() < 0.05 && (mean - mean.dot(n) * n).length() < 0.02, "{mean}");
+    }
+
+    #[test]
+    fn interleaved_rows_are_the_full_tables_rows() {
+        let full = FibTable::new(64);
+        for phase in 0..4 {
+            let sub = FibTable::interleaved(64, 4, phase);
+            assert_eq!(sub.len(), 16);
+            for (j, row) in (0..4).map(|r| sub.rows()[r]).enumerate() {
+                let want: Vec<u32> = full.rows()[j].iter().skip(phase).step_by(4).map(|x| x.to_bits()).collect();
+                assert_eq!(row.iter().map(|x| x.to_bits()).collect::<Vec<_>>(), want, "row {j}, phase {phase}");
+            }
+        }
+        assert_eq!(FibTable::interleaved(64, 1, 0).rows(), full.rows());
     }
 
     #[test]

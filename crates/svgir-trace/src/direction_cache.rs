@@ -14,9 +14,9 @@
 //! azimuths; the shading entry points reject a cache built for other inputs (a stale cache would
 //! silently shade with the wrong light). Work split: rayon over Gaussians.
 
-use crate::{MicroBuffer, TraceError};
+use crate::{Interleave, MicroBuffer, TraceError};
 use rayon::prelude::*;
-use svgir_shading::hemisphere::{FibTable, HemiFrame};
+use svgir_shading::hemisphere::HemiFrame;
 
 /// Gaussians per rayon task.
 const MIN_TASK: usize = 64;
@@ -35,7 +35,7 @@ pub struct DirectionCache {
     coords: Vec<[f32; 2]>,
 }
 
-/// FNV-style hash of the bits that fix the directions (normals, azimuths, K).
+/// FNV-style hash of the bits that fix the directions (normals, azimuths, K, interleave).
 ///
 /// Checked at every shading and gather call (several per stage-2 iteration), so it is cheap:
 /// FNV-1a over fixed chunks of Gaussians in parallel, four independent streams per chunk (one
@@ -64,6 +64,7 @@ fn fingerprint(mb: &MicroBuffer) -> u64 {
         })
         .collect();
     let h = (BASIS ^ mb.k as u64) ^ ((mb.normals.len() as u64) << 20);
+    let h = mix(mix(h, mb.interleave.stride as u32), mb.interleave.phase as u32);
     chunks.iter().fold(h, |a, &b| mix(mix(a, b as u32), (b >> 32) as u32))
 }
 
@@ -84,7 +85,7 @@ impl DirectionCache {
             return Err(TraceError::SizeMismatch { what: "micro-buffer azimuths", got: mb.xi.len(), want: n });
         }
         let (width, height) = (env.width, env.height);
-        let table = FibTable::new(k);
+        let table = mb.table();
         let mut coords = vec![[0.0f32; 2]; n * k];
         coords.par_chunks_mut(k).enumerate().with_min_len(MIN_TASK).for_each(|(i, row)| {
             let frame = HemiFrame::new(mb.normals[i], mb.xi[i]);
@@ -93,6 +94,27 @@ impl DirectionCache {
             }
         });
         Ok(Self { n, k, width, height, fingerprint: fingerprint(mb), coords })
+    }
+
+    /// The cache of `sub`, an interleaved subset of the micro-buffer this cache was built for
+    /// (`MicroBuffer::interleaved`): its samples' coordinates copied, the bits of
+    /// [`DirectionCache::new`] on `sub`.
+    pub fn interleaved(&self, sub: &MicroBuffer) -> Result<Self, TraceError> {
+        let Interleave { stride, phase } = sub.interleave;
+        if sub.len() != self.n || sub.k * stride != self.k {
+            return Err(TraceError::InvalidParameter(format!(
+                "an interleaved subset of N = {}, K = {} / {stride} cannot come from a cache of N = {}, K = {}",
+                sub.len(),
+                sub.k * stride,
+                self.n,
+                self.k
+            )));
+        }
+        let coords = (0..self.n)
+            .flat_map(|i| (0..sub.k).map(move |s| i * self.k + phase + stride * s))
+            .map(|s| self.coords[s])
+            .collect();
+        Ok(Self { n: self.n, k: sub.k, width: self.width, height: self.height, fingerprint: fingerprint(sub), coords })
     }
 
     /// Heap bytes held.
@@ -146,6 +168,7 @@ mod tests {
     use crate::{Bvh, TraceParams};
     use glam::Vec3;
     use svgir_core::Rng;
+    use svgir_shading::hemisphere::FibTable;
 
     /// A traced micro-buffer of a small random object.
     fn synthetic_microbuffer(n: usize, k: usize, seed: u64) -> MicroBuffer {
@@ -155,6 +178,33 @@ mod tests {
 
     fn same(a: &Taps, b: &Taps) -> bool {
         a.index == b.index && a.weight.map(f32::to_bits) == b.weight.map(f32::to_bits)
+    }
+
+    #[test]
+    fn an_interleaved_subset_caches_its_own_directions() {
+        let env = EnvMap::constant(64, 32, [1.0; 3]);
+        let mb = synthetic_microbuffer(40, 24, 5);
+        let full = DirectionCache::new(&mb, &env).unwrap();
+        for phase in 0..3 {
+            let sub = mb.interleaved(3, phase).unwrap();
+            let cache = full.interleaved(&sub).unwrap();
+            assert_eq!(cache, DirectionCache::new(&sub, &env).unwrap(), "phase {phase}");
+            cache.check(&sub, &env).unwrap();
+            assert!(cache.check(&mb.interleaved(3, (phase + 1) % 3).unwrap(), &env).is_err(), "another phase");
+            assert!(full.check(&sub, &env).is_err());
+            for i in [0, 17, 39] {
+                for s in 0..sub.k {
+                    assert_eq!(sub.direction(i, s), mb.direction(i, phase + 3 * s));
+                    assert_eq!(sub.visibility(i, s), mb.visibility(i, phase + 3 * s));
+                    assert_eq!(sub.radiance(i, s), mb.radiance(i, phase + 3 * s));
+                    assert_eq!(sub.hit(i, s), mb.hit(i, phase + 3 * s));
+                    assert_eq!(sub.uv(i, s), mb.uv(i, phase + 3 * s));
+                }
+            }
+        }
+        assert!(mb.interleaved(5, 0).is_err(), "5 does not divide 24");
+        assert!(mb.interleaved(3, 3).is_err());
+        assert!(mb.interleaved(3, 0).unwrap().interleaved(2, 0).is_err());
     }
 
     #[test]

@@ -20,7 +20,7 @@
 use crate::bright::BrightLights;
 use crate::direction_cache::DirectionCache;
 use crate::gather_lanes::{lane_kernels, EscapeRows};
-use crate::microbuffer::{MicroBuffer, NO_HIT};
+use crate::microbuffer::{Interleave, MicroBuffer, NO_HIT};
 use crate::TraceError;
 use rayon::prelude::*;
 use svgir_core::envmap::Taps;
@@ -118,8 +118,9 @@ pub(crate) struct Escapes<F> {
     pub taps: Vec<Taps>,
     /// The directions and light again as padded lane rows, for [`crate::gather_lanes`].
     pub rows: EscapeRows,
-    /// The micro-buffer's Fibonacci table (built on the first fill).
+    /// The micro-buffer's Fibonacci table (built on the first fill) and what it was built for.
     table: FibTable,
+    table_of: Option<(usize, Interleave)>,
 }
 
 impl<F: Float> Escapes<F> {
@@ -132,6 +133,7 @@ impl<F: Float> Escapes<F> {
             taps: Vec::new(),
             rows: EscapeRows::default(),
             table: FibTable::new(0),
+            table_of: None,
         }
     }
 
@@ -146,8 +148,9 @@ impl<F: Float> Escapes<F> {
         self.taps.clear();
         self.rows.clear();
         let hu = h as usize;
-        if self.table.len() != mb.k {
-            self.table = FibTable::new(mb.k);
+        if self.table_of != Some((mb.k, mb.interleave)) {
+            self.table = mb.table();
+            self.table_of = Some((mb.k, mb.interleave));
         }
         // The directions by rotating the Fibonacci table (`MicroBuffer::direction` up to f32
         // rounding, without a sine, cosine and remainder each), as the vertex shading does.

@@ -511,6 +511,7 @@ mod tests {
             radiance: [a.radiance.clone(), b.radiance.clone()].concat(),
             first_hit: [a.first_hit.clone(), b.first_hit.clone()].concat(),
             uv: [a.uv.clone(), b.uv.clone()].concat(),
+            interleave: a.interleave,
         };
         let stacked = cat(&c.mb, &back);
         let f32s = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();

@@ -37,7 +37,7 @@ pub use gather::{
 };
 pub use gather_backward::{gather_all_backward, gather_one_backward, gather_pairs_backward, GatherGrads};
 pub use hit::{disks_of, Disk, Hit};
-pub use microbuffer::{MicroBuffer, NO_HIT};
+pub use microbuffer::{Interleave, MicroBuffer, NO_HIT};
 pub use reference::BruteForce;
 pub use traverse::{march, march_visibility, HitSource, MarchResult, Occlusion, Ray, TraceParams, NO_ID};
 

@@ -27,6 +27,7 @@ use crate::TraceError;
 use glam::Vec3;
 use rayon::prelude::*;
 use svgir_core::Surfels;
+use svgir_shading::hemisphere::FibTable;
 use svgir_shading::{gaussian_xi, hemisphere_dir};
 
 /// First-hit index meaning "the ray escaped".
@@ -49,6 +50,29 @@ pub struct MicroBuffer {
     pub first_hit: Vec<u32>,
     /// First-hit tangent coordinates (u~, v~) per sample, 2 x u16 unorm.
     pub uv: Vec<[u16; 2]>,
+    /// Which Fibonacci directions the K samples are: all of them, or one interleaved subset of
+    /// a larger set ([`MicroBuffer::interleaved`]).
+    pub interleave: Interleave,
+}
+
+/// Sample k of a micro-buffer is direction `phase + stride * k` of the `stride * K` Fibonacci
+/// directions (SPEC 4). `stride = 1, phase = 0` (the default): the K directions themselves.
+///
+/// Stage 2 may shade one of the `stride` subsets per iteration in turn: each is spread over the
+/// whole hemisphere, weighs `2pi / (K / stride)` per sample, and the mean of the `stride`
+/// subsets' estimates is the full K-direction sum of SPEC 4 (`svgir_pbr` tests this).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Interleave {
+    /// Subsets the full set is cut into.
+    pub stride: usize,
+    /// Which subset, `0..stride`.
+    pub phase: usize,
+}
+
+impl Default for Interleave {
+    fn default() -> Self {
+        Self { stride: 1, phase: 0 }
+    }
 }
 
 impl MicroBuffer {
@@ -151,7 +175,40 @@ impl MicroBuffer {
                     }
                 }
             });
-        Ok(Self { k, normals, xi, vis, radiance, first_hit, uv })
+        Ok(Self { k, normals, xi, vis, radiance, first_hit, uv, interleave: Interleave::default() })
+    }
+
+    /// The samples of directions `phase, phase + stride, ..` (copied): a micro-buffer of
+    /// `K / stride` directions that shade, gather and cache like any other. `self` must hold a
+    /// whole set whose K `stride` divides.
+    pub fn interleaved(&self, stride: usize, phase: usize) -> Result<Self, TraceError> {
+        if self.interleave != Interleave::default() {
+            return Err(TraceError::InvalidParameter("micro-buffer is already an interleaved subset".into()));
+        }
+        if stride == 0 || phase >= stride || !self.k.is_multiple_of(stride) {
+            return Err(TraceError::InvalidParameter(format!(
+                "interleaved subset {phase} of {stride}: the stride must divide K = {} and the phase be below it",
+                self.k
+            )));
+        }
+        let pick = |j: usize| (0..self.k / stride).map(move |s| j * self.k + phase + stride * s);
+        let rows = |n: usize| (0..n).flat_map(pick);
+        let n = self.len();
+        Ok(Self {
+            k: self.k / stride,
+            normals: self.normals.clone(),
+            xi: self.xi.clone(),
+            vis: rows(n).map(|s| self.vis[s]).collect(),
+            radiance: rows(n).map(|s| self.radiance[s]).collect(),
+            first_hit: rows(n).map(|s| self.first_hit[s]).collect(),
+            uv: rows(n).map(|s| self.uv[s]).collect(),
+            interleave: Interleave { stride, phase },
+        })
+    }
+
+    /// The Fibonacci table of this buffer's K samples (its interleaved rows for a subset).
+    pub fn table(&self) -> FibTable {
+        FibTable::interleaved(self.k * self.interleave.stride, self.interleave.stride, self.interleave.phase)
     }
 
     /// Number of Gaussians.
@@ -166,7 +223,8 @@ impl MicroBuffer {
 
     /// Unit world direction w_k of sample (j, k), recomputed from the normal and xi (SPEC 5).
     pub fn direction(&self, j: usize, k: usize) -> Vec3 {
-        hemisphere_dir(self.normals[j], k, self.k, self.xi[j])
+        let Interleave { stride, phase } = self.interleave;
+        hemisphere_dir(self.normals[j], phase + stride * k, self.k * stride, self.xi[j])
     }
 
     /// Visibility V of sample (j, k) in [0, 1].

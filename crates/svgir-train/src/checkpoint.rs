@@ -351,6 +351,7 @@ fn read_microbuffer(
         radiance: a.next_as(&format!("{prefix}.radiance"))?,
         first_hit: a.next_as(&format!("{prefix}.first_hit"))?,
         uv: a.next_as(&format!("{prefix}.uv"))?,
+        interleave: Default::default(),
     };
     let samples = n * k;
     if mb.normals.len() != n

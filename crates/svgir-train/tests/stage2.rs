@@ -75,9 +75,20 @@ fn stage2_raises_pbr_psnr_and_resumes_bit_identically() {
         shade_min_weight: 0.01,
         ..spec.clone()
     };
-    for cfg in [spec, lit] {
-        run_and_resume(&ds, Stage2::new(cfg, surfels.clone(), &ds).expect("stage 2 set-up"));
+    // Four of the 16 directions per iteration, each subset in turn, on both sides and with
+    // lights: the subsets are derived again on loading, and the turn continues.
+    let subsets = Stage2Config { shade_directions: Some(4), two_sided: true, lights: 4, sun_at: 60, ..spec.clone() };
+    for cfg in [spec, lit, subsets] {
+        let t = Stage2::new(cfg, surfels.clone(), &ds).expect("stage 2 set-up");
+        let stride = t.config.shade_stride().unwrap();
+        assert_eq!(t.subsets.len(), if stride > 1 { stride } else { 0 });
+        if let Some(b) = &t.back {
+            assert_eq!(b.subsets.len(), t.subsets.len());
+        }
+        run_and_resume(&ds, t);
     }
+    let bad = Stage2Config { shade_directions: Some(5), ..Stage2Config::default() };
+    assert!(bad.shade_stride().is_err(), "5 does not divide 64");
 }
 
 /// `materials_from`: the light warm-up holds albedo, roughness and normal offsets at their initial
@@ -157,7 +168,7 @@ fn grey_light_holds_during_the_warm_up_or_always() {
 }
 
 fn run_and_resume(ds: &Dataset, mut t: Stage2) {
-    let tag = format!("lights={}", t.config.lights);
+    let tag = format!("lights={} shade_directions={:?}", t.config.lights, t.config.shade_directions);
     let start = pbr_psnr(&t, ds);
     for _ in 0..100 {
         t.step(ds).unwrap();

@@ -74,6 +74,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         seed: args.seed,
         vertices: 4,
         directions: if args.quick { 16 } else { 64 },
+        shade_directions: None,
         no_visibility: false,
         no_indirect: false,
         no_consistency: false,

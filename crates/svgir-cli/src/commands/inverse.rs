@@ -57,6 +57,12 @@ pub struct InverseArgs {
     /// Micro-buffer directions per Gaussian (SPEC 4: 64 for training).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 64)]
     pub directions: usize,
+    /// Directions each training iteration shades per Gaussian: an interleaved subset of the
+    /// --directions, a different one at each iteration in turn, so that every direction is
+    /// shaded equally often (must divide --directions; evaluation shades all). The default
+    /// shades all of them (SPEC 4). With --resume it changes the resumed run's setting.
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
+    pub shade_directions: Option<usize>,
     /// Ablation: ignore visibility (V = 1).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub no_visibility: bool,
@@ -402,6 +408,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         seed: args.seed,
         vertices: args.vertices,
         directions: args.directions,
+        shade_directions: args.shade_directions,
         visibility: !args.no_visibility,
         indirect: !args.no_indirect,
         consistency: !args.no_consistency,
@@ -446,6 +453,9 @@ pub fn run(args: InverseArgs) -> Result<()> {
         weights: super::loss_weights::<Stage2Weights>(&args.weights)?,
         ..Stage2Config::default()
     };
+    if !args.resume {
+        config.shade_stride().map_err(|e| anyhow::anyhow!("--shade-directions: {e}"))?;
+    }
     let ckpt = out.join("checkpoint.bin");
     let mut s2 = if args.resume {
         eprintln!("stage 2: resuming {}", ckpt.display());
@@ -459,6 +469,13 @@ pub fn run(args: InverseArgs) -> Result<()> {
         if let Some(d) = args.diffuse.map(DiffuseArg::model).filter(|&d| d != s2.config.diffuse) {
             eprintln!("stage 2: diffuse lobe {:?} -> {d:?}", s2.config.diffuse);
             s2.config.diffuse = d;
+        }
+        if args.shade_directions.is_some() && args.shade_directions != s2.config.shade_directions {
+            eprintln!(
+                "stage 2: shaded directions per iteration {:?} -> {:?}",
+                s2.config.shade_directions, args.shade_directions
+            );
+            s2.set_shade_directions(args.shade_directions)?;
         }
         s2
     } else {

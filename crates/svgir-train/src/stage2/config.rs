@@ -118,6 +118,13 @@ pub struct Stage2Config {
     pub vertices: usize,
     /// Micro-buffer directions per Gaussian (SPEC 4: 64 in training).
     pub directions: usize,
+    /// Directions each training iteration shades per Gaussian: an interleaved subset of the
+    /// `directions`, the next of the `directions / shade_directions` subsets at every iteration
+    /// (`svgir_trace::Interleave`), each sample weighted by `2pi / shade_directions`. The mean
+    /// of the subsets' estimates is SPEC 4's K-direction sum, so the iterations see every
+    /// direction in turn. `None` (SPEC 4): all of them. Evaluation always shades all.
+    #[serde(default)]
+    pub shade_directions: Option<usize>,
     /// Height of the learned environment map in texels (width is twice this).
     pub env_height: u32,
     /// Background the renders and photos are composited over.
@@ -347,6 +354,7 @@ impl Default for Stage2Config {
             seed: 0,
             vertices: 4,
             directions: 64,
+            shade_directions: None,
             env_height: 32,
             background: BackgroundMode::Black,
             lr: Stage2Rates::default(),
@@ -386,6 +394,19 @@ impl Default for Stage2Config {
 }
 
 impl Stage2Config {
+    /// How many interleaved subsets training shades the directions in (1: all at once), or an
+    /// error naming the settings when `shade_directions` does not divide `directions`.
+    pub fn shade_stride(&self) -> Result<usize, String> {
+        match self.shade_directions {
+            None => Ok(1),
+            Some(s) if s > 0 && s <= self.directions && self.directions.is_multiple_of(s) => Ok(self.directions / s),
+            Some(s) => Err(format!(
+                "{s} shaded directions per iteration must divide the {} micro-buffer directions",
+                self.directions
+            )),
+        }
+    }
+
     /// Is a sun search due before step `iteration` + 1: at `sun_at`, then every
     /// `sun_search_every` iterations (0: only at `sun_at`)?
     pub fn sun_search_due(&self, iteration: u64) -> bool {

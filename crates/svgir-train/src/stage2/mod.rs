@@ -87,6 +87,9 @@ pub struct Stage2 {
     pub mb: MicroBuffer,
     /// Env-map lookup coordinates of every micro-buffer direction (fixed in stage 2).
     pub dir_cache: DirectionCache,
+    /// The interleaved direction subsets training shades in turn (`config.shade_directions`;
+    /// empty: all directions at every iteration).
+    pub subsets: Vec<DirectionSubset>,
     /// Adam groups: opacity, sh, albedo, roughness, normal offset, env, rho.
     pub groups: [AdamGroup; 7],
     /// Iterations done.
@@ -121,8 +124,44 @@ pub struct BackSide {
     pub mb: MicroBuffer,
     /// Env-map lookup coordinates of every back micro-buffer direction.
     pub dir_cache: DirectionCache,
+    /// The back side's interleaved direction subsets, as the front's.
+    pub subsets: Vec<DirectionSubset>,
     /// The directional lights' visibility from the back side (same texels and directions).
     pub lights: BrightLights,
+}
+
+/// One interleaved subset of a side's micro-buffer directions with its direction cache
+/// (`Stage2Config::shade_directions`): copies of the full buffer's samples, derived at set-up
+/// and not saved with the checkpoint.
+pub struct DirectionSubset {
+    /// The subset's samples (`MicroBuffer::interleaved`).
+    pub mb: MicroBuffer,
+    /// Their env-map lookup coordinates.
+    pub dir_cache: DirectionCache,
+}
+
+/// The subset iteration `iteration` shades: each in turn; `None` without subsets.
+fn subset_at(subsets: &[DirectionSubset], iteration: u64) -> Option<&DirectionSubset> {
+    subsets.get((iteration % subsets.len().max(1) as u64) as usize)
+}
+
+/// The `config.shade_stride()` subsets of `mb`'s directions, none when that is 1.
+fn direction_subsets(
+    config: &Stage2Config,
+    mb: &MicroBuffer,
+    cache: &DirectionCache,
+) -> Result<Vec<DirectionSubset>, PbrError> {
+    let stride = config.shade_stride().map_err(PbrError::InvalidParameter)?;
+    if stride == 1 {
+        return Ok(Vec::new());
+    }
+    (0..stride)
+        .map(|phase| {
+            let sub = mb.interleaved(stride, phase)?;
+            let dir_cache = cache.interleaved(&sub)?;
+            Ok(DirectionSubset { mb: sub, dir_cache })
+        })
+        .collect()
 }
 
 /// Stage 2's rasteriser settings: no distortion output (no loss uses it), and no gradients for
@@ -203,8 +242,26 @@ impl Stage2 {
         }
         let bvh = self.bvh.get_or_insert_with(|| Bvh::build(occluders));
         let dir_cache = DirectionCache::new(&mb, &self.env.radiance())?;
+        let subsets = direction_subsets(&self.config, &mb, &dir_cache)?;
         let lights = self.lights.for_normals(bvh, occluders, &mb.normals, &self.config.trace_params(), None)?;
-        self.back = Some(BackSide { mb, dir_cache, lights });
+        self.back = Some(BackSide { mb, dir_cache, subsets, lights });
+        Ok(())
+    }
+
+    /// Shade `shade_directions` of the directions per iteration from now on
+    /// (`Stage2Config::shade_directions`), deriving both sides' subsets again.
+    pub fn set_shade_directions(&mut self, shade_directions: Option<usize>) -> Result<(), PbrError> {
+        let config = Stage2Config { shade_directions, ..self.config.clone() };
+        let subsets = direction_subsets(&config, &self.mb, &self.dir_cache)?;
+        let back = match &self.back {
+            Some(b) => Some(direction_subsets(&config, &b.mb, &b.dir_cache)?),
+            None => None,
+        };
+        self.config.shade_directions = shade_directions;
+        self.subsets = subsets;
+        if let (Some(b), Some(s)) = (&mut self.back, back) {
+            b.subsets = s;
+        }
         Ok(())
     }
 
@@ -243,6 +300,7 @@ impl Stage2 {
         let colour = ColourProjector::new(env.width, env.height, config.light_colour_degree)?;
         let surfels_opacity = surfels.opacity_logits.clone();
         let dir_cache = DirectionCache::new(&mb, &env.radiance())?;
+        let subsets = direction_subsets(&config, &mb, &dir_cache)?;
         let lr = &config.lr;
         let groups = [
             AdamGroup::new("opacity", lr.opacity, 1, n),
@@ -263,6 +321,7 @@ impl Stage2 {
             rho: 1.0,
             mb,
             dir_cache,
+            subsets,
             groups,
             iteration: 0,
             rng,
@@ -406,9 +465,15 @@ impl Stage2 {
         let (front_shade, back_shade) =
             (weighted(&front_vis, &sh_out.accum_weight, min_w), weighted(&back_vis, &sh_out.accum_weight, min_w));
         let env_rad = self.env.radiance();
+        // The iteration's direction subset, in turn (`config.shade_directions`), else all.
+        let it = self.iteration;
+        let (front_mb, front_cache) = match subset_at(&self.subsets, it) {
+            Some(s) => (&s.mb, &s.dir_cache),
+            None => (&self.mb, &self.dir_cache),
+        };
         let front = Side {
             inputs: ShadeInputs {
-                mb: &self.mb,
+                mb: front_mb,
                 positions: &self.surfels.positions,
                 camera_center: cam.center(),
                 visible: &front_shade,
@@ -419,11 +484,11 @@ impl Stage2 {
                 params: self.shade_params(),
                 lights: self.active_lights(),
             },
-            cache: Some(&self.dir_cache),
+            cache: Some(front_cache),
         };
         let back_shading = self.back.as_ref().map(|b| BackShading {
-            mb: &b.mb,
-            cache: Some(&b.dir_cache),
+            mb: subset_at(&b.subsets, it).map_or(&b.mb, |s| &s.mb),
+            cache: Some(subset_at(&b.subsets, it).map_or(&b.dir_cache, |s| &s.dir_cache)),
             indirect: self.indirect(),
             lights: self.active_back_lights(),
         });
