@@ -76,9 +76,17 @@ fn stage2_raises_pbr_psnr_and_resumes_bit_identically() {
         ..spec.clone()
     };
     // Four of the 16 directions per iteration, each subset in turn, on both sides and with
-    // lights: the subsets are derived again on loading, and the turn continues.
-    let subsets = Stage2Config { shade_directions: Some(4), two_sided: true, lights: 4, sun_at: 60, ..spec.clone() };
-    for cfg in [spec, lit, subsets] {
+    // lights, then all 16 from iteration 111: the subsets are derived again on loading (at 100),
+    // and the turn continues.
+    let subsets = Stage2Config {
+        shade_directions: Some(4),
+        shade_directions_until: 110,
+        two_sided: true,
+        lights: 4,
+        sun_at: 60,
+        ..spec.clone()
+    };
+    for cfg in [spec.clone(), lit, subsets] {
         let t = Stage2::new(cfg, surfels.clone(), &ds).expect("stage 2 set-up");
         let stride = t.config.shade_stride().unwrap();
         assert_eq!(t.subsets.len(), if stride > 1 { stride } else { 0 });
@@ -87,6 +95,17 @@ fn stage2_raises_pbr_psnr_and_resumes_bit_identically() {
         }
         run_and_resume(&ds, t);
     }
+    // Past `shade_directions_until` an iteration shades every direction: the same loss, to the
+    // bit, as a run without subsets; inside it, another.
+    let loss_at_11 = |shade_directions, shade_directions_until| {
+        let cfg = Stage2Config { shade_directions, shade_directions_until, ..spec.clone() };
+        let mut t = Stage2::new(cfg, surfels.clone(), &ds).unwrap();
+        t.iteration = 10;
+        t.step(&ds).unwrap().loss.to_bits()
+    };
+    let all = loss_at_11(None, 0);
+    assert_eq!(loss_at_11(Some(4), 10), all, "iteration 11 comes after the subsets");
+    assert_ne!(loss_at_11(Some(4), 11), all, "iteration 11 shades a subset");
     let bad = Stage2Config { shade_directions: Some(5), ..Stage2Config::default() };
     assert!(bad.shade_stride().is_err(), "5 does not divide 64");
 }

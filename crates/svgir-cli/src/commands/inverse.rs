@@ -63,6 +63,10 @@ pub struct InverseArgs {
     /// shades all of them (SPEC 4). With --resume it changes the resumed run's setting.
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub shade_directions: Option<usize>,
+    /// With --shade-directions: only iterations 1..=N shade the subsets, the later ones every
+    /// direction (0: the subsets throughout).
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 0)]
+    pub shade_directions_until: u64,
     /// Ablation: ignore visibility (V = 1).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub no_visibility: bool,
@@ -409,6 +413,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         vertices: args.vertices,
         directions: args.directions,
         shade_directions: args.shade_directions,
+        shade_directions_until: args.shade_directions_until,
         visibility: !args.no_visibility,
         indirect: !args.no_indirect,
         consistency: !args.no_consistency,

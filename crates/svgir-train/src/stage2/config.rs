@@ -125,6 +125,10 @@ pub struct Stage2Config {
     /// direction in turn. `None` (SPEC 4): all of them. Evaluation always shades all.
     #[serde(default)]
     pub shade_directions: Option<usize>,
+    /// With `shade_directions`: iterations 1..=this shade the subsets, the later ones every
+    /// direction (0: the subsets throughout).
+    #[serde(default)]
+    pub shade_directions_until: u64,
     /// Height of the learned environment map in texels (width is twice this).
     pub env_height: u32,
     /// Background the renders and photos are composited over.
@@ -355,6 +359,7 @@ impl Default for Stage2Config {
             vertices: 4,
             directions: 64,
             shade_directions: None,
+            shade_directions_until: 0,
             env_height: 32,
             background: BackgroundMode::Black,
             lr: Stage2Rates::default(),

@@ -467,7 +467,13 @@ impl Stage2 {
         let env_rad = self.env.radiance();
         // The iteration's direction subset, in turn (`config.shade_directions`), else all.
         let it = self.iteration;
-        let (front_mb, front_cache) = match subset_at(&self.subsets, it) {
+        let until = cfg.shade_directions_until;
+        let (subsets, back_subsets): (&[DirectionSubset], &[DirectionSubset]) = if until == 0 || it <= until {
+            (&self.subsets, self.back.as_ref().map_or(&[], |b| &b.subsets))
+        } else {
+            (&[], &[])
+        };
+        let (front_mb, front_cache) = match subset_at(subsets, it) {
             Some(s) => (&s.mb, &s.dir_cache),
             None => (&self.mb, &self.dir_cache),
         };
@@ -487,8 +493,8 @@ impl Stage2 {
             cache: Some(front_cache),
         };
         let back_shading = self.back.as_ref().map(|b| BackShading {
-            mb: subset_at(&b.subsets, it).map_or(&b.mb, |s| &s.mb),
-            cache: Some(subset_at(&b.subsets, it).map_or(&b.dir_cache, |s| &s.dir_cache)),
+            mb: subset_at(back_subsets, it).map_or(&b.mb, |s| &s.mb),
+            cache: Some(subset_at(back_subsets, it).map_or(&b.dir_cache, |s| &s.dir_cache)),
             indirect: self.indirect(),
             lights: self.active_back_lights(),
         });
