@@ -75,7 +75,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         vertices: 4,
         directions: if args.quick { 16 } else { 64 },
         shade_directions: None,
-        shade_directions_until: 0,
+        shade_directions_until: None,
         no_visibility: false,
         no_indirect: false,
         no_consistency: false,
