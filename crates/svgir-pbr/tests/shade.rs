@@ -584,6 +584,12 @@ fn interleaved_subsets_average_to_the_full_sum() {
         assert!(err <= tol * scale, "{what}: max error {err:e} against max {scale:e}");
         err / scale
     };
+    // One subset's share of the means: its colours and gradients over the stride.
+    let add_share =
+        |mean: &mut [f64], mean_g: &mut [Vec<f64>; 5], colour: &mut dyn Iterator<Item = f64>, g: &[Vec<f64>; 5]| {
+            mean.iter_mut().zip(colour).for_each(|(a, b)| *a += b / stride as f64);
+            mean_g.iter_mut().zip(g).for_each(|(a, b)| a.iter_mut().zip(b).for_each(|(x, y)| *x += y / stride as f64));
+        };
     let g32: Vec<f32> = c.g.iter().map(|&x| x as f32).collect();
     for mode in [Mode::Traced, Mode::Off] {
         for params in [
@@ -603,12 +609,8 @@ fn interleaved_subsets_average_to_the_full_sum() {
                 assert_eq!(out, shade(&sub_in).unwrap(), "the cache keeps the bits");
                 let own = close(&out.color, &full.color, 1.0, "one subset");
                 assert!(own > 1e-4, "{mode:?}: one subset alone equals the full sum ({own:e})");
-                mean.iter_mut().zip(&out.color).for_each(|(a, b)| *a += b / stride as f64);
                 let g = flat(&shade_backward_cached(&sub_in, Some(sub_cache), &c.g).unwrap());
-                mean_g
-                    .iter_mut()
-                    .zip(&g)
-                    .for_each(|(a, b)| a.iter_mut().zip(b).for_each(|(x, y)| *x += y / stride as f64));
+                add_share(&mut mean, &mut mean_g, &mut out.color.iter().copied(), &g);
             }
             close(&mean, &full.color, 1e-12, "f64 colour");
             for (j, (a, b)) in mean_g.iter().zip(&full_g).enumerate() {
@@ -636,12 +638,8 @@ fn interleaved_subsets_average_to_the_full_sum() {
                 let sub_in = ShadeInputs { mb: sub, ..in32 };
                 let mut out = ShadeOutput::colour_only();
                 shade_into_cached(&sub_in, Some(sub_cache), &mut out).unwrap();
-                mean.iter_mut().zip(&out.color).for_each(|(a, b)| *a += *b as f64 / stride as f64);
                 let g = flat32(&shade_backward_cached(&sub_in, Some(sub_cache), &g32).unwrap());
-                mean_g
-                    .iter_mut()
-                    .zip(&g)
-                    .for_each(|(a, b)| a.iter_mut().zip(b).for_each(|(x, y)| *x += y / stride as f64));
+                add_share(&mut mean, &mut mean_g, &mut out.color.iter().map(|&x| x as f64), &g);
             }
             let full32_c: Vec<f64> = full32.color.iter().map(|&x| x as f64).collect();
             close(&mean, &full32_c, 2e-6, "f32 colour");
