@@ -14,7 +14,7 @@
 //! azimuths; the shading entry points reject a cache built for other inputs (a stale cache would
 //! silently shade with the wrong light). Work split: rayon over Gaussians.
 
-use crate::{Interleave, MicroBuffer, TraceError};
+use crate::{MicroBuffer, TraceError};
 use rayon::prelude::*;
 use svgir_shading::hemisphere::HemiFrame;
 
@@ -100,7 +100,7 @@ impl DirectionCache {
     /// (`MicroBuffer::interleaved`): its samples' coordinates copied, the bits of
     /// [`DirectionCache::new`] on `sub`.
     pub fn interleaved(&self, sub: &MicroBuffer) -> Result<Self, TraceError> {
-        let Interleave { stride, phase } = sub.interleave;
+        let stride = sub.interleave.stride;
         if sub.len() != self.n || sub.k * stride != self.k {
             return Err(TraceError::InvalidParameter(format!(
                 "an interleaved subset of N = {}, K = {} / {stride} cannot come from a cache of N = {}, K = {}",
@@ -110,10 +110,7 @@ impl DirectionCache {
                 self.k
             )));
         }
-        let coords = (0..self.n)
-            .flat_map(|i| (0..sub.k).map(move |s| i * self.k + phase + stride * s))
-            .map(|s| self.coords[s])
-            .collect();
+        let coords = sub.interleave.whole_indices(self.n, sub.k).map(|s| self.coords[s]).collect();
         Ok(Self { n: self.n, k: sub.k, width: self.width, height: self.height, fingerprint: fingerprint(sub), coords })
     }
 

@@ -75,6 +75,15 @@ impl Default for Interleave {
     }
 }
 
+impl Interleave {
+    /// Where the samples of this subset, `k` per Gaussian for `n` Gaussians, sit in the whole
+    /// set's arrays of `stride * k` samples per Gaussian, in the subset's order.
+    pub fn whole_indices(self, n: usize, k: usize) -> impl Iterator<Item = usize> {
+        let whole = k * self.stride;
+        (0..n).flat_map(move |j| (0..k).map(move |s| j * whole + self.phase + self.stride * s))
+    }
+}
+
 impl MicroBuffer {
     /// Bytes per (Gaussian, direction) sample.
     pub const BYTES_PER_SAMPLE: usize = 2 + 6 + 4 + 4;
@@ -191,18 +200,18 @@ impl MicroBuffer {
                 self.k
             )));
         }
-        let pick = |j: usize| (0..self.k / stride).map(move |s| j * self.k + phase + stride * s);
-        let rows = |n: usize| (0..n).flat_map(pick);
-        let n = self.len();
+        let interleave = Interleave { stride, phase };
+        let k = self.k / stride;
+        let rows = || interleave.whole_indices(self.len(), k);
         Ok(Self {
-            k: self.k / stride,
+            k,
             normals: self.normals.clone(),
             xi: self.xi.clone(),
-            vis: rows(n).map(|s| self.vis[s]).collect(),
-            radiance: rows(n).map(|s| self.radiance[s]).collect(),
-            first_hit: rows(n).map(|s| self.first_hit[s]).collect(),
-            uv: rows(n).map(|s| self.uv[s]).collect(),
-            interleave: Interleave { stride, phase },
+            vis: rows().map(|s| self.vis[s]).collect(),
+            radiance: rows().map(|s| self.radiance[s]).collect(),
+            first_hit: rows().map(|s| self.first_hit[s]).collect(),
+            uv: rows().map(|s| self.uv[s]).collect(),
+            interleave,
         })
     }
 

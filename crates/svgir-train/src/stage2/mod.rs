@@ -140,9 +140,19 @@ pub struct DirectionSubset {
     pub dir_cache: DirectionCache,
 }
 
-/// The subset iteration `iteration` shades: each in turn; `None` without subsets.
-fn subset_at(subsets: &[DirectionSubset], iteration: u64) -> Option<&DirectionSubset> {
-    subsets.get((iteration % subsets.len().max(1) as u64) as usize)
+/// What iteration `iteration` shades a side with: its direction subsets in turn up to
+/// `config.shade_directions_until` (0: throughout), else all directions (`mb`, `cache`).
+fn shading_set<'a>(
+    config: &Stage2Config,
+    iteration: u64,
+    mb: &'a MicroBuffer,
+    cache: &'a DirectionCache,
+    subsets: &'a [DirectionSubset],
+) -> (&'a MicroBuffer, &'a DirectionCache) {
+    let until = config.shade_directions_until;
+    let subset =
+        subsets.get((iteration % subsets.len().max(1) as u64) as usize).filter(|_| until == 0 || iteration <= until);
+    subset.map_or((mb, cache), |s| (&s.mb, &s.dir_cache))
 }
 
 /// The `config.shade_stride()` subsets of `mb`'s directions, none when that is 1.
@@ -465,18 +475,7 @@ impl Stage2 {
         let (front_shade, back_shade) =
             (weighted(&front_vis, &sh_out.accum_weight, min_w), weighted(&back_vis, &sh_out.accum_weight, min_w));
         let env_rad = self.env.radiance();
-        // The iteration's direction subset, in turn (`config.shade_directions`), else all.
-        let it = self.iteration;
-        let until = cfg.shade_directions_until;
-        let (subsets, back_subsets): (&[DirectionSubset], &[DirectionSubset]) = if until == 0 || it <= until {
-            (&self.subsets, self.back.as_ref().map_or(&[], |b| &b.subsets))
-        } else {
-            (&[], &[])
-        };
-        let (front_mb, front_cache) = match subset_at(subsets, it) {
-            Some(s) => (&s.mb, &s.dir_cache),
-            None => (&self.mb, &self.dir_cache),
-        };
+        let (front_mb, front_cache) = shading_set(&cfg, self.iteration, &self.mb, &self.dir_cache, &self.subsets);
         let front = Side {
             inputs: ShadeInputs {
                 mb: front_mb,
@@ -492,11 +491,9 @@ impl Stage2 {
             },
             cache: Some(front_cache),
         };
-        let back_shading = self.back.as_ref().map(|b| BackShading {
-            mb: subset_at(back_subsets, it).map_or(&b.mb, |s| &s.mb),
-            cache: Some(subset_at(back_subsets, it).map_or(&b.dir_cache, |s| &s.dir_cache)),
-            indirect: self.indirect(),
-            lights: self.active_back_lights(),
+        let back_shading = self.back.as_ref().map(|b| {
+            let (mb, cache) = shading_set(&cfg, self.iteration, &b.mb, &b.dir_cache, &b.subsets);
+            BackShading { mb, cache: Some(cache), indirect: self.indirect(), lights: self.active_back_lights() }
         });
         let back_normals = back_shading.as_ref().map(|_| negated(&act.normals));
         let back = render::back_side(&front, back_shading.as_ref(), &back_shade, back_normals.as_deref());
