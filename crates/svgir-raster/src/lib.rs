@@ -32,7 +32,8 @@ pub mod simd;
 pub mod splat;
 pub mod tiles;
 
-use svgir_core::{Camera, Surfels};
+use rayon::prelude::*;
+use svgir_core::{Camera, ShCoeffs, Surfels};
 
 pub use backward::backward_generic;
 pub use bench::bench_table;
@@ -121,6 +122,9 @@ pub enum RasterError {
     /// settings, or colours not interpolated from vertices.
     #[error("a render can reuse only a projection of the same Gaussians by the same camera and settings, with colours from several vertices")]
     Reuse,
+    /// [`sh_colors_backward`] given a render whose colours are not its Gaussians' SH colours.
+    #[error("SH colour gradients need the forward state of a render with SH colours of the same Gaussians")]
+    NotSh,
     /// `RasterConfig::tile` outside 1..=64.
     #[error("tile size must be in 1..=64, got {0}")]
     Tile(u32),
@@ -459,4 +463,39 @@ pub fn backward(
     grads: &OutputGrads,
 ) -> Grads {
     backward_generic(input, cfg, state, out, grads)
+}
+
+/// The SH coefficients' gradients for the per-Gaussian colours of a [`ColorSource::Sh`] render
+/// ([`ForwardStateOf::sh_colors`]), given d loss / d colour per Gaussian: the SH rows that
+/// [`backward()`] would give if those colours reached the loss through the render itself. A
+/// clamped channel passes no gradient, nor does a culled Gaussian (a zero row). For a caller
+/// that composites the same colours in another pass of the same Gaussians (stage 2 carries them
+/// in its PBR pass) and so needs no backward of this render. Only the coefficients: the
+/// gradient through the view direction to the centre is left out (SPEC 6 freezes it).
+pub fn sh_colors_backward(
+    input: &RenderInput,
+    state: &ForwardState,
+    v_colors: &[[f32; 3]],
+) -> Result<Vec<ShCoeffs>, RasterError> {
+    let n = input.surfels.len();
+    let splats = &state.proj.splats;
+    if !matches!(input.colors, ColorSourceOf::Sh) || state.proj.sh_colors.len() != n || splats.len() != n {
+        return Err(RasterError::NotSh);
+    }
+    if v_colors.len() != n {
+        return Err(RasterError::Length {
+            what: "per-Gaussian colour gradients",
+            expected: 3 * n,
+            got: 3 * v_colors.len(),
+        });
+    }
+    let cam = preprocess::Cam::<f32>::new(input.camera);
+    let mut v_sh = vec![ShCoeffs::default(); n];
+    v_sh.par_iter_mut().enumerate().with_min_len(1024).for_each(|(i, row)| {
+        if splats[i].visible() {
+            let (rows, _) = preprocess_backward::sh_color_backward(input.surfels, &cam, &splats[i], &v_colors[i], i);
+            *row = <f32 as Real>::sh(&rows);
+        }
+    });
+    Ok(v_sh)
 }

@@ -99,7 +99,6 @@ pub fn gaussian_backward<F: Real, P: GaussianParams<F> + ?Sized>(
     if !splat.visible() {
         return out;
     }
-    let p = params.position(i);
     let q = params.rotation(i);
     let Some((_, _, rot)) = quat_to_rot(q) else { return out };
     let [su, sv] = splat.scale;
@@ -140,34 +139,10 @@ pub fn gaussian_backward<F: Real, P: GaussianParams<F> + ?Sized>(
     out.opacity_logit = opacity_logit_grad(g.opacity, splat.opacity);
 
     if sh_mode {
-        let deg = params.sh_degree().min(3);
-        let dir = sub3(p, cam.center);
-        let len = dot3(dir, dir).sqrt();
-        let d = dir.map(|v| v / len);
-        let mut gc = g.color;
-        for ch in 0..3 {
-            if splat.clamped & (1 << ch) != 0 {
-                gc[ch] = F::ZERO;
-            }
-        }
-        let mut b = [F::ZERO; 16];
-        let mut bg = [[F::ZERO; 3]; 16];
-        F::sh_basis(deg, d, &mut b);
-        F::sh_basis_grad(deg, d, &mut bg);
-        let mut v_d = [F::ZERO; 3];
-        for k in 0..svgir_core::sh::num_coeffs(deg) {
-            let mut s = F::ZERO;
-            for ch in 0..3 {
-                out.sh[k][ch] = b[k] * gc[ch];
-                s += params.sh(i, k, ch) * gc[ch];
-            }
-            for j in 0..3 {
-                v_d[j] += bg[k][j] * s;
-            }
-        }
-        let dd = dot3(d, v_d);
+        let (rows, v_dir) = sh_color_backward(params, cam, splat, &g.color, i);
+        out.sh = rows;
         for j in 0..3 {
-            v_p[j] += (v_d[j] - d[j] * dd) / len;
+            v_p[j] += v_dir[j];
         }
     }
     out.position = v_p;
@@ -179,6 +154,46 @@ pub fn gaussian_backward<F: Real, P: GaussianParams<F> + ?Sized>(
     let ny = gcam[1] * z / cam.fy;
     out.mean2d_norm = (nx * nx + ny * ny).sqrt();
     out
+}
+
+/// Backward of Gaussian `i`'s SH colour `max(0, 0.5 + SH(d))`, `d` the unit direction from the
+/// camera centre: the coefficient rows (`[k][channel]`) and the gradient reaching the centre
+/// through `d`, from `v_color` (a clamped channel passes none). Visible Gaussians only.
+pub fn sh_color_backward<F: Real, P: GaussianParams<F> + ?Sized>(
+    params: &P,
+    cam: &Cam<F>,
+    splat: &Splat<F>,
+    v_color: &[F; 3],
+    i: usize,
+) -> ([[F; 3]; 16], [F; 3]) {
+    let deg = params.sh_degree().min(3);
+    let dir = sub3(params.position(i), cam.center);
+    let len = dot3(dir, dir).sqrt();
+    let d = dir.map(|v| v / len);
+    let mut gc = *v_color;
+    for ch in 0..3 {
+        if splat.clamped & (1 << ch) != 0 {
+            gc[ch] = F::ZERO;
+        }
+    }
+    let mut b = [F::ZERO; 16];
+    let mut bg = [[F::ZERO; 3]; 16];
+    F::sh_basis(deg, d, &mut b);
+    F::sh_basis_grad(deg, d, &mut bg);
+    let mut rows = [[F::ZERO; 3]; 16];
+    let mut v_d = [F::ZERO; 3];
+    for k in 0..svgir_core::sh::num_coeffs(deg) {
+        let mut s = F::ZERO;
+        for ch in 0..3 {
+            rows[k][ch] = b[k] * gc[ch];
+            s += params.sh(i, k, ch) * gc[ch];
+        }
+        for j in 0..3 {
+            v_d[j] += bg[k][j] * s;
+        }
+    }
+    let dd = dot3(d, v_d);
+    (rows, [0, 1, 2].map(|j| (v_d[j] - d[j] * dd) / len))
 }
 
 /// The gradient outputs of a run of Gaussians, each slot written exactly once: the backward

@@ -276,3 +276,50 @@ fn distortion_off_changes_nothing_else() {
     assert_eq!(a.v_opacity_logits, b.v_opacity_logits);
     assert_eq!(a.v_sh, b.v_sh);
 }
+
+/// `sh_colors_backward` turns per-Gaussian colour gradients into the SH rows the SH render's own
+/// backward gives: the colour gradients come from rendering the same colours as one-vertex
+/// features (whose backward returns them per Gaussian), the rows from the SH render's backward.
+#[test]
+fn sh_colors_backward_gives_the_sh_renders_own_rows() {
+    let (w, h) = (40u32, 36u32);
+    let npx = (w * h) as usize;
+    let cam = test_camera(w, h);
+    let surfels = small_scene(7, 16);
+    let lw = LossWeights::new(7, npx, 0);
+    let gc: Vec<f32> = lw.color.iter().map(|&x| x as f32).collect();
+    let cfg = RasterConfig { geometry_grads: false, ..RasterConfig::default() };
+    let bg = BackgroundOf::Color([0.3, 0.6, 0.1]);
+    let sh_input =
+        RenderInput { surfels: &surfels, camera: &cam, colors: ColorSourceOf::Sh, extra: None, background: bg };
+    let (sh_out, sh_st) = render(&sh_input, &cfg);
+    let og = OutputGrads { color: Some(&gc), ..Default::default() };
+    let want = backward(&sh_input, &cfg, &sh_st, &sh_out, &og).v_sh;
+
+    let colours: Vec<f32> = sh_st.sh_colors().iter().flatten().copied().collect();
+    let feat_input = RenderInput {
+        colors: ColorSourceOf::Features(FeaturesOf { data: &colours, vertices: 1, channels: 3 }),
+        ..sh_input
+    };
+    let (feat_out, feat_st) = render(&feat_input, &cfg);
+    assert_eq!(feat_out.color, sh_out.color, "the same colours composite to the same image");
+    let per_gaussian = backward(&feat_input, &cfg, &feat_st, &feat_out, &og).v_color_features;
+    let v_colors: Vec<[f32; 3]> = per_gaussian.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
+    let got = svgir_raster::sh_colors_backward(&sh_input, &sh_st, &v_colors).expect("an SH render");
+
+    let flat = |v: &[svgir_core::ShCoeffs]| v.iter().flat_map(|c| c.0.iter().flatten().map(|&x| x as f64)).collect();
+    let (got, want): (Vec<f64>, Vec<f64>) = (flat(&got), flat(&want));
+    let scale = want.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    assert!(scale > 1e-3, "the loss reaches the SH rows");
+    let nonzero = want.iter().filter(|v| v.abs() > 1e-6 * scale).count();
+    assert!(nonzero > 16 * 3, "{nonzero} non-zero SH gradients");
+    assert!(max_diff(&got, &want) <= 1e-5 * scale, "{} of {scale}", max_diff(&got, &want));
+    // A clamped channel passes nothing, in both.
+    let clamped = sh_st.sh_colors().iter().flatten().filter(|&&c| c == 0.0).count();
+    assert!(clamped > 0, "the scene has clamped channels");
+
+    assert!(matches!(
+        svgir_raster::sh_colors_backward(&feat_input, &feat_st, &v_colors),
+        Err(svgir_raster::RasterError::NotSh)
+    ));
+}

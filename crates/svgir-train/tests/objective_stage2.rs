@@ -422,7 +422,7 @@ fn stage2_vertex_material_gradients_through_the_normal_flip_match_finite_differe
     let obj = s.prod(&s.x);
     let v_vertex = sp.splat_adjoint(&obj.v_extra);
     let (mut v_alb, mut v_rough, mut v_nrm) = (vec![0.0; 3 * NV], vec![0.0; NV], vec![0.0; 3 * NV]);
-    extra_features_backward(&v_vertex, M, &sp.fac, &mut v_alb, &mut v_rough, &mut v_nrm);
+    extra_features_backward(&v_vertex, EC, M, &sp.fac, &mut v_alb, &mut v_rough, &mut v_nrm);
     let g: Vec<f64> = v_alb.iter().chain(&v_rough).chain(&v_nrm).map(|&v| v as f64).collect();
 
     let x = s.x64();
@@ -499,13 +499,13 @@ fn extra_features_backward_is_the_adjoint_of_extra_features() {
     let out = extra_features(&act, &sp.fac);
     let v: Vec<f32> = (0..NV * EC).map(|_| rng.normal()).collect();
     let (mut va, mut vr, mut vn) = (vec![0.0; 3 * NV], vec![0.0; NV], vec![0.0; 3 * NV]);
-    extra_features_backward(&v, M, &sp.fac, &mut va, &mut vr, &mut vn);
+    extra_features_backward(&v, EC, M, &sp.fac, &mut va, &mut vr, &mut vn);
     let dot = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| *x as f64 * *y as f64).sum::<f64>();
     let lhs = dot(&out, &v);
     let rhs = dot(&act.albedo, &va) + dot(&act.roughness, &vr) + dot(&act.normals, &vn);
     assert!((lhs - rhs).abs() < 1e-9 * lhs.abs().max(1.0), "{lhs} vs {rhs}");
     // Accumulates: a second call doubles the gradients.
     let once = vn.clone();
-    extra_features_backward(&v, M, &sp.fac, &mut va, &mut vr, &mut vn);
+    extra_features_backward(&v, EC, M, &sp.fac, &mut va, &mut vr, &mut vn);
     assert!(vn.iter().zip(&once).all(|(b, a)| *b == 2.0 * a));
 }

@@ -8,17 +8,20 @@
 //! hemisphere ([`BackSide`]), and each view shades a Gaussian on the side its camera sees
 //! (`svgir_pbr::two_sided`).
 //! One iteration on a random view:
-//! 1. SH pass: rasterise the SH colours (the SH image keeps training, SPEC 6 Eqn 15).
+//! 1. SH pass: rasterise the SH colours, which finds the Gaussians the view blends.
 //! 2. PBR pass: shade the vertices (SPEC 4) of every Gaussian the SH pass blended into some
 //!    pixel (`weighted`: the others' colours are never read), rasterise the vertex colours
-//!    plus albedo, roughness and shading normal as extra channels, divide by opacity, linear ->
-//!    sRGB, composite over the background.
+//!    plus albedo, roughness, shading normal and the SH colour as extra channels (the SH image
+//!    keeps training, SPEC 6 Eqn 15; `sh_channels`), divide by opacity, linear -> sRGB,
+//!    composite over the background.
 //! 3. Losses of Eqn 15 on both images plus L_rc, L_n, smoothness, |dN|^2 and env TV; backward
-//!    through the rasteriser, the shading and the activations; one Adam step per group.
+//!    through the PBR pass (for both images), the shading and the activations; one Adam step
+//!    per group.
 
 mod config;
 pub mod objective;
 mod render;
+mod sh_channels;
 mod shaded_set;
 mod sun_search;
 
@@ -32,9 +35,10 @@ use crate::adam::AdamGroup;
 use crate::orient::orient_normals;
 use crate::stage1::{alpha_of, psnr_of_mse, target_rgb, PhaseTimes};
 use glam::Vec3;
-use objective::{extra_features, extra_features_backward, stage2_objective, Stage2Outputs, Stage2Target};
+use objective::{extra_features_backward, stage2_objective, Stage2Outputs, Stage2Target};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
+use sh_channels::{join_pass_grads, pass_features, sh_colour_grads, split_pass, PASS_CHANNELS};
 use shaded_set::{stand_in_colours, visible_of, weighted};
 use std::time::Instant;
 use svgir_core::{Camera, Dataset, Image, Rng, Surfels};
@@ -498,12 +502,13 @@ impl Stage2 {
         let back_normals = back_shading.as_ref().map(|_| negated(&act.normals));
         let back = render::back_side(&front, back_shading.as_ref(), &back_shade, back_normals.as_deref());
         let (mut shaded, mut scratch) = (ShadeOutput::colour_only(), ShadeOutput::colour_only());
-        // The extra channels (materials and facing normals) do not depend on the shading.
+        // The extra channels (materials, facing normals and the SH colour, `sh_channels`) do
+        // not depend on the shading.
         let (shading, (facing, extra)) = rayon::join(
             || shade_sides_into(&front, back.as_ref(), &mut shaded, &mut scratch),
             || {
                 let facing = self.facing(cam);
-                let extra = extra_features(&act, &facing);
+                let extra = pass_features(&act, &facing, sh_state.sh_colors());
                 (facing, extra)
             },
         );
@@ -515,10 +520,11 @@ impl Stage2 {
             surfels: &self.surfels,
             camera: cam,
             colors: ColorSource::Features(Features { data: &shaded.color, vertices: m, channels: 3 }),
-            extra: Some(Features { data: &extra, vertices: m, channels: EXTRA_CHANNELS }),
+            extra: Some(Features { data: &extra, vertices: m, channels: PASS_CHANNELS }),
             background: Background::Color([0.0; 3]),
         };
         let (pbr_out, pbr_state) = render_after(&pbr_input, &self.raster, &sh_state);
+        let (materials_out, sh_image) = split_pass(&pbr_out.extra, &pbr_out.alpha, bg);
         let t1 = Instant::now();
 
         // 3. Eqn 15's per-pixel terms on the PBR image (see `composite`), its material buffers
@@ -529,8 +535,8 @@ impl Stage2 {
             color: &pbr_out.color,
             alpha: &pbr_out.alpha,
             depth: &pbr_out.depth,
-            extra: &pbr_out.extra,
-            sh_color: &sh_out.color,
+            extra: &materials_out,
+            sh_color: &sh_image,
         };
         // Radiance consistency (Eqn 14/16).
         let cons_in = ConsistencyInputs {
@@ -560,7 +566,7 @@ impl Stage2 {
             Ok(Some((c.loss, g)))
         };
         let penalties = || (self.materials.offset_penalty(), self.env.tv_l2(self.active_lights().map(|l| l.mask())));
-        let (obj, (cons, ((reg, v_reg), (tv, v_tv)))) =
+        let (mut obj, (cons, ((reg, v_reg), (tv, v_tv)))) =
             rayon::join(|| stage2_objective(wts, &outputs, &target, cam), || rayon::join(consistency, penalties));
         let mut loss = obj.loss;
         let mut cons_loss = 0.0;
@@ -573,61 +579,51 @@ impl Stage2 {
         loss += wts.env_tv * tv;
         let t2 = Instant::now();
 
-        // 4. Backward.
-        // The SH pass's backward runs beside the PBR pass's and the shading's, which it does not
-        // feed.
-        let (g_sh, pbr_grads) = rayon::join(
-            || {
-                backward(
-                    &sh_input,
-                    &sh_raster,
-                    &sh_state,
-                    &sh_out,
-                    &OutputGrads { color: Some(&obj.v_sh_color), ..Default::default() },
-                )
-            },
-            || -> Result<_, PbrError> {
-                let g_pbr = backward(
-                    &pbr_input,
-                    &self.raster,
-                    &pbr_state,
-                    &pbr_out,
-                    &OutputGrads {
-                        color: Some(&obj.v_color),
-                        alpha: Some(&obj.v_alpha),
-                        depth: Some(&obj.v_depth),
-                        normal: None,
-                        distortion: None,
-                        extra: Some(&obj.v_extra),
-                    },
-                );
-                let pg = shade_sides_backward(&front, back.as_ref(), &g_pbr.v_color_features)?;
-                Ok((g_pbr, pg))
+        // 4. Backward: the PBR pass's gives the SH image's gradients too (`sh_channels`).
+        let v_pass = join_pass_grads(&obj.v_extra, &obj.v_sh_color, bg, &mut obj.v_alpha);
+        let g_pbr = backward(
+            &pbr_input,
+            &self.raster,
+            &pbr_state,
+            &pbr_out,
+            &OutputGrads {
+                color: Some(&obj.v_color),
+                alpha: Some(&obj.v_alpha),
+                depth: Some(&obj.v_depth),
+                normal: None,
+                distortion: None,
+                extra: Some(&v_pass),
             },
         );
-        let (g_pbr, mut pg): (_, PbrGrads) = pbr_grads?;
+        let (pbr_grads, v_sh) = rayon::join(
+            || shade_sides_backward(&front, back.as_ref(), &g_pbr.v_color_features),
+            || svgir_raster::sh_colors_backward(&sh_input, &sh_state, &sh_colour_grads(&g_pbr.v_extra, m)),
+        );
+        let v_sh = v_sh.map_err(|e| PbrError::InvalidParameter(e.to_string()))?;
+        let mut pg: PbrGrads = pbr_grads?;
         if let Some(c) = &cons_grads {
             pg.add_scaled(c, 1.0);
         }
-        extra_features_backward(&g_pbr.v_extra, m, &facing, &mut pg.v_albedo, &mut pg.v_roughness, &mut pg.v_normals);
+        extra_features_backward(
+            &g_pbr.v_extra,
+            PASS_CHANNELS,
+            m,
+            &facing,
+            &mut pg.v_albedo,
+            &mut pg.v_roughness,
+            &mut pg.v_normals,
+        );
         let mg = self.materials.backward(&self.normals, &pg.v_albedo, &pg.v_roughness, &pg.v_normals)?;
         let mut v_offset = mg.v_normal_offset;
         v_offset.par_iter_mut().zip(&v_reg).with_min_len(4096).for_each(|(g, r)| *g += wts.normal_offset * r);
         let mut v_env = self.env.backward(&pg.v_env)?;
         v_env.iter_mut().zip(&v_tv).for_each(|(g, t)| (0..3).for_each(|c| g[c] += wts.env_tv * t[c]));
-        let v_opacity: Vec<f32> = g_pbr
-            .v_opacity_logits
-            .par_iter()
-            .zip(&g_sh.v_opacity_logits)
-            .with_min_len(4096)
-            .map(|(a, b)| a + b)
-            .collect();
         let t3 = Instant::now();
 
         // 5. Adam.
         let g = &mut self.groups;
-        g[0].step(&mut self.surfels.opacity_logits, &v_opacity);
-        g[1].step(bytemuck::cast_slice_mut(&mut self.surfels.sh), bytemuck::cast_slice(&g_sh.v_sh));
+        g[0].step(&mut self.surfels.opacity_logits, &g_pbr.v_opacity_logits);
+        g[1].step(bytemuck::cast_slice_mut(&mut self.surfels.sh), bytemuck::cast_slice(&v_sh));
         if self.iteration > cfg.materials_from {
             g[2].step(&mut self.materials.albedo_raw, &mg.v_albedo_raw);
             g[3].step(&mut self.materials.roughness_raw, &mg.v_roughness_raw);
@@ -660,7 +656,7 @@ impl Stage2 {
             iteration: self.iteration,
             loss,
             psnr_pbr: psnr_of_mse(mse(&obj.image)),
-            psnr_sh: psnr_of_mse(mse(&sh_out.color)),
+            psnr_sh: psnr_of_mse(mse(&sh_image)),
             consistency: cons_loss,
             rho: self.rho,
             sun_search,

@@ -42,31 +42,38 @@ pub fn facing(normals: &[Vec3], positions: &[Vec3], center: Vec3) -> Vec<f32> {
 /// Per-vertex extra channels (albedo, roughness, camera-facing shading normal); `facing` per
 /// Gaussian ([`facing`]), `act.m` vertices each.
 pub fn extra_features(act: &ActivatedMaterials, facing: &[f32]) -> Vec<f32> {
-    let nv = act.roughness.len();
+    let mut out = filled(act.roughness.len() * EXTRA_CHANNELS, 0.0f32);
+    write_extra_features(act, facing, &mut out, EXTRA_CHANNELS);
+    out
+}
+
+/// [`extra_features`] into the first [`EXTRA_CHANNELS`] of every `stride` values of `out` (one
+/// run per vertex), leaving the rest as they are.
+pub(crate) fn write_extra_features(act: &ActivatedMaterials, facing: &[f32], out: &mut [f32], stride: usize) {
     let m = act.m;
-    let mut out = filled(nv * EXTRA_CHANNELS, 0.0f32);
-    out.par_chunks_exact_mut(EXTRA_CHANNELS).enumerate().with_min_len(CHUNK).for_each(|(v, e)| {
+    out.par_chunks_exact_mut(stride).enumerate().with_min_len(CHUNK).for_each(|(v, e)| {
         e[..3].copy_from_slice(&act.albedo[3 * v..3 * v + 3]);
         e[3] = act.roughness[v];
         for c in 0..3 {
             e[4 + c] = act.normals[3 * v + c] * facing[v / m];
         }
     });
-    out
 }
 
 /// Adjoint of [`extra_features`]: accumulates the gradient of the per-vertex extra channels
-/// (`v_extra`, as the rasteriser's backward returns it) into the vertices' albedo, roughness and
-/// (unflipped) shading normals.
+/// (`v_extra`, as the rasteriser's backward returns it, `channels` per vertex of which the first
+/// [`EXTRA_CHANNELS`] are read) into the vertices' albedo, roughness and (unflipped) shading
+/// normals.
 pub fn extra_features_backward(
     v_extra: &[f32],
+    channels: usize,
     m: usize,
     facing: &[f32],
     v_albedo: &mut [f32],
     v_roughness: &mut [f32],
     v_normals: &mut [f32],
 ) {
-    let nv = v_extra.len() / EXTRA_CHANNELS;
+    let nv = v_extra.len() / channels;
     assert!(
         v_albedo.len() == 3 * nv && v_roughness.len() == nv && v_normals.len() == 3 * nv,
         "extra_features_backward: {nv} vertices of extra gradients for {} roughness gradients",
@@ -74,7 +81,7 @@ pub fn extra_features_backward(
     );
     (v_albedo.par_chunks_exact_mut(3), v_roughness.par_iter_mut(), v_normals.par_chunks_exact_mut(3))
         .into_par_iter()
-        .zip(v_extra.par_chunks_exact(EXTRA_CHANNELS))
+        .zip(v_extra.par_chunks_exact(channels))
         .enumerate()
         .with_min_len(CHUNK)
         .for_each(|(v, ((a, r, n), e))| {
