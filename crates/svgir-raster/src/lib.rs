@@ -492,8 +492,9 @@ pub fn sh_colors_backward(
     let cam = preprocess::Cam::<f32>::new(input.camera);
     let mut v_sh = vec![ShCoeffs::default(); n];
     v_sh.par_iter_mut().enumerate().with_min_len(1024).for_each(|(i, row)| {
-        if splats[i].visible() {
-            let (rows, _) = preprocess_backward::sh_color_backward(input.surfels, &cam, &splats[i], &v_colors[i], i);
+        // A Gaussian no pixel saw has a zero gradient: its row stays zero.
+        if splats[i].visible() && v_colors[i] != [0.0; 3] {
+            let rows = preprocess_backward::sh_color_rows(input.surfels, &cam, &splats[i], &v_colors[i], i);
             *row = <f32 as Real>::sh(&rows);
         }
     });

@@ -157,8 +157,8 @@ pub fn gaussian_backward<F: Real, P: GaussianParams<F> + ?Sized>(
 }
 
 /// Backward of Gaussian `i`'s SH colour `max(0, 0.5 + SH(d))`, `d` the unit direction from the
-/// camera centre: the coefficient rows (`[k][channel]`) and the gradient reaching the centre
-/// through `d`, from `v_color` (a clamped channel passes none). Visible Gaussians only.
+/// camera centre: the coefficient rows (`[k][channel]`, [`sh_rows`]) and the gradient reaching the
+/// centre through `d`, from `v_color` (a clamped channel passes none). Visible Gaussians only.
 pub fn sh_color_backward<F: Real, P: GaussianParams<F> + ?Sized>(
     params: &P,
     cam: &Cam<F>,
@@ -166,34 +166,68 @@ pub fn sh_color_backward<F: Real, P: GaussianParams<F> + ?Sized>(
     v_color: &[F; 3],
     i: usize,
 ) -> ([[F; 3]; 16], [F; 3]) {
+    let (d, len) = view_direction(params, cam, i);
+    let gc = unclamped(splat, v_color);
     let deg = params.sh_degree().min(3);
-    let dir = sub3(params.position(i), cam.center);
-    let len = dot3(dir, dir).sqrt();
-    let d = dir.map(|v| v / len);
-    let mut gc = *v_color;
-    for ch in 0..3 {
-        if splat.clamped & (1 << ch) != 0 {
-            gc[ch] = F::ZERO;
-        }
-    }
-    let mut b = [F::ZERO; 16];
+    let rows = sh_rows(deg, d, &gc);
     let mut bg = [[F::ZERO; 3]; 16];
-    F::sh_basis(deg, d, &mut b);
     F::sh_basis_grad(deg, d, &mut bg);
-    let mut rows = [[F::ZERO; 3]; 16];
     let mut v_d = [F::ZERO; 3];
-    for k in 0..svgir_core::sh::num_coeffs(deg) {
+    for (k, bgk) in bg.iter().enumerate().take(svgir_core::sh::num_coeffs(deg)) {
         let mut s = F::ZERO;
         for ch in 0..3 {
-            rows[k][ch] = b[k] * gc[ch];
             s += params.sh(i, k, ch) * gc[ch];
         }
         for j in 0..3 {
-            v_d[j] += bg[k][j] * s;
+            v_d[j] += bgk[j] * s;
         }
     }
     let dd = dot3(d, v_d);
     (rows, [0, 1, 2].map(|j| (v_d[j] - d[j] * dd) / len))
+}
+
+/// The coefficient rows alone of [`sh_color_backward`] (its bits), for a caller that keeps the
+/// centres fixed.
+pub fn sh_color_rows<F: Real, P: GaussianParams<F> + ?Sized>(
+    params: &P,
+    cam: &Cam<F>,
+    splat: &Splat<F>,
+    v_color: &[F; 3],
+    i: usize,
+) -> [[F; 3]; 16] {
+    let (d, _) = view_direction(params, cam, i);
+    sh_rows(params.sh_degree().min(3), d, &unclamped(splat, v_color))
+}
+
+/// Unit direction from the camera centre to Gaussian `i`, and the distance.
+fn view_direction<F: Real, P: GaussianParams<F> + ?Sized>(params: &P, cam: &Cam<F>, i: usize) -> ([F; 3], F) {
+    let dir = sub3(params.position(i), cam.center);
+    let len = dot3(dir, dir).sqrt();
+    (dir.map(|v| v / len), len)
+}
+
+/// `v_color` with the channels the forward clamped to zero.
+fn unclamped<F: Real>(splat: &Splat<F>, v_color: &[F; 3]) -> [F; 3] {
+    let mut gc = *v_color;
+    for (ch, g) in gc.iter_mut().enumerate() {
+        if splat.clamped & (1 << ch) != 0 {
+            *g = F::ZERO;
+        }
+    }
+    gc
+}
+
+/// `rows[k][ch] = Y_k(d) gc[ch]`: the colour is linear in the coefficients.
+fn sh_rows<F: Real>(deg: u32, d: [F; 3], gc: &[F; 3]) -> [[F; 3]; 16] {
+    let mut b = [F::ZERO; 16];
+    F::sh_basis(deg, d, &mut b);
+    let mut rows = [[F::ZERO; 3]; 16];
+    for (row, bk) in rows.iter_mut().zip(b).take(svgir_core::sh::num_coeffs(deg)) {
+        for ch in 0..3 {
+            row[ch] = bk * gc[ch];
+        }
+    }
+    rows
 }
 
 /// The gradient outputs of a run of Gaussians, each slot written exactly once: the backward
