@@ -157,7 +157,7 @@ pub fn gaussian_backward<F: Real, P: GaussianParams<F> + ?Sized>(
 }
 
 /// Backward of Gaussian `i`'s SH colour `max(0, 0.5 + SH(d))`, `d` the unit direction from the
-/// camera centre: the coefficient rows (`[k][channel]`, [`sh_rows`]) and the gradient reaching the
+/// camera centre: the coefficient rows (`[k][channel]`, as [`sh_color_rows`]) and the gradient reaching the
 /// centre through `d`, from `v_color` (a clamped channel passes none). Visible Gaussians only.
 pub fn sh_color_backward<F: Real, P: GaussianParams<F> + ?Sized>(
     params: &P,
