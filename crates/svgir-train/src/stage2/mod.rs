@@ -448,8 +448,10 @@ impl Stage2 {
         let m = cfg.vertices;
         let t0 = Instant::now();
 
-        // 1. SH pass. Its loss reads colour alone, so it skips the depth and normal outputs
-        // (colour, alpha, weights and their gradients keep their bits).
+        // 1. SH pass: which Gaussians the view blends (radii and composited weights), and the
+        // projection the PBR pass reuses. The loss reads the SH image from the PBR pass
+        // (`sh_channels`), so no output of this pass reaches it and it needs no backward; it
+        // skips the depth and normal outputs.
         let sh_raster = RasterConfig { geometry: false, ..self.raster };
         let sh_input = RenderInput {
             surfels: &self.surfels,
