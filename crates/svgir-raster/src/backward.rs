@@ -38,6 +38,7 @@ use crate::{
     RenderOutputOf,
 };
 use rayon::prelude::*;
+use std::mem::MaybeUninit;
 use svgir_core::par::{filled, zeroed};
 
 // Per-entry gradient slot layout.
@@ -86,14 +87,23 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     let off_ext = OFF_COL + cf.vertices * 3;
     let dim = off_ext + ef.vertices * ce;
 
-    let mut entry_grads = filled(bins.ids.len() * dim, F::ZERO);
+    // Each tile task zeroes its own run of slots just before it fills them: zeroed here, in
+    // one pass over the whole buffer, the slots were out of the cache by the time the tile
+    // kernels read them back (`+=`) -- cache misses on every entry (docs/performance.md).
+    let n_slots = bins.ids.len() * dim;
+    assert!(
+        bins.ranges.iter().map(|r| (r[1] - r[0]) as usize).sum::<usize>() == bins.ids.len(),
+        "tile ranges do not cover the entries"
+    );
+    let mut entry_grads = uninit_vec::<F>(n_slots);
     sw.lap("buffers");
     {
         // One task per tile (its entries are a contiguous run of `entry_grads`), as uneven in
         // cost as the forward's tiles: heaviest first, one at a time to whichever thread is
         // free (`heaviest_first`).
         let elens = bins.ranges.iter().map(|r| (r[1] - r[0]) as usize * dim);
-        let tiles: Vec<(usize, &mut [F])> = split_lens(&mut entry_grads, elens).into_iter().enumerate().collect();
+        let tiles: Vec<(usize, &mut [MaybeUninit<F>])> =
+            split_lens(&mut entry_grads, elens).into_iter().enumerate().collect();
         let ctx = Ctx {
             bins,
             recs: &state.proj.recs,
@@ -112,10 +122,17 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
         tiles.par_bridge().for_each_init(
             || Scratch::new(bins.tile as usize, ce),
             |scr, (t, eg)| {
+                eg.fill(MaybeUninit::new(F::ZERO));
+                // SAFETY: every element was written just above, and `MaybeUninit<F>` has
+                // `F`'s layout.
+                let eg = unsafe { &mut *(eg as *mut [MaybeUninit<F>] as *mut [F]) };
                 backward_tile(&ctx, t, eg, scr);
             },
         );
     }
+    // SAFETY: the tile ranges cover every entry (asserted above), so every slot was written
+    // by its tile's task.
+    let entry_grads = unsafe { assume_init(entry_grads) };
 
     sw.lap("tiles");
     // Per-Gaussian reduction in entry order, then the preprocess backward.
