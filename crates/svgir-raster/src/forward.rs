@@ -23,7 +23,7 @@
 
 use crate::interp::{normalised_coord, weights, MAX_VERTICES};
 use crate::phases::Stopwatch;
-use crate::preprocess::{preprocess, Cam};
+use crate::preprocess::{preprocess, Cam, Splat};
 use crate::real::Real;
 use crate::splat::{eval_row, plane_setup, row_offsets, row_setup, RowEval};
 use crate::tiles::{bin, columns_mask, gather_records, EntryBox, TileBins, TileRec};
@@ -235,6 +235,23 @@ pub fn render_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     cfg: &RasterConfig,
 ) -> (RenderOutputOf<F>, ForwardStateOf<F>) {
     let mut sw = Stopwatch::start();
+    let proj = project_timed(input, cfg, &mut sw);
+    render_projected(input, cfg, Arc::new(proj), sw)
+}
+
+/// The projection of [`render_generic`] alone (see [`crate::try_project`]).
+pub(crate) fn project<F: Real, P: GaussianParams<F> + ?Sized>(
+    input: &RenderInputOf<F, P>,
+    cfg: &RasterConfig,
+) -> Projection<F> {
+    project_timed(input, cfg, &mut Stopwatch::start())
+}
+
+fn project_timed<F: Real, P: GaussianParams<F> + ?Sized>(
+    input: &RenderInputOf<F, P>,
+    cfg: &RasterConfig,
+    sw: &mut Stopwatch,
+) -> Projection<F> {
     let cam = Cam::<F>::new(input.camera);
     let (splats, sh_colors) = preprocess(input.surfels, &cam, &input.colors, cfg);
     sw.lap("preprocess");
@@ -243,8 +260,12 @@ pub fn render_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     let cf = FeatView::colors(&input.colors, &sh_colors);
     let recs = gather_records(&bins, &splats, (cf.vertices == 1).then_some(cf.data));
     sw.lap("records");
-    let proj = Projection { splats, sh_colors, recs, bins, camera: Some(*input.camera), near: cfg.near };
-    render_projected(input, cfg, Arc::new(proj), sw)
+    Projection { splats, sh_colors, recs, bins, camera: Some(*input.camera), near: cfg.near }
+}
+
+/// Per Gaussian, its screen radius when it is in view, else 0 ([`RenderOutputOf::max_radius`]).
+pub(crate) fn max_radius<F: Real>(splats: &[Splat<F>]) -> Vec<f32> {
+    splats.par_iter().with_min_len(4096).map(|s| if s.visible() { s.radius } else { 0.0 }).collect()
 }
 
 /// The tile passes of [`render_generic`] over a projection already made (by this render or an
@@ -274,7 +295,7 @@ pub(crate) fn render_projected<F: Real, P: GaussianParams<F> + ?Sized>(
         extra: filled(npx * ce, F::ZERO),
         extra_channels: ce,
         accum_weight: Vec::new(),
-        max_radius: splats.par_iter().with_min_len(4096).map(|s| if s.visible() { s.radius } else { 0.0 }).collect(),
+        max_radius: max_radius(splats),
     };
     let mut final_t = filled(npx, F::ONE);
     let mut n_contrib = filled(npx, 0u32);

@@ -300,6 +300,35 @@ pub(crate) struct Projection<F> {
     pub(crate) near: f32,
 }
 
+/// The projection of a render ([`try_project`], [`ForwardStateOf::projected`]): what a later
+/// render of the same Gaussians by the same camera reuses ([`try_render_reusing`]), and what
+/// [`sh_colors_backward`] reads.
+#[derive(Clone, Debug)]
+pub struct Projected {
+    proj: std::sync::Arc<Projection<f32>>,
+}
+
+impl Projected {
+    /// Per Gaussian, its screen radius in pixels when it is in view, else 0 (a render's
+    /// [`RenderOutputOf::max_radius`]).
+    pub fn max_radius(&self) -> Vec<f32> {
+        forward::max_radius(&self.proj.splats)
+    }
+
+    /// Per Gaussian, its colour `max(0, 0.5 + SH(view))` for [`ColorSource::Sh`] inputs (0 for
+    /// culled Gaussians); empty for other colour sources.
+    pub fn sh_colors(&self) -> &[[f32; 3]] {
+        &self.proj.sh_colors
+    }
+}
+
+impl ForwardState {
+    /// This render's projection, shared (not copied).
+    pub fn projected(&self) -> Projected {
+        Projected { proj: self.proj.clone() }
+    }
+}
+
 impl<F> ForwardStateOf<F> {
     /// The colour each Gaussian composited, `max(0, 0.5 + SH(view))`, for a render of
     /// [`ColorSource::Sh`] (0 for culled Gaussians); empty for other colour sources.
@@ -431,17 +460,26 @@ pub fn try_render(input: &RenderInput, cfg: &RasterConfig) -> Result<(RenderOutp
     Ok(render_generic(input, cfg))
 }
 
-/// [`try_render`] reusing the projection of `prior` (the splats, their tile lists and records), a
-/// render of the same Gaussians -- positions, rotations, scales and opacities unchanged since --
-/// by the same camera with the same `near` and tile size: stage 2's PBR pass after its SH pass.
-/// Its colours must come from a feature table of several vertices, since the records carry the
+/// The projection alone of a render of `input` (its splats, their tile lists and records; no
+/// pixel), for a later [`try_render_reusing`] or [`sh_colors_backward`]. The same values as the
+/// projection [`try_render`] makes.
+pub fn try_project(input: &RenderInput, cfg: &RasterConfig) -> Result<Projected, RasterError> {
+    input.surfels.check().map_err(RasterError::Surfels)?;
+    check_input(input, cfg)?;
+    Ok(Projected { proj: std::sync::Arc::new(forward::project(input, cfg)) })
+}
+
+/// [`try_render`] reusing the projection `prior` (the splats, their tile lists and records) of
+/// the same Gaussians -- positions, rotations, scales and opacities unchanged since -- by the
+/// same camera with the same `near` and tile size: stage 2's PBR pass after its SH pass. Its
+/// colours must come from a feature table of several vertices, since the records carry the
 /// prior render's one colour per Gaussian. Outputs, state and gradients are those of
 /// [`try_render`] (bit for bit; the Gaussians themselves are the caller's promise, the rest is
 /// checked).
 pub fn try_render_reusing(
     input: &RenderInput,
     cfg: &RasterConfig,
-    prior: &ForwardState,
+    prior: &Projected,
 ) -> Result<(RenderOutput, ForwardState), RasterError> {
     check_input(input, cfg)?;
     let p = &prior.proj;
@@ -450,7 +488,7 @@ pub fn try_render_reusing(
     if !interpolated || !same_view || p.splats.len() != input.surfels.len() {
         return Err(RasterError::Reuse);
     }
-    Ok(forward::render_projected(input, cfg, prior.proj.clone(), phases::Stopwatch::start()))
+    Ok(forward::render_projected(input, cfg, p.clone(), phases::Stopwatch::start()))
 }
 
 /// Gradients of a loss whose output gradients are `grads`, for the render that produced `state`
@@ -474,12 +512,12 @@ pub fn backward(
 /// gradient through the view direction to the centre is left out (SPEC 6 freezes it).
 pub fn sh_colors_backward(
     input: &RenderInput,
-    state: &ForwardState,
+    prior: &Projected,
     v_colors: &[[f32; 3]],
 ) -> Result<Vec<ShCoeffs>, RasterError> {
     let n = input.surfels.len();
-    let splats = &state.proj.splats;
-    if !matches!(input.colors, ColorSourceOf::Sh) || state.proj.sh_colors.len() != n || splats.len() != n {
+    let splats = &prior.proj.splats;
+    if !matches!(input.colors, ColorSourceOf::Sh) || prior.proj.sh_colors.len() != n || splats.len() != n {
         return Err(RasterError::NotSh);
     }
     if v_colors.len() != n {

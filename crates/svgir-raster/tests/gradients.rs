@@ -305,7 +305,7 @@ fn sh_colors_backward_gives_the_sh_renders_own_rows() {
     assert_eq!(feat_out.color, sh_out.color, "the same colours composite to the same image");
     let per_gaussian = backward(&feat_input, &cfg, &feat_st, &feat_out, &og).v_color_features;
     let v_colors: Vec<[f32; 3]> = per_gaussian.chunks_exact(3).map(|c| [c[0], c[1], c[2]]).collect();
-    let got = svgir_raster::sh_colors_backward(&sh_input, &sh_st, &v_colors).expect("an SH render");
+    let got = svgir_raster::sh_colors_backward(&sh_input, &sh_st.projected(), &v_colors).expect("an SH render");
 
     let flat = |v: &[svgir_core::ShCoeffs]| v.iter().flat_map(|c| c.0.iter().flatten().map(|&x| x as f64)).collect();
     let (got, want): (Vec<f64>, Vec<f64>) = (flat(&got), flat(&want));
@@ -319,7 +319,7 @@ fn sh_colors_backward_gives_the_sh_renders_own_rows() {
     assert!(clamped > 0, "the scene has clamped channels");
 
     assert!(matches!(
-        svgir_raster::sh_colors_backward(&feat_input, &feat_st, &v_colors),
+        svgir_raster::sh_colors_backward(&feat_input, &feat_st.projected(), &v_colors),
         Err(svgir_raster::RasterError::NotSh)
     ));
 }

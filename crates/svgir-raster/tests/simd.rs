@@ -401,14 +401,22 @@ fn reusing_a_projection_changes_no_bit() {
         for geometry_grads in [true, false] {
             let what = format!("{} geometry gradients {geometry_grads}", path.name());
             let cfg = RasterConfig { simd: path, distortion: false, geometry_grads, ..Default::default() };
-            let (_, sh_state) = render(&sh_input, &RasterConfig { geometry: false, ..cfg });
+            let sh_cfg = RasterConfig { geometry: false, ..cfg };
+            let (sh_out, sh_state) = render(&sh_input, &sh_cfg);
             let (a, sa) = render(&input, &cfg);
-            let (b, sb) = svgir_raster::try_render_reusing(&input, &cfg, &sh_state).expect("same view");
+            let (b, sb) = svgir_raster::try_render_reusing(&input, &cfg, &sh_state.projected()).expect("same view");
             let outputs = |o: &RenderOutput| {
                 [&o.color, &o.alpha, &o.depth, &o.median_depth, &o.normal, &o.extra, &o.accum_weight, &o.max_radius]
                     .map(|v| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>())
             };
             assert_eq!(outputs(&a), outputs(&b), "{what}: outputs");
+            // The projection alone (no pixel) serves the same.
+            let proj = svgir_raster::try_project(&sh_input, &sh_cfg).expect("valid input");
+            let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<u32>>();
+            assert_eq!(bits(&proj.max_radius()), bits(&sh_out.max_radius), "{what}: projected radii");
+            assert_eq!(proj.sh_colors(), sh_state.sh_colors(), "{what}: projected SH colours");
+            let (p_out, _) = svgir_raster::try_render_reusing(&input, &cfg, &proj).expect("same view");
+            assert_eq!(outputs(&a), outputs(&p_out), "{what}: outputs after the projection alone");
             let ga = backward(&input, &cfg, &sa, &a, &grads);
             let gb = backward(&input, &cfg, &sb, &b, &grads);
             for ((name, x), (_, y)) in grad_arrays(&ga).iter().zip(grad_arrays(&gb).iter()) {
@@ -417,7 +425,7 @@ fn reusing_a_projection_changes_no_bit() {
             assert!(ga.v_extra.iter().any(|&v| v != 0.0), "{what}: no feature gradient");
             // Refused: another camera, another tile size, colours from one vertex or SH.
             let refused = |input: &RenderInput, cfg: &RasterConfig| {
-                matches!(svgir_raster::try_render_reusing(input, cfg, &sh_state), Err(RasterError::Reuse))
+                matches!(svgir_raster::try_render_reusing(input, cfg, &sh_state.projected()), Err(RasterError::Reuse))
             };
             let other = bench_camera(res, res / 2);
             assert!(refused(&RenderInput { camera: &other, ..input }, &cfg), "{what}: camera");

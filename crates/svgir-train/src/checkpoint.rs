@@ -16,7 +16,7 @@ use crate::config::Stage1Config;
 use crate::densify::DensifyStats;
 use crate::exposure::{self, ExposureCorrection};
 use crate::stage1::{PhaseTimes, Stage1};
-use crate::stage2::{Stage2, Stage2Config};
+use crate::stage2::{Stage2, Stage2Config, ViewSets};
 use serde::{de::DeserializeOwned, Deserialize, Serialize};
 use std::collections::VecDeque;
 use std::path::{Path, PathBuf};
@@ -323,6 +323,12 @@ struct Header2 {
     /// The sun searches' schedule (absent in older checkpoints, whose runs had a fixed one).
     #[serde(default)]
     sun_schedule: crate::stage2::SunSchedule,
+    /// The views with a shaded set from their last render (`ShadeSets::LastVisit`); their
+    /// words follow as the array `shade_sets` (absent in older checkpoints).
+    #[serde(default)]
+    shade_set_views: Vec<u32>,
+    #[serde(default)]
+    has_shade_sets: bool,
 }
 
 fn push_microbuffer<'a>(arrays: &mut Vec<(String, &'a [u8])>, prefix: &str, mb: &'a MicroBuffer) {
@@ -377,6 +383,8 @@ pub fn save_stage2(t: &Stage2, path: &Path) -> Result<(), CheckpointError> {
     if let Some(b) = &t.back {
         push_microbuffer(&mut arrays, "back", &b.mb);
     }
+    let (shade_set_views, shade_set_words) = t.view_sets.parts();
+    arrays.push(("shade_sets".into(), bytes(&shade_set_words)));
     let header = Header2 {
         config: t.config.clone(),
         iteration: t.iteration,
@@ -394,6 +402,8 @@ pub fn save_stage2(t: &Stage2, path: &Path) -> Result<(), CheckpointError> {
         has_trace_opacity: true,
         has_back: t.back.is_some(),
         sun_schedule: t.sun_schedule,
+        shade_set_views,
+        has_shade_sets: true,
     };
     write_container(path, &header, &arrays)
 }
@@ -417,6 +427,13 @@ pub fn load_stage2(path: &Path) -> Result<Stage2, CheckpointError> {
         return Err(corrupt(path, "trace_opacity has the wrong size"));
     }
     let back_mb = if h.has_back { Some(read_microbuffer(&mut a, "back", h.directions, n, path)?) } else { None };
+    let view_sets = if h.has_shade_sets {
+        let words: Vec<u64> = a.next_as("shade_sets")?;
+        ViewSets::from_parts(&h.shade_set_views, &words, n)
+            .ok_or_else(|| corrupt(path, "shade_sets has the wrong size"))?
+    } else {
+        ViewSets::default()
+    };
     let rebuild = |e: svgir_pbr::PbrError| CheckpointError::Rebuild { path: path.to_path_buf(), what: e.to_string() };
     let mut t = Stage2::from_parts(h.config, surfels, mb, h.trace_seconds).map_err(rebuild)?;
     t.materials.albedo_raw = albedo;
@@ -429,6 +446,7 @@ pub fn load_stage2(path: &Path) -> Result<Stage2, CheckpointError> {
     t.rng = Rng::from_state(h.rng_state);
     t.times = h.times;
     t.sun_schedule = h.sun_schedule;
+    t.view_sets = view_sets;
     if let Some(o) = trace_opacity {
         t.trace_opacity = o;
     }

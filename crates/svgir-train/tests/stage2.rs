@@ -8,7 +8,7 @@ use std::path::PathBuf;
 use svgir_core::{Dataset, Rng, Surfels};
 use svgir_io::{load_dataset, LoadOptions};
 use svgir_pbr::{ColourProjector, EnvActivation};
-use svgir_train::stage2::{Coverage, GreyLight, Stage2Weights};
+use svgir_train::stage2::{Coverage, GreyLight, ShadeSets, Stage2Weights};
 use svgir_train::{checkpoint, init, BackgroundMode, Stage1, Stage1Config, Stage2, Stage2Config};
 
 fn scene() -> Option<Dataset> {
@@ -71,8 +71,10 @@ fn stage2_raises_pbr_psnr_and_resumes_bit_identically() {
         sun_search_every: 50,
         // Spaced-out searches: the schedule (next search at 110) must come back with the checkpoint.
         sun_search_settled_deg: 1e-3,
-        // Faint Gaussians composite their SH colour instead of being shaded.
+        // Faint Gaussians composite their SH colour instead of being shaded, and each view's
+        // shaded set comes from its last render: the sets must come back with the checkpoint.
         shade_min_weight: 0.01,
+        shade_sets: ShadeSets::LastVisit,
         ..spec.clone()
     };
     // Four of the 16 directions per iteration, each subset in turn, on both sides and with
@@ -103,6 +105,14 @@ fn stage2_raises_pbr_psnr_and_resumes_bit_identically() {
         t.iteration = 10;
         t.step(&ds).unwrap().loss.to_bits()
     };
+    // A view's first render takes its shaded set from its own SH pass: the first iteration of a
+    // run with sets from the last visit is the exact one, to the bit.
+    let first_loss = |shade_sets| {
+        let cfg = Stage2Config { shade_sets, shade_min_weight: 0.01, ..spec.clone() };
+        let mut t = Stage2::new(cfg, surfels.clone(), &ds).unwrap();
+        t.step(&ds).unwrap().loss.to_bits()
+    };
+    assert_eq!(first_loss(ShadeSets::LastVisit), first_loss(ShadeSets::ThisRender), "a view's first render");
     let all = loss_at_11(None, 0);
     assert_eq!(loss_at_11(Some(4), 10), all, "iteration 11 comes after the subsets");
     assert_ne!(loss_at_11(Some(4), 11), all, "iteration 11 shades a subset");
@@ -212,6 +222,10 @@ fn run_and_resume(ds: &Dataset, mut t: Stage2) {
     assert!(u.mb == t.mb, "{tag}: restored micro-buffers differ");
     assert!(u.lights == t.lights, "{tag}: restored lights differ");
     assert_eq!(u.sun_schedule, t.sun_schedule, "{tag}: restored sun schedule differs");
+    let sets = |s: &Stage2| (0..ds.train.len()).map(|v| s.view_set(v).map(<[u64]>::to_vec)).collect::<Vec<_>>();
+    assert_eq!(sets(&u), sets(&t), "{tag}: restored shaded sets differ");
+    let with_sets = sets(&t).iter().filter(|s| s.is_some()).count();
+    assert_eq!(with_sets > 0, t.config.shade_sets == ShadeSets::LastVisit, "{tag}: {with_sets} views with sets");
     let back = |s: &Stage2| s.back.as_ref().map(|b| (b.mb.clone(), b.lights.clone()));
     assert_eq!(back(&t).is_some(), t.config.two_sided, "{tag}");
     assert!(back(&u) == back(&t), "{tag}: restored back sides differ");

@@ -103,6 +103,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         sun_search_cone: 0.0,
         sun_search_settled: None,
         shade_min_weight: None,
+        shade_sets: None,
         consistency_samples: None,
         lights: None,
         lights_every: 100,

@@ -14,7 +14,7 @@ use std::path::{Path, PathBuf};
 use svgir_core::{Dataset, LightInfo};
 use svgir_pbr::EnvActivation;
 use svgir_shading::Diffuse;
-use svgir_train::stage2::{Coverage, EnvInit, GreyLight, Stage2Rates, Stage2Weights};
+use svgir_train::stage2::{Coverage, EnvInit, GreyLight, ShadeSets, Stage2Rates, Stage2Weights};
 use svgir_train::{checkpoint, Stage2, Stage2Config};
 
 #[derive(Args)]
@@ -194,6 +194,12 @@ pub struct InverseArgs {
     /// (0: shade every blended Gaussian). Evaluation always shades all. (profile)
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub shade_min_weight: Option<f32>,
+    /// Where a training view's shaded set comes from: `this-render`, the view's SH pass of the
+    /// iteration (exact); `last-visit`, the view's previous training render, which spares the
+    /// SH pass its pixels (a view's first render is exact). `this-render` in `spec`,
+    /// `last-visit` in the measured profile. (profile)
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, value_enum)]
+    pub shade_sets: Option<ShadeSetsArg>,
     /// L_rc (Eqn 14/16) is a mean over the visible Gaussians; each iteration estimates it on at
     /// most this many of them, drawn at random (unbiased): 2048 in the measured profile, 8192 in
     /// `spec`. (profile)
@@ -231,6 +237,21 @@ pub struct InverseArgs {
     /// normal_offset or env_tv (defaults: SPEC 6, Eqn 15).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long = "weight", value_name = "NAME=VALUE")]
     pub weights: Vec<String>,
+}
+
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ShadeSetsArg {
+    ThisRender,
+    LastVisit,
+}
+
+impl ShadeSetsArg {
+    fn model(self) -> ShadeSets {
+        match self {
+            ShadeSetsArg::ThisRender => ShadeSets::ThisRender,
+            ShadeSetsArg::LastVisit => ShadeSets::LastVisit,
+        }
+    }
 }
 
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
@@ -341,6 +362,7 @@ struct Resolved {
     sun_search_views: usize,
     sun_search_settled_deg: f32,
     shade_min_weight: f32,
+    shade_sets: ShadeSets,
     consistency_samples: usize,
     shade_directions: Option<usize>,
     shade_directions_until: u64,
@@ -364,6 +386,10 @@ impl Resolved {
             sun_search_views: a.sun_search_views.unwrap_or(if m { 4 } else { 0 }),
             sun_search_settled_deg: a.sun_search_settled.unwrap_or(if m { 1.0 } else { 0.0 }),
             shade_min_weight: a.shade_min_weight.unwrap_or(if m { 0.01 } else { 0.0 }),
+            shade_sets: a
+                .shade_sets
+                .unwrap_or(if m { ShadeSetsArg::LastVisit } else { ShadeSetsArg::ThisRender })
+                .model(),
             consistency_samples: a.consistency_samples.unwrap_or(if m {
                 MEASURED_CONSISTENCY_SAMPLES
             } else {
@@ -473,6 +499,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         sun_search_cone_deg: args.sun_search_cone,
         sun_search_settled_deg: p.sun_search_settled_deg,
         shade_min_weight: p.shade_min_weight,
+        shade_sets: p.shade_sets,
         consistency_samples: p.consistency_samples,
         weights: super::loss_weights::<Stage2Weights>(&args.weights)?,
         ..Stage2Config::default()
@@ -493,6 +520,10 @@ pub fn run(args: InverseArgs) -> Result<()> {
         if let Some(d) = args.diffuse.map(DiffuseArg::model).filter(|&d| d != s2.config.diffuse) {
             eprintln!("stage 2: diffuse lobe {:?} -> {d:?}", s2.config.diffuse);
             s2.config.diffuse = d;
+        }
+        if let Some(sets) = args.shade_sets.map(ShadeSetsArg::model).filter(|&s| s != s2.config.shade_sets) {
+            eprintln!("stage 2: shaded sets {:?} -> {sets:?}", s2.config.shade_sets);
+            s2.config.shade_sets = sets;
         }
         if let Some(until) = args.shade_directions_until.filter(|&u| u != s2.config.shade_directions_until) {
             eprintln!(

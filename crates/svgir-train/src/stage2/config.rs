@@ -1,6 +1,7 @@
 //! Stage 2's configuration: loss weights (Eqn 15), learning rates (SPEC 6), ablation switches
 //! and our tracing and lighting options, all recorded in the run's `config.json`.
 
+use super::ShadeSets;
 use crate::composite::Coverage;
 use crate::config::{BackgroundMode, NamedWeights};
 use serde::{Deserialize, Serialize};
@@ -240,6 +241,11 @@ pub struct Stage2Config {
     /// every Gaussian.
     #[serde(default)]
     pub shade_min_weight: f32,
+    /// Where each training view's shaded set (and `shade_min_weight`'s test) comes from: the
+    /// view's SH pass of the iteration (exact), or its previous training render, which spares
+    /// the SH pass its pixels ([`ShadeSets`]).
+    #[serde(default)]
+    pub shade_sets: ShadeSets,
     /// How the BRDF's diffuse lobe combines with the specular one, in training, the one-bounce
     /// gather and relighting (SPEC 4: added; `layered` dims it by the specular layer's albedo,
     /// as Cycles' Principled BSDF does; `svgir_shading::layering`).
@@ -389,6 +395,7 @@ impl Default for Stage2Config {
             pbr_coverage: Coverage::Render,
             two_sided: false,
             shade_min_weight: 0.0,
+            shade_sets: ShadeSets::ThisRender,
             diffuse: Diffuse::Added,
             sun_search_views: 0,
             sun_search_every: default_sun_search_every(),

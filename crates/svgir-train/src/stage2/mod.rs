@@ -39,7 +39,9 @@ use objective::{extra_features_backward, stage2_objective, Stage2Outputs, Stage2
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 use sh_channels::{join_pass_grads, pass_features, sh_colour_grads, split_pass, PASS_CHANNELS};
-use shaded_set::{stand_in_colours, visible_of, weighted};
+pub use shaded_set::ShadeSets;
+pub(crate) use shaded_set::ViewSets;
+use shaded_set::{faint, in_set_of, outside_set, stand_in_colours, visible_of, weighted};
 use std::time::Instant;
 use svgir_core::{Camera, Dataset, Image, Rng, Surfels};
 use svgir_pbr::{
@@ -48,8 +50,8 @@ use svgir_pbr::{
     ShadeInputs, ShadeOutput, ShadeParams, Side, SvgMaterials,
 };
 use svgir_raster::{
-    backward, render, Background, ColorSource, Features, ForwardState, OutputGrads, RasterConfig, RenderInput,
-    RenderOutput,
+    backward, render, Background, ColorSource, Features, ForwardState, OutputGrads, Projected, RasterConfig,
+    RenderInput, RenderOutput,
 };
 use svgir_trace::{brightest_texels, concentrate_lobe, BrightLights, Bvh, GatherParams, MicroBuffer};
 
@@ -119,6 +121,8 @@ pub struct Stage2 {
     pub back: Option<BackSide>,
     /// When the next sun search is due.
     pub sun_schedule: SunSchedule,
+    /// Per training view, the Gaussians its last render blended (`config.shade_sets`).
+    pub(crate) view_sets: ViewSets,
 }
 
 /// The back side of every Gaussian for two-sided shading (`svgir_pbr::two_sided`): traced once,
@@ -191,14 +195,11 @@ fn photo_coverage(mode: Coverage, image: &Image) -> Option<Vec<f32>> {
     (mode == Coverage::Photo && image.channels == 4).then(|| alpha_of(image))
 }
 
-/// The PBR pass of a view after its SH pass `prior`: the same Gaussians (SPEC 6 freezes their
-/// geometry, and opacities change only at the optimiser's step), camera and settings, so it
-/// reuses the SH pass's projection; with one vertex per Gaussian (M = 1) it renders its own.
-pub(crate) fn render_after(
-    input: &RenderInput,
-    cfg: &RasterConfig,
-    prior: &ForwardState,
-) -> (RenderOutput, ForwardState) {
+/// The PBR pass of a view after its SH pass's projection `prior`: the same Gaussians (SPEC 6
+/// freezes their geometry, and opacities change only at the optimiser's step), camera and
+/// settings, so it reuses that projection; with one vertex per Gaussian (M = 1) it renders its
+/// own.
+pub(crate) fn render_after(input: &RenderInput, cfg: &RasterConfig, prior: &Projected) -> (RenderOutput, ForwardState) {
     svgir_raster::try_render_reusing(input, cfg, prior).unwrap_or_else(|_| render(input, cfg))
 }
 
@@ -349,6 +350,7 @@ impl Stage2 {
             colour,
             back: None,
             sun_schedule: SunSchedule::default(),
+            view_sets: ViewSets::default(),
         })
     }
 
@@ -418,6 +420,13 @@ impl Stage2 {
         objective::facing(&self.normals, &self.surfels.positions, camera.center())
     }
 
+    /// The Gaussians training view `view`'s last render blended with at least
+    /// `config.shade_min_weight` (bit g for Gaussian g), with `ShadeSets::LastVisit` once the
+    /// view was rendered; else None.
+    pub fn view_set(&self, view: usize) -> Option<&[u64]> {
+        self.view_sets.get(view)
+    }
+
     /// One stage-2 iteration on a random training view (sun search first when one is due).
     pub fn step(&mut self, dataset: &Dataset) -> Result<Stage2Step, PbrError> {
         let cfg = self.config.clone();
@@ -438,7 +447,8 @@ impl Stage2 {
             self.colour.apply(&mut self.env.param)?;
         }
         self.iteration += 1;
-        let view = &dataset.train[self.rng.below(dataset.train.len())];
+        let view_index = self.rng.below(dataset.train.len());
+        let view = &dataset.train[view_index];
         let bg = cfg
             .background
             .fixed_color()
@@ -451,7 +461,8 @@ impl Stage2 {
         // 1. SH pass: which Gaussians the view blends (radii and composited weights), and the
         // projection the PBR pass reuses. The loss reads the SH image from the PBR pass
         // (`sh_channels`), so no output of this pass reaches it and it needs no backward; it
-        // skips the depth and normal outputs.
+        // skips the depth and normal outputs. With the view's set from its last render
+        // (`ShadeSets::LastVisit`), only the projection is made.
         let sh_raster = RasterConfig { geometry: false, ..self.raster };
         let sh_input = RenderInput {
             surfels: &self.surfels,
@@ -460,11 +471,25 @@ impl Stage2 {
             extra: None,
             background: Background::Color(bg),
         };
+        let last_set = match cfg.shade_sets {
+            ShadeSets::LastVisit => self.view_sets.get(view_index).map(<[u64]>::to_vec),
+            ShadeSets::ThisRender => None,
+        };
+        let sh_pass = || -> Result<_, PbrError> {
+            if last_set.is_some() {
+                let proj = svgir_raster::try_project(&sh_input, &sh_raster)
+                    .map_err(|e| PbrError::InvalidParameter(e.to_string()))?;
+                Ok((proj.max_radius(), None, proj))
+            } else {
+                let (out, state) = render(&sh_input, &sh_raster);
+                Ok((out.max_radius, Some(out.accum_weight), state.projected()))
+            }
+        };
         // The materials do not depend on the SH pass: activated beside it.
-        let ((sh_out, sh_state), act) =
-            rayon::join(|| render(&sh_input, &sh_raster), || self.materials.activated(&self.normals));
+        let (sh, act) = rayon::join(sh_pass, || self.materials.activated(&self.normals));
+        let (max_radius, sh_weights, sh_proj) = sh?;
         let act = act?;
-        let visible = visible_of(&sh_out.max_radius);
+        let visible = visible_of(&max_radius);
         let (front_vis, back_vis) = self.sides(cam, &visible, self.back.is_some());
         // L_rc is estimated on a random subset of the Gaussians seen on their oriented side
         // (the side the micro-buffers' hits are shaded on).
@@ -478,8 +503,15 @@ impl Stage2 {
 
         // 2. PBR pass, shading only what the SH pass blended (same surfels and camera).
         let min_w = cfg.shade_min_weight;
-        let (front_shade, back_shade) =
-            (weighted(&front_vis, &sh_out.accum_weight, min_w), weighted(&back_vis, &sh_out.accum_weight, min_w));
+        let (front_shade, back_shade, stand_ins) = match (&last_set, &sh_weights) {
+            (Some(set), _) => (in_set_of(&front_vis, set), in_set_of(&back_vis, set), Some(outside_set(&visible, set))),
+            (None, Some(w)) => (
+                weighted(&front_vis, w, min_w),
+                weighted(&back_vis, w, min_w),
+                (min_w > 0.0).then(|| faint(&visible, w, min_w)),
+            ),
+            (None, None) => unreachable!("the SH pass renders when the view has no set"),
+        };
         let env_rad = self.env.radiance();
         let (front_mb, front_cache) = shading_set(&cfg, self.iteration, &self.mb, &self.dir_cache, &self.subsets);
         let front = Side {
@@ -510,13 +542,13 @@ impl Stage2 {
             || shade_sides_into(&front, back.as_ref(), &mut shaded, &mut scratch),
             || {
                 let facing = self.facing(cam);
-                let extra = pass_features(&act, &facing, sh_state.sh_colors());
+                let extra = pass_features(&act, &facing, sh_proj.sh_colors());
                 (facing, extra)
             },
         );
         shading?;
-        if min_w > 0.0 {
-            stand_in_colours(sh_state.sh_colors(), &visible, &sh_out.accum_weight, min_w, m, &mut shaded.color);
+        if let Some(s) = &stand_ins {
+            stand_in_colours(sh_proj.sh_colors(), s, m, &mut shaded.color);
         }
         let pbr_input = RenderInput {
             surfels: &self.surfels,
@@ -525,7 +557,7 @@ impl Stage2 {
             extra: Some(Features { data: &extra, vertices: m, channels: PASS_CHANNELS }),
             background: Background::Color([0.0; 3]),
         };
-        let (pbr_out, pbr_state) = render_after(&pbr_input, &self.raster, &sh_state);
+        let (pbr_out, pbr_state) = render_after(&pbr_input, &self.raster, &sh_proj);
         let (materials_out, sh_image) = split_pass(&pbr_out.extra, &pbr_out.alpha, bg);
         let t1 = Instant::now();
 
@@ -599,7 +631,7 @@ impl Stage2 {
         );
         let (pbr_grads, v_sh) = rayon::join(
             || shade_sides_backward(&front, back.as_ref(), &g_pbr.v_color_features),
-            || svgir_raster::sh_colors_backward(&sh_input, &sh_state, &sh_colour_grads(&g_pbr.v_extra, m)),
+            || svgir_raster::sh_colors_backward(&sh_input, &sh_proj, &sh_colour_grads(&g_pbr.v_extra, m)),
         );
         let v_sh = v_sh.map_err(|e| PbrError::InvalidParameter(e.to_string()))?;
         let mut pg: PbrGrads = pbr_grads?;
@@ -645,6 +677,10 @@ impl Stage2 {
             g[6].step(&mut rho, &[pg.v_rho]);
             // rho scales radiance: keep it non-negative.
             self.rho = rho[0].max(0.0);
+        }
+        if cfg.shade_sets == ShadeSets::LastVisit {
+            // The SH pass's weights: the same entries composited with the same alphas.
+            self.view_sets.record(view_index, &pbr_out.accum_weight, min_w);
         }
         let t4 = Instant::now();
         let secs = |a: Instant, b: Instant| (b - a).as_secs_f64();

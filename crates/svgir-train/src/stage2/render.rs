@@ -161,7 +161,7 @@ impl Stage2 {
             extra: Some(Features { data: &extra, vertices: m, channels: EXTRA_CHANNELS }),
             background: Background::Color([0.0; 3]),
         };
-        let (out, _) = super::render_after(&input, &self.raster, &seen_state);
+        let (out, _) = super::render_after(&input, &self.raster, &seen_state.projected());
         let mut r = PbrRender {
             width: w as u32,
             height: h as u32,

@@ -207,7 +207,7 @@ mod tests {
             extra: Some(Features { data: &extra, vertices: m, channels: PASS_CHANNELS }),
             background: Background::Color([0.0; 3]),
         };
-        let (pbr_out, pbr_state) = super::super::render_after(&pbr_input, &cfg, &sh_state);
+        let (pbr_out, pbr_state) = super::super::render_after(&pbr_input, &cfg, &sh_state.projected());
         let (_, sh_image) = split_pass(&pbr_out.extra, &pbr_out.alpha, bg);
         let diff = sh_image.iter().zip(&sh_out.color).fold(0.0f32, |d, (a, b)| d.max((a - b).abs()));
         assert!(diff < 1e-5, "the SH image from the PBR pass is {diff} off the SH pass's");
@@ -218,8 +218,9 @@ mod tests {
         let grads =
             OutputGrads { color: Some(&zeros), alpha: Some(&v_alpha), extra: Some(&v_pass), ..Default::default() };
         let fused = backward(&pbr_input, &cfg, &pbr_state, &pbr_out, &grads);
-        let v_sh = svgir_raster::sh_colors_backward(&sh_input, &sh_state, &sh_colour_grads(&fused.v_extra, m))
-            .expect("an SH render");
+        let v_sh =
+            svgir_raster::sh_colors_backward(&sh_input, &sh_state.projected(), &sh_colour_grads(&fused.v_extra, m))
+                .expect("an SH render");
 
         let close = |what: &str, got: &[f32], want: &[f32]| {
             let scale = want.iter().fold(0.0f32, |s, v| s.max(v.abs()));
