@@ -87,9 +87,9 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
     let off_ext = OFF_COL + cf.vertices * 3;
     let dim = off_ext + ef.vertices * ce;
 
-    // Each tile task zeroes its own run of slots just before it fills them: zeroed here, in
-    // one pass over the whole buffer, the slots were out of the cache by the time the tile
-    // kernels read them back (`+=`) -- cache misses on every entry (docs/performance.md).
+    // The tile kernels zero the slots as they fill them (`backward_tile`): zeroed here, in one
+    // pass over the whole buffer, the slots were out of the cache by the time the kernels read
+    // them back (`+=`) -- cache misses on every entry (docs/performance.md).
     let n_slots = bins.ids.len() * dim;
     assert!(
         bins.ranges.iter().map(|r| (r[1] - r[0]) as usize).sum::<usize>() == bins.ids.len(),
@@ -122,16 +122,12 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
         tiles.par_bridge().for_each_init(
             || Scratch::new(bins.tile as usize, ce),
             |scr, (t, eg)| {
-                eg.fill(MaybeUninit::new(F::ZERO));
-                // SAFETY: every element was written just above, and `MaybeUninit<F>` has
-                // `F`'s layout.
-                let eg = unsafe { &mut *(eg as *mut [MaybeUninit<F>] as *mut [F]) };
                 backward_tile(&ctx, t, eg, scr);
             },
         );
     }
-    // SAFETY: the tile ranges cover every entry (asserted above), so every slot was written
-    // by its tile's task.
+    // SAFETY: the tile ranges cover every entry (asserted above), and every tile task writes
+    // each of its slots (`backward_tile`).
     let entry_grads = unsafe { assume_init(entry_grads) };
 
     sw.lap("tiles");
@@ -422,15 +418,20 @@ impl<F: Real> Scratch<F> {
 }
 
 /// Dispatches to the kernel specialised for which optional paths are live (each is a branch
-/// per composited pixel otherwise).
-fn backward_tile<F: Real>(ctx: &Ctx<F>, t: usize, eg: &mut [F], scr: &mut Scratch<F>) {
+/// per composited pixel otherwise). Writes every slot of `eg`: the SIMD kernels zero each
+/// entry's slot as they reach it (in cache), the scalar ones the whole tile's first.
+fn backward_tile<F: Real>(ctx: &Ctx<F>, t: usize, eg: &mut [MaybeUninit<F>], scr: &mut Scratch<F>) {
     let ci = ctx.cf.vertices > 1;
     let ex = ctx.ef.channels > 0;
     let dist = ctx.cfg.distortion && ctx.grads.distortion.is_some();
     if crate::simd::is_f32::<F>() {
         // SAFETY: `F` is `f32` (checked above), so these are the same types.
         let (ctx32, eg32, lanes) = unsafe {
-            (&*(ctx as *const Ctx<F> as *const Ctx<f32>), &mut *(eg as *mut [F] as *mut [f32]), &mut scr.lanes)
+            (
+                &*(ctx as *const Ctx<F> as *const Ctx<f32>),
+                &mut *(eg as *mut [MaybeUninit<F>] as *mut [MaybeUninit<f32>]),
+                &mut scr.lanes,
+            )
         };
         let path = ctx.cfg.simd.resolve();
         if crate::backward_simd::backward_tile_simd(
@@ -447,6 +448,9 @@ fn backward_tile<F: Real>(ctx: &Ctx<F>, t: usize, eg: &mut [F], scr: &mut Scratc
             return;
         }
     }
+    eg.fill(MaybeUninit::new(F::ZERO));
+    // SAFETY: every element was written just above, and `MaybeUninit<F>` has `F`'s layout.
+    let eg = unsafe { &mut *(eg as *mut [MaybeUninit<F>] as *mut [F]) };
     match (ci, ex, dist) {
         (false, false, false) => backward_tile_k::<F, false, false, false>(ctx, t, eg, scr),
         (false, false, true) => backward_tile_k::<F, false, false, true>(ctx, t, eg, scr),

@@ -26,6 +26,7 @@ use crate::lane_groups::{Group, Groups};
 use crate::simd::{Lanes, Simd};
 use crate::splat::SplatGrad;
 use crate::tiles::TileRec;
+use std::mem::MaybeUninit;
 
 // Per-pixel arrays of the tile, `stride * tile` each.
 const T: usize = 0;
@@ -300,7 +301,7 @@ impl<S: Lanes> Entry<'_, S> {
 unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
     ctx: &Ctx<f32>,
     t: usize,
-    eg: &mut [f32],
+    eg: &mut [MaybeUninit<f32>],
     buf: &mut Vec<f32>,
     by_ncon: &mut Vec<(u32, u32)>,
     row_act: &mut [u64],
@@ -373,7 +374,15 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
     let mut fsum = vec![zero; n_col + ef.vertices * ce];
     by_ncon.sort_unstable_by_key(|a| std::cmp::Reverse(a.0));
     let mut next_act = 0;
-    for e in (r0 as usize..r0 as usize + max_n as usize).rev() {
+    // The slots are zeroed as the entries are reached, so that the sums below add into cached
+    // lines; the entries behind every pixel's last contributor are never reached.
+    let zero_slots = |eg: &mut [MaybeUninit<f32>], a: usize, b: usize| {
+        eg[(a - e_tile0) * dim..(b - e_tile0) * dim].fill(MaybeUninit::new(0.0));
+    };
+    let e_end = r0 as usize + max_n as usize;
+    zero_slots(eg, e_end, bins.ranges[t][1] as usize);
+    for e in (r0 as usize..e_end).rev() {
+        zero_slots(eg, e, e + 1);
         let local = (e - r0 as usize) as u32;
         while let Some(&(nc, rc)) = by_ncon.get(next_act) {
             if nc <= local {
@@ -429,6 +438,8 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
             continue;
         }
         let slot = &mut eg[(e - e_tile0) * dim..(e - e_tile0 + 1) * dim];
+        // SAFETY: zeroed at the top of this iteration; `MaybeUninit<f32>` has `f32`'s layout.
+        let slot = &mut *(slot as *mut [MaybeUninit<f32>] as *mut [f32]);
         if FEAT && ci {
             add_hsums(&fsum[..n_col], &mut slot[OFF_COL..OFF_COL + n_col]);
         }
@@ -487,7 +498,7 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
 unsafe fn tile_avx2<const DIST: bool, const FEAT: bool, const GEO: bool>(
     ctx: &Ctx<f32>,
     t: usize,
-    eg: &mut [f32],
+    eg: &mut [MaybeUninit<f32>],
     buf: &mut Vec<f32>,
     by_ncon: &mut Vec<(u32, u32)>,
     row_act: &mut [u64],
@@ -501,7 +512,7 @@ unsafe fn tile_avx2<const DIST: bool, const FEAT: bool, const GEO: bool>(
 unsafe fn tile_avx512<const DIST: bool, const FEAT: bool, const GEO: bool>(
     ctx: &Ctx<f32>,
     t: usize,
-    eg: &mut [f32],
+    eg: &mut [MaybeUninit<f32>],
     buf: &mut Vec<f32>,
     by_ncon: &mut Vec<(u32, u32)>,
     row_act: &mut [u64],
@@ -518,7 +529,7 @@ pub(crate) fn backward_tile_simd(
     dist: bool,
     ctx: &Ctx<f32>,
     t: usize,
-    eg: &mut [f32],
+    eg: &mut [MaybeUninit<f32>],
     buf: &mut Vec<f32>,
     by_ncon: &mut Vec<(u32, u32)>,
     row_act: &mut [u64],
