@@ -18,14 +18,21 @@ pub(crate) fn visible_of(max_radius: &[f32]) -> Vec<bool> {
 /// and camera, whatever its colours: with `min_weight` 0, shading only these gives the same
 /// image and gradients. On the shipped scene a fifth of the Gaussians in the frustum are hidden.
 pub(crate) fn weighted(visible: &[bool], accum_weight: &[f32], min_weight: f32) -> Vec<bool> {
-    visible.iter().zip(accum_weight).map(|(v, w)| *v && *w > 0.0 && *w >= min_weight).collect()
+    visible.iter().zip(accum_weight).map(|(v, w)| *v && shades(*w, min_weight)).collect()
+}
+
+/// Whether a Gaussian a render blended with total weight `w` is shaded: `0 < w >= min_weight`
+/// ([`weighted`], [`faint`], [`ViewSets::record`]).
+#[inline]
+fn shades(w: f32, min_weight: f32) -> bool {
+    w > 0.0 && w >= min_weight
 }
 
 /// The Gaussians of `visible` blended with a total weight below `min_weight`
 /// (`Stage2Config::shade_min_weight`), which training does not shade but stands in
 /// ([`stand_in_colours`]).
 pub(crate) fn faint(visible: &[bool], accum_weight: &[f32], min_weight: f32) -> Vec<bool> {
-    visible.iter().zip(accum_weight).map(|(v, w)| *v && *w > 0.0 && *w < min_weight).collect()
+    visible.iter().zip(accum_weight).map(|(v, w)| *v && *w > 0.0 && !shades(*w, min_weight)).collect()
 }
 
 /// Stand-in colours for the Gaussians of `stands_in`, which training does not shade: each vertex
@@ -81,14 +88,14 @@ impl ViewSets {
         self.sets.get(view).and_then(|s| s.as_deref())
     }
 
-    /// Keeps, for view `view`, the Gaussians with `0 < accum_weight >= min_weight`.
+    /// Keeps, for view `view`, the Gaussians `accum_weight` shades ([`shades`]).
     pub(crate) fn record(&mut self, view: usize, accum_weight: &[f32], min_weight: f32) {
         if self.sets.len() <= view {
             self.sets.resize(view + 1, None);
         }
         let mut words = vec![0u64; accum_weight.len().div_ceil(64)];
         for (g, w) in accum_weight.iter().enumerate() {
-            if *w > 0.0 && *w >= min_weight {
+            if shades(*w, min_weight) {
                 words[g / 64] |= 1 << (g % 64);
             }
         }
