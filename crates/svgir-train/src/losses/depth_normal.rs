@@ -53,34 +53,50 @@ pub fn normal_from_depth(depth: &[f64], cam: &Camera) -> Vec<DVec3> {
     out
 }
 
-/// Loss value and gradients; inputs as the rasterizer outputs them (f32).
+/// Loss value and gradients; inputs as the rasterizer outputs them (f32). The arithmetic is
+/// [`depth_normal_loss_f64`]'s: each f32 is widened where it is read (exactly), and each
+/// gradient rounded to f32 where it is written, without f64 copies of the buffers.
 pub fn depth_normal_loss(depth_sum: &[f32], opacity: &[f32], normal: &[f32], cam: &Camera) -> (f32, DepthNormalGrads) {
-    // The conversions run in parallel too: serial, they cost as much as the loss itself.
-    let up = |v: &[f32]| -> Vec<f64> { v.par_iter().with_min_len(4096).map(|&x| x as f64).collect() };
-    let (s, o, n) = (up(depth_sum), up(opacity), up(normal));
-    let (loss, vs, vo, vn) = depth_normal_loss_f64(&s, &o, &n, cam);
-    let f = |v: Vec<f64>| v.par_iter().with_min_len(4096).map(|&x| x as f32).collect();
-    (loss as f32, DepthNormalGrads { v_depth_sum: f(vs), v_opacity: f(vo), v_normal: f(vn) })
+    let (loss, vs, vo, vn) = depth_normal_loss_in(depth_sum, opacity, normal, cam, |g| g as f32);
+    (loss as f32, DepthNormalGrads { v_depth_sum: vs, v_opacity: vo, v_normal: vn })
 }
 
 /// The f64 computation behind [`depth_normal_loss`] (also its finite-difference oracle): loss and gradients w.r.t. S, O, N.
 #[allow(clippy::type_complexity)]
 pub fn depth_normal_loss_f64(s: &[f64], o: &[f64], n: &[f64], cam: &Camera) -> (f64, Vec<f64>, Vec<f64>, Vec<f64>) {
+    depth_normal_loss_in(s, o, n, cam, |g| g)
+}
+
+/// [`depth_normal_loss_f64`] on inputs of any float type that widens to f64 exactly, the
+/// gradients stored through `out`.
+#[allow(clippy::type_complexity)]
+fn depth_normal_loss_in<T, G>(
+    s: &[T],
+    o: &[T],
+    n: &[T],
+    cam: &Camera,
+    out: impl Fn(f64) -> G + Sync,
+) -> (f64, Vec<G>, Vec<G>, Vec<G>)
+where
+    T: Copy + Into<f64> + Sync,
+    G: Copy + Default + Send + Sync,
+{
     let (w, h) = (cam.width() as usize, cam.height() as usize);
     let np = (w * h) as f64;
     let ray = ray_of_pixel(cam);
     let c = cam.center().as_dvec3();
+    let (s, o) = (|i: usize| -> f64 { s[i].into() }, |i: usize| -> f64 { o[i].into() });
     // The back-projected points, once per pixel (each is read by four neighbours).
     let pts: Vec<DVec3> = (0..w * h)
         .into_par_iter()
         .with_min_len(1024)
-        .map(|i| c + s[i] / o[i].max(MIN_OPACITY) * ray(i % w, i / w))
+        .map(|i| c + s(i) / o(i).max(MIN_OPACITY) * ray(i % w, i / w))
         .collect();
-    let nvec = |i: usize| DVec3::new(n[3 * i], n[3 * i + 1], n[3 * i + 2]);
+    let nvec = |i: usize| DVec3::new(n[3 * i].into(), n[3 * i + 1].into(), n[3 * i + 2].into());
 
     // Pass 1, rows in parallel: per-pixel loss, dL/dN and the gradients of the two differences.
     let mut pix_loss = filled(w * h, 1.0);
-    let mut v_n = filled(3 * w * h, 0.0);
+    let mut v_n = filled(3 * w * h, G::default());
     let mut v_dx = filled(w * h, DVec3::ZERO);
     let mut v_dy = filled(w * h, DVec3::ZERO);
     let rows = pix_loss
@@ -102,12 +118,12 @@ pub fn depth_normal_loss_f64(s: &[f64], o: &[f64], n: &[f64], cam: &Camera) -> (
                 continue;
             }
             let nd = cr / len;
-            let nd_masked = nd * o[i]; // opacity detached here: no gradient through this factor
+            let nd_masked = nd * o(i); // opacity detached here: no gradient through this factor
             let ni = nvec(i);
             l_row[x] = 1.0 - ni.dot(nd_masked);
             let g_n = -nd_masked / np;
-            vn_row[3 * x..3 * x + 3].copy_from_slice(&g_n.to_array());
-            let v_nd = -ni * o[i] / np;
+            vn_row[3 * x..3 * x + 3].copy_from_slice(&g_n.to_array().map(&out));
+            let v_nd = -ni * o(i) / np;
             let v_cr = (v_nd - nd * nd.dot(v_nd)) / len;
             // cr = dy x dx: d/d dy = dx x v_cr, d/d dx = v_cr x dy.
             vdy_row[x] = dx.cross(v_cr);
@@ -118,8 +134,8 @@ pub fn depth_normal_loss_f64(s: &[f64], o: &[f64], n: &[f64], cam: &Camera) -> (
     let loss: f64 = pix_loss.iter().fold(0.0, |a, &l| a + l);
 
     // Pass 2, rows in parallel: gather the differences' gradients onto each pixel's depth.
-    let mut v_s = filled(w * h, 0.0);
-    let mut v_o = filled(w * h, 0.0);
+    let mut v_s = filled(w * h, G::default());
+    let mut v_o = filled(w * h, G::default());
     v_s.par_chunks_mut(w).zip(v_o.par_chunks_mut(w)).enumerate().for_each(|(y, (vs_row, vo_row))| {
         for x in 0..w {
             let i = y * w + x;
@@ -137,11 +153,12 @@ pub fn depth_normal_loss_f64(s: &[f64], o: &[f64], n: &[f64], cam: &Camera) -> (
                 v_p -= v_dy[i + w];
             }
             let v_d = v_p.dot(ray(x, y));
-            if o[i] > MIN_OPACITY {
-                vs_row[x] = v_d / o[i];
-                vo_row[x] = -v_d * s[i] / (o[i] * o[i]);
+            let (oi, si) = (o(i), s(i));
+            if oi > MIN_OPACITY {
+                vs_row[x] = out(v_d / oi);
+                vo_row[x] = out(-v_d * si / (oi * oi));
             } else {
-                vs_row[x] = v_d / MIN_OPACITY;
+                vs_row[x] = out(v_d / MIN_OPACITY);
             }
         }
     });
