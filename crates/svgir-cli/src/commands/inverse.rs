@@ -14,6 +14,7 @@ use std::path::{Path, PathBuf};
 use svgir_core::{Dataset, LightInfo};
 use svgir_pbr::EnvActivation;
 use svgir_shading::Diffuse;
+use svgir_train::stage1::PhaseTimes;
 use svgir_train::stage2::{Coverage, EnvInit, GreyLight, ShadeSets, Stage2Rates, Stage2Weights};
 use svgir_train::{checkpoint, Stage2, Stage2Config};
 
@@ -562,6 +563,9 @@ pub fn run(args: InverseArgs) -> Result<()> {
     pb.set_position(s2.iteration);
     let first_iteration = s2.iteration;
     let traced_before = s2.trace_seconds;
+    // A resumed run restores the phase times of the iterations before it; the summary reports
+    // this session's, as its wall time.
+    let times_before = s2.times.clone();
     let start = std::time::Instant::now();
     while !s2.is_done() {
         let st = s2.step(&dataset)?;
@@ -594,17 +598,26 @@ pub fn run(args: InverseArgs) -> Result<()> {
     {
         // The iteration's phases, and the wall time per iteration including the light updates
         // and sun searches that run between iterations.
-        let (t, its) = (&s2.times, s2.iteration.max(1) as f64);
+        let (now, was) = (&s2.times, &times_before);
+        let t = PhaseTimes {
+            forward: now.forward - was.forward,
+            loss: now.loss - was.loss,
+            backward: now.backward - was.backward,
+            optimizer: now.optimizer - was.optimizer,
+            densify: now.densify - was.densify,
+        };
+        let its = (s2.iteration - first_iteration).max(1) as f64;
         let ms2 = 1e3 * (t.forward + t.loss + t.backward + t.optimizer) / its;
-        let wall_ms = 1e3 * start.elapsed().as_secs_f64() / (s2.iteration - first_iteration).max(1) as f64;
+        let wall_ms = 1e3 * start.elapsed().as_secs_f64() / its;
         eprintln!(
-            "stage 2: {ms2:.1} ms per iteration (forward {:.1}, loss {:.1}, backward {:.1}, Adam {:.1}); {:.1} ms of wall time per iteration in this session, {:.1} of them the lights' visibility traces",
+            "stage 2: {ms2:.1} ms per iteration (forward {:.1}, loss {:.1}, backward {:.1}, Adam {:.1}) over this session's {} iterations; {:.1} ms of wall time per iteration, {:.1} of them the lights' visibility traces",
             1e3 * t.forward / its,
             1e3 * t.loss / its,
             1e3 * t.backward / its,
             1e3 * t.optimizer / its,
+            s2.iteration - first_iteration,
             wall_ms,
-            1e3 * (s2.trace_seconds - traced_before) / (s2.iteration - first_iteration).max(1) as f64,
+            1e3 * (s2.trace_seconds - traced_before) / its,
         );
         if let Some((ms1, threads1)) = stage1_iteration_ms(&args.run) {
             eprintln!(
