@@ -191,6 +191,27 @@ mod tests {
     }
 
     #[test]
+    fn f32_buffers_give_the_f64_function_rounded() {
+        // The f32 entry point runs the f64 arithmetic on the f32 values: its loss and gradients
+        // are the f64 function's on the widened inputs, rounded once.
+        let cam = camera(9, 7);
+        let n = 63;
+        let mut rng = Rng::new(5);
+        let o: Vec<f32> = (0..n).map(|i| if i % 7 == 3 { 0.0 } else { 0.2 + 0.7 * rng.uniform() }).collect();
+        let s: Vec<f32> = o.iter().map(|o| o * (2.0 + 0.3 * rng.uniform())).collect();
+        let nn: Vec<f32> = (0..3 * n).map(|_| rng.normal()).collect();
+        let wide = |v: &[f32]| v.iter().map(|&x| x as f64).collect::<Vec<f64>>();
+        let (loss, vs, vo, vn) = depth_normal_loss_f64(&wide(&s), &wide(&o), &wide(&nn), &cam);
+        let (loss32, g) = depth_normal_loss(&s, &o, &nn, &cam);
+        assert_eq!(loss32.to_bits(), (loss as f32).to_bits());
+        for (got, want) in [(&g.v_depth_sum, &vs), (&g.v_opacity, &vo), (&g.v_normal, &vn)] {
+            assert!(want.iter().any(|w| *w != 0.0));
+            let same = got.iter().zip(want).all(|(a, b)| a.to_bits() == (*b as f32).to_bits());
+            assert!(same && got.len() == want.len());
+        }
+    }
+
+    #[test]
     fn gradients_match_finite_differences() {
         let cam = camera(7, 6);
         let n = 42;
