@@ -194,42 +194,38 @@ pub(crate) unsafe fn taps_avx2<T: Real>(src: &[T], stride: usize, out: &mut [T],
 #[inline(always)]
 pub(crate) fn taps_body<T: Real>(src: &[T], stride: usize, out: &mut [T], g: &[T; WINDOW]) {
     // `CHAINS` groups of `LANES` outputs at a time: each group's 11 adds depend on each other,
-    // so one group alone waits on the add latency; independent groups fill the wait. Each
-    // output still sums its taps in order from zero (the same floats).
-    let span = (WINDOW - 1) * stride;
+    // so one group alone waits on the add latency; independent groups fill the wait.
     let mut blocks = out.chunks_exact_mut(CHAINS * LANES);
     let mut x = 0;
     for o in &mut blocks {
-        let mut acc = [[T::ZERO; LANES]; CHAINS];
-        for (k, &gk) in g.iter().enumerate() {
-            let row = &src[k * stride + x..k * stride + x + CHAINS * LANES];
-            for (a, tap) in acc.iter_mut().zip(row.chunks_exact(LANES)) {
-                for (a, &v) in a.iter_mut().zip(tap) {
-                    *a += gk * v;
-                }
-            }
-        }
-        for (o, a) in o.chunks_exact_mut(LANES).zip(&acc) {
-            o.copy_from_slice(a);
-        }
+        tap_groups::<T, CHAINS>(src, stride, x, o, g);
         x += CHAINS * LANES;
     }
-    let rest = blocks.into_remainder();
-    debug_assert!(src.len() >= span + x + rest.len());
-    let mut chunks = rest.chunks_exact_mut(LANES);
+    let mut chunks = blocks.into_remainder().chunks_exact_mut(LANES);
     for o in &mut chunks {
-        let mut acc = [T::ZERO; LANES];
-        for (k, &gk) in g.iter().enumerate() {
-            let tap = &src[k * stride + x..k * stride + x + LANES];
-            for (a, &v) in acc.iter_mut().zip(tap) {
-                *a += gk * v;
-            }
-        }
-        o.copy_from_slice(&acc);
+        tap_groups::<T, 1>(src, stride, x, o, g);
         x += LANES;
     }
     for (i, o) in chunks.into_remainder().iter_mut().enumerate() {
         *o = g.iter().enumerate().fold(T::ZERO, |s, (k, &gk)| s + gk * src[k * stride + x + i]);
+    }
+}
+
+/// `N` groups of [`LANES`] outputs from column `x` on (`out`, `N * LANES` long), each summing
+/// its taps in order from zero in registers.
+#[inline(always)]
+fn tap_groups<T: Real, const N: usize>(src: &[T], stride: usize, x: usize, out: &mut [T], g: &[T; WINDOW]) {
+    let mut acc = [[T::ZERO; LANES]; N];
+    for (k, &gk) in g.iter().enumerate() {
+        let row = &src[k * stride + x..k * stride + x + N * LANES];
+        for (a, tap) in acc.iter_mut().zip(row.chunks_exact(LANES)) {
+            for (a, &v) in a.iter_mut().zip(tap) {
+                *a += gk * v;
+            }
+        }
+    }
+    for (o, a) in out.chunks_exact_mut(LANES).zip(&acc) {
+        o.copy_from_slice(a);
     }
 }
 

@@ -32,6 +32,19 @@ pub struct PhaseTimes {
     pub densify: f64,
 }
 
+impl PhaseTimes {
+    /// The time spent since `before` (an earlier reading of the same run), per phase.
+    pub fn since(&self, before: &PhaseTimes) -> PhaseTimes {
+        PhaseTimes {
+            forward: self.forward - before.forward,
+            loss: self.loss - before.loss,
+            backward: self.backward - before.backward,
+            optimizer: self.optimizer - before.optimizer,
+            densify: self.densify - before.densify,
+        }
+    }
+}
+
 /// What one iteration reports.
 #[derive(Clone, Debug, Serialize, Deserialize)]
 pub struct StepStats {

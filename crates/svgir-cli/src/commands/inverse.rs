@@ -14,7 +14,6 @@ use std::path::{Path, PathBuf};
 use svgir_core::{Dataset, LightInfo};
 use svgir_pbr::EnvActivation;
 use svgir_shading::Diffuse;
-use svgir_train::stage1::PhaseTimes;
 use svgir_train::stage2::{Coverage, EnvInit, GreyLight, ShadeSets, Stage2Rates, Stage2Weights};
 use svgir_train::{checkpoint, Stage2, Stage2Config};
 
@@ -598,14 +597,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
     {
         // The iteration's phases, and the wall time per iteration including the light updates
         // and sun searches that run between iterations.
-        let (now, was) = (&s2.times, &times_before);
-        let t = PhaseTimes {
-            forward: now.forward - was.forward,
-            loss: now.loss - was.loss,
-            backward: now.backward - was.backward,
-            optimizer: now.optimizer - was.optimizer,
-            densify: now.densify - was.densify,
-        };
+        let t = s2.times.since(&times_before);
         let its = (s2.iteration - first_iteration).max(1) as f64;
         let ms2 = 1e3 * (t.forward + t.loss + t.backward + t.optimizer) / its;
         let wall_ms = 1e3 * start.elapsed().as_secs_f64() / its;
