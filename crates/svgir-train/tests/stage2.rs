@@ -78,11 +78,12 @@ fn stage2_raises_pbr_psnr_and_resumes_bit_identically() {
         ..spec.clone()
     };
     // Four of the 16 directions per iteration, each subset in turn, on both sides and with
-    // lights, then all 16 from iteration 111: the subsets are derived again on loading (at 100),
-    // and the turn continues.
+    // lights, then all 16 from iteration 111 with the gradients still over the subsets: the
+    // subsets are derived again on loading (at 100), and the turn continues.
     let subsets = Stage2Config {
         shade_directions: Some(4),
         shade_directions_until: 110,
+        subset_gradients: true,
         two_sided: true,
         lights: 4,
         sun_at: 60,
@@ -116,6 +117,19 @@ fn stage2_raises_pbr_psnr_and_resumes_bit_identically() {
     let all = loss_at_11(None, 0);
     assert_eq!(loss_at_11(Some(4), 10), all, "iteration 11 comes after the subsets");
     assert_ne!(loss_at_11(Some(4), 11), all, "iteration 11 shades a subset");
+    // With the gradients over the subsets after them, iteration 11 renders every direction (the
+    // loss of the run without subsets) and steps with a subset's gradients (iteration 12 differs).
+    let losses_11_12 = |subset_gradients| {
+        let cfg =
+            Stage2Config { shade_directions: Some(4), shade_directions_until: 10, subset_gradients, ..spec.clone() };
+        let mut t = Stage2::new(cfg, surfels.clone(), &ds).unwrap();
+        t.iteration = 10;
+        let a = t.step(&ds).unwrap().loss.to_bits();
+        (a, t.step(&ds).unwrap().loss.to_bits())
+    };
+    let (exact, subset) = (losses_11_12(false), losses_11_12(true));
+    assert_eq!((exact.0, subset.0), (all, all), "iteration 11 renders every direction");
+    assert_ne!(subset.1, exact.1, "iteration 11 stepped with a subset's gradients");
     let bad = Stage2Config { shade_directions: Some(5), ..Stage2Config::default() };
     assert!(bad.shade_stride().is_err(), "5 does not divide 64");
 }

@@ -70,6 +70,14 @@ pub struct InverseArgs {
     /// first two thirds of --iterations. (profile)
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub shade_directions_until: Option<u64>,
+    /// With fewer --shade-directions than --directions: whether the iterations after
+    /// --shade-directions-until, which shade every direction for the image, estimate the
+    /// shading's gradients (materials, light) over the subsets in turn. The estimate is
+    /// unbiased, and the backward costs what it costs before --shade-directions-until.
+    /// `measured`: true; `spec`: false. With --resume it changes the resumed run's setting.
+    /// (profile)
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
+    pub subset_gradients: Option<bool>,
     /// Ablation: ignore visibility (V = 1).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub no_visibility: bool,
@@ -366,6 +374,7 @@ struct Resolved {
     consistency_samples: usize,
     shade_directions: Option<usize>,
     shade_directions_until: u64,
+    subset_gradients: bool,
 }
 
 impl Resolved {
@@ -400,6 +409,7 @@ impl Resolved {
                 (m && a.directions.is_multiple_of(4) && quarter >= MEASURED_MIN_SHADE_DIRECTIONS).then_some(quarter)
             }),
             shade_directions_until: a.shade_directions_until.unwrap_or(if m { a.iterations * 2 / 3 } else { 0 }),
+            subset_gradients: a.subset_gradients.unwrap_or(m),
         }
     }
 }
@@ -459,6 +469,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         directions: args.directions,
         shade_directions: p.shade_directions,
         shade_directions_until: p.shade_directions_until,
+        subset_gradients: p.subset_gradients,
         visibility: !args.no_visibility,
         indirect: !args.no_indirect,
         consistency: !args.no_consistency,
@@ -531,6 +542,10 @@ pub fn run(args: InverseArgs) -> Result<()> {
                 s2.config.shade_directions_until
             );
             s2.config.shade_directions_until = until;
+        }
+        if let Some(sg) = args.subset_gradients.filter(|&g| g != s2.config.subset_gradients) {
+            eprintln!("stage 2: gradients over the subsets {} -> {sg}", s2.config.subset_gradients);
+            s2.config.subset_gradients = sg;
         }
         if args.shade_directions.is_some() && args.shade_directions != s2.config.shade_directions {
             eprintln!(

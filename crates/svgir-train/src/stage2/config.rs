@@ -130,6 +130,13 @@ pub struct Stage2Config {
     /// direction (0: the subsets throughout).
     #[serde(default)]
     pub shade_directions_until: u64,
+    /// With `shade_directions`: the iterations after `shade_directions_until` shade every
+    /// direction for the image, but estimate the shading's gradients (materials, light, rho)
+    /// over the subsets in turn, each sample weighted by `2pi / shade_directions`. Given the
+    /// image's gradient, the mean of the subsets' gradients is the all-direction gradient, so the
+    /// estimate is unbiased; the backward costs what a subset iteration's does.
+    #[serde(default)]
+    pub subset_gradients: bool,
     /// Height of the learned environment map in texels (width is twice this).
     pub env_height: u32,
     /// Background the renders and photos are composited over.
@@ -366,6 +373,7 @@ impl Default for Stage2Config {
             directions: 64,
             shade_directions: None,
             shade_directions_until: 0,
+            subset_gradients: false,
             env_height: 32,
             background: BackgroundMode::Black,
             lr: Stage2Rates::default(),

@@ -164,6 +164,22 @@ fn shading_set<'a>(
     subset.map_or((mb, cache), |s| (&s.mb, &s.dir_cache))
 }
 
+/// What iteration `iteration` estimates a side's shading gradients with: its shading set, or,
+/// with `config.subset_gradients` once the iterations shade every direction, the subsets in
+/// turn.
+fn gradient_set<'a>(
+    config: &Stage2Config,
+    iteration: u64,
+    mb: &'a MicroBuffer,
+    cache: &'a DirectionCache,
+    subsets: &'a [DirectionSubset],
+) -> (&'a MicroBuffer, &'a DirectionCache) {
+    if !config.subset_gradients {
+        return shading_set(config, iteration, mb, cache, subsets);
+    }
+    subsets.get((iteration % subsets.len().max(1) as u64) as usize).map_or((mb, cache), |s| (&s.mb, &s.dir_cache))
+}
+
 /// The `config.shade_stride()` subsets of `mb`'s directions, none when that is 1.
 fn direction_subsets(
     config: &Stage2Config,
