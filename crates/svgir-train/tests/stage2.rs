@@ -78,12 +78,13 @@ fn stage2_raises_pbr_psnr_and_resumes_bit_identically() {
         ..spec.clone()
     };
     // Four of the 16 directions per iteration, each subset in turn, on both sides and with
-    // lights, then all 16 from iteration 111 with the gradients still over the subsets: the
-    // subsets are derived again on loading (at 100), and the turn continues.
+    // lights, then all 16 from iteration 111 with the gradients on two of them, each half of the
+    // shaded subset in turn: the subsets are derived again on loading (at 100), and the turn
+    // continues.
     let subsets = Stage2Config {
         shade_directions: Some(4),
         shade_directions_until: 110,
-        subset_gradients: true,
+        gradient_directions: Some(2),
         two_sided: true,
         lights: 4,
         sun_at: 60,
@@ -93,8 +94,10 @@ fn stage2_raises_pbr_psnr_and_resumes_bit_identically() {
         let t = Stage2::new(cfg, surfels.clone(), &ds).expect("stage 2 set-up");
         let stride = t.config.shade_stride().unwrap();
         assert_eq!(t.subsets.len(), if stride > 1 { stride } else { 0 });
+        let grad_stride = t.config.gradient_stride().unwrap();
+        assert_eq!(t.grad_subsets.len(), if grad_stride != stride { grad_stride } else { 0 });
         if let Some(b) = &t.back {
-            assert_eq!(b.subsets.len(), t.subsets.len());
+            assert_eq!((b.subsets.len(), b.grad_subsets.len()), (t.subsets.len(), t.grad_subsets.len()));
         }
         run_and_resume(&ds, t);
     }
@@ -117,21 +120,30 @@ fn stage2_raises_pbr_psnr_and_resumes_bit_identically() {
     let all = loss_at_11(None, 0);
     assert_eq!(loss_at_11(Some(4), 10), all, "iteration 11 comes after the subsets");
     assert_ne!(loss_at_11(Some(4), 11), all, "iteration 11 shades a subset");
-    // With the gradients over the subsets after them, iteration 11 renders every direction (the
-    // loss of the run without subsets) and steps with a subset's gradients (iteration 12 differs).
-    let losses_11_12 = |subset_gradients| {
+    // With the gradients on subsets, iteration 11 renders every direction (the loss of the run
+    // without subsets) and steps with a subset's gradients (iteration 12 differs).
+    let losses_11_12 = |gradient_directions| {
         let cfg =
-            Stage2Config { shade_directions: Some(4), shade_directions_until: 10, subset_gradients, ..spec.clone() };
+            Stage2Config { shade_directions: Some(4), shade_directions_until: 10, gradient_directions, ..spec.clone() };
         let mut t = Stage2::new(cfg, surfels.clone(), &ds).unwrap();
         t.iteration = 10;
         let a = t.step(&ds).unwrap().loss.to_bits();
         (a, t.step(&ds).unwrap().loss.to_bits())
     };
-    let (exact, subset) = (losses_11_12(false), losses_11_12(true));
-    assert_eq!((exact.0, subset.0), (all, all), "iteration 11 renders every direction");
+    let (exact, subset, half) = (losses_11_12(None), losses_11_12(Some(4)), losses_11_12(Some(2)));
+    assert_eq!((exact.0, subset.0, half.0), (all, all, all), "iteration 11 renders every direction");
     assert_ne!(subset.1, exact.1, "iteration 11 stepped with a subset's gradients");
+    assert_ne!(half.1, subset.1, "iteration 11 stepped with half a subset's gradients");
     let bad = Stage2Config { shade_directions: Some(5), ..Stage2Config::default() };
     assert!(bad.shade_stride().is_err(), "5 does not divide 64");
+    // The gradients' subsets must lie inside the shaded ones.
+    let grads = |shade_directions, gradient_directions| {
+        Stage2Config { shade_directions, gradient_directions, ..Stage2Config::default() }.gradient_stride()
+    };
+    assert_eq!(grads(Some(16), Some(8)), Ok(8));
+    assert_eq!(grads(None, None), Ok(1));
+    assert!(grads(Some(16), Some(32)).is_err(), "32 of the 16 shaded");
+    assert!(grads(Some(16), Some(6)).is_err(), "6 does not divide 16");
 }
 
 /// `materials_from`: the light warm-up holds albedo, roughness and normal offsets at their initial

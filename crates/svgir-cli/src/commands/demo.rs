@@ -76,7 +76,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         directions: if args.quick { 16 } else { 64 },
         shade_directions: None,
         shade_directions_until: None,
-        subset_gradients: None,
+        gradient_directions: None,
         no_visibility: false,
         no_indirect: false,
         no_consistency: false,

@@ -70,14 +70,16 @@ pub struct InverseArgs {
     /// first two thirds of --iterations. (profile)
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub shade_directions_until: Option<u64>,
-    /// With fewer --shade-directions than --directions: whether the iterations after
-    /// --shade-directions-until, which shade every direction for the image, estimate the
-    /// shading's gradients (materials, light) over the subsets in turn. The estimate is
-    /// unbiased, and the backward costs what it costs before --shade-directions-until.
-    /// `measured`: true; `spec`: false. With --resume it changes the resumed run's setting.
-    /// (profile)
+    /// Directions each training iteration estimates the shading's gradients (materials, light)
+    /// on: an interleaved subset of the --directions, a different one at each iteration in
+    /// turn, inside the subset the iteration shades (must divide --shade-directions, or
+    /// --directions without it). Given the image's gradient the estimate is unbiased; the image
+    /// itself is shaded as --shade-directions says. `measured`: as --shade-directions, so the
+    /// iterations after --shade-directions-until, which shade every direction, keep the
+    /// backward's cost; `spec`: every direction shaded. With --resume it changes the resumed
+    /// run's setting. (profile)
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
-    pub subset_gradients: Option<bool>,
+    pub gradient_directions: Option<usize>,
     /// Ablation: ignore visibility (V = 1).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub no_visibility: bool,
@@ -374,12 +376,16 @@ struct Resolved {
     consistency_samples: usize,
     shade_directions: Option<usize>,
     shade_directions_until: u64,
-    subset_gradients: bool,
+    gradient_directions: Option<usize>,
 }
 
 impl Resolved {
     fn of(a: &InverseArgs) -> Self {
         let m = a.profile == InverseProfile::Measured;
+        let shade_directions = a.shade_directions.or_else(|| {
+            let quarter = a.directions / 4;
+            (m && a.directions.is_multiple_of(4) && quarter >= MEASURED_MIN_SHADE_DIRECTIONS).then_some(quarter)
+        });
         Self {
             rho_lr: a.rho_lr.unwrap_or(if m { 0.0 } else { 0.01 }),
             materials_from: a.materials_from.unwrap_or(if m { 500 } else { 0 }),
@@ -404,12 +410,9 @@ impl Resolved {
             } else {
                 Stage2Config::default().consistency_samples
             }),
-            shade_directions: a.shade_directions.or_else(|| {
-                let quarter = a.directions / 4;
-                (m && a.directions.is_multiple_of(4) && quarter >= MEASURED_MIN_SHADE_DIRECTIONS).then_some(quarter)
-            }),
+            shade_directions,
             shade_directions_until: a.shade_directions_until.unwrap_or(if m { a.iterations * 2 / 3 } else { 0 }),
-            subset_gradients: a.subset_gradients.unwrap_or(m),
+            gradient_directions: a.gradient_directions.or(if m { shade_directions } else { None }),
         }
     }
 }
@@ -469,7 +472,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         directions: args.directions,
         shade_directions: p.shade_directions,
         shade_directions_until: p.shade_directions_until,
-        subset_gradients: p.subset_gradients,
+        gradient_directions: p.gradient_directions,
         visibility: !args.no_visibility,
         indirect: !args.no_indirect,
         consistency: !args.no_consistency,
@@ -543,16 +546,14 @@ pub fn run(args: InverseArgs) -> Result<()> {
             );
             s2.config.shade_directions_until = until;
         }
-        if let Some(sg) = args.subset_gradients.filter(|&g| g != s2.config.subset_gradients) {
-            eprintln!("stage 2: gradients over the subsets {} -> {sg}", s2.config.subset_gradients);
-            s2.config.subset_gradients = sg;
-        }
-        if args.shade_directions.is_some() && args.shade_directions != s2.config.shade_directions {
+        let shade = args.shade_directions.or(s2.config.shade_directions);
+        let grads = args.gradient_directions.or(s2.config.gradient_directions);
+        if (shade, grads) != (s2.config.shade_directions, s2.config.gradient_directions) {
             eprintln!(
-                "stage 2: shaded directions per iteration {:?} -> {:?}",
-                s2.config.shade_directions, args.shade_directions
+                "stage 2: directions shaded / for the gradients per iteration {:?} / {:?} -> {shade:?} / {grads:?}",
+                s2.config.shade_directions, s2.config.gradient_directions
             );
-            s2.set_shade_directions(args.shade_directions)?;
+            s2.set_directions(shade, grads)?;
         }
         s2
     } else {

@@ -130,13 +130,17 @@ pub struct Stage2Config {
     /// direction (0: the subsets throughout).
     #[serde(default)]
     pub shade_directions_until: u64,
-    /// With `shade_directions`: the iterations after `shade_directions_until` shade every
-    /// direction for the image, but estimate the shading's gradients (materials, light, rho)
-    /// over the subsets in turn, each sample weighted by `2pi / shade_directions`. Given the
-    /// image's gradient, the mean of the subsets' gradients is the all-direction gradient, so the
-    /// estimate is unbiased; the backward costs what a subset iteration's does.
+    /// Directions each training iteration estimates the shading's gradients (materials, light,
+    /// rho) on per Gaussian: an interleaved subset of the `directions`, the next of the
+    /// `directions / gradient_directions` subsets at every iteration, each sample weighted by
+    /// `2pi / gradient_directions`, while the image is shaded as `shade_directions` says. It
+    /// must divide `shade_directions`, so that each iteration's subset lies inside the one it
+    /// shades. Given the image's gradient the shaded colour is linear in the per-direction terms,
+    /// so the mean of the subsets' gradients is the gradient of what the iteration shades: the
+    /// estimate is unbiased, and the backward costs what shading that many directions does.
+    /// `None` (SPEC 4): the gradients of what the iteration shades.
     #[serde(default)]
-    pub subset_gradients: bool,
+    pub gradient_directions: Option<usize>,
     /// Height of the learned environment map in texels (width is twice this).
     pub env_height: u32,
     /// Background the renders and photos are composited over.
@@ -373,7 +377,7 @@ impl Default for Stage2Config {
             directions: 64,
             shade_directions: None,
             shade_directions_until: 0,
-            subset_gradients: false,
+            gradient_directions: None,
             env_height: 32,
             background: BackgroundMode::Black,
             lr: Stage2Rates::default(),
@@ -423,6 +427,22 @@ impl Stage2Config {
             Some(s) => Err(format!(
                 "{s} shaded directions per iteration must divide the {} micro-buffer directions",
                 self.directions
+            )),
+        }
+    }
+
+    /// How many interleaved subsets training estimates the shading's gradients in (1: all
+    /// directions), or an error naming the settings when `gradient_directions` does not divide
+    /// the directions an iteration shades.
+    pub fn gradient_stride(&self) -> Result<usize, String> {
+        let shaded = self.shade_directions.unwrap_or(self.directions);
+        match self.gradient_directions {
+            None => self.shade_stride(),
+            Some(g) if g > 0 && g <= shaded && shaded.is_multiple_of(g) && self.directions.is_multiple_of(g) => {
+                Ok(self.directions / g)
+            }
+            Some(g) => Err(format!(
+                "{g} directions for the shading's gradients must divide the {shaded} directions an iteration shades"
             )),
         }
     }

@@ -97,6 +97,9 @@ pub struct Stage2 {
     /// The interleaved direction subsets training shades in turn (`config.shade_directions`;
     /// empty: all directions at every iteration).
     pub subsets: Vec<DirectionSubset>,
+    /// The interleaved subsets training estimates the shading's gradients on in turn
+    /// (`config.gradient_directions`; empty: `subsets` serve, or the directions shaded).
+    pub grad_subsets: Vec<DirectionSubset>,
     /// Adam groups: opacity, sh, albedo, roughness, normal offset, env, rho.
     pub groups: [AdamGroup; 7],
     /// Iterations done.
@@ -135,6 +138,8 @@ pub struct BackSide {
     pub dir_cache: DirectionCache,
     /// The back side's interleaved direction subsets, as the front's.
     pub subsets: Vec<DirectionSubset>,
+    /// The back side's gradient subsets, as the front's.
+    pub grad_subsets: Vec<DirectionSubset>,
     /// The directional lights' visibility from the back side (same texels and directions).
     pub lights: BrightLights,
 }
@@ -165,19 +170,21 @@ fn shading_set<'a>(
 }
 
 /// What iteration `iteration` estimates a side's shading gradients with: its shading set, or,
-/// with `config.subset_gradients` once the iterations shade every direction, the subsets in
-/// turn.
+/// with `config.gradient_directions`, the gradient subsets in turn (the shading subsets when the
+/// two strides agree, else `grad_subsets`).
 fn gradient_set<'a>(
     config: &Stage2Config,
     iteration: u64,
     mb: &'a MicroBuffer,
     cache: &'a DirectionCache,
     subsets: &'a [DirectionSubset],
+    grad_subsets: &'a [DirectionSubset],
 ) -> (&'a MicroBuffer, &'a DirectionCache) {
-    if !config.subset_gradients {
+    if config.gradient_directions.is_none() {
         return shading_set(config, iteration, mb, cache, subsets);
     }
-    subsets.get((iteration % subsets.len().max(1) as u64) as usize).map_or((mb, cache), |s| (&s.mb, &s.dir_cache))
+    let family = if grad_subsets.is_empty() { subsets } else { grad_subsets };
+    family.get((iteration % family.len().max(1) as u64) as usize).map_or((mb, cache), |s| (&s.mb, &s.dir_cache))
 }
 
 /// The `config.shade_stride()` subsets of `mb`'s directions, none when that is 1.
@@ -187,6 +194,29 @@ fn direction_subsets(
     cache: &DirectionCache,
 ) -> Result<Vec<DirectionSubset>, PbrError> {
     let stride = config.shade_stride().map_err(PbrError::InvalidParameter)?;
+    interleaved_subsets(stride, mb, cache)
+}
+
+/// The `config.gradient_stride()` subsets of `mb`'s directions, none when that is 1 or equals
+/// the shading stride (the shading subsets serve).
+fn gradient_subsets(
+    config: &Stage2Config,
+    mb: &MicroBuffer,
+    cache: &DirectionCache,
+) -> Result<Vec<DirectionSubset>, PbrError> {
+    let stride = config.gradient_stride().map_err(PbrError::InvalidParameter)?;
+    if stride == config.shade_stride().map_err(PbrError::InvalidParameter)? {
+        return Ok(Vec::new());
+    }
+    interleaved_subsets(stride, mb, cache)
+}
+
+/// The `stride` interleaved subsets of `mb`'s directions with their caches, none when that is 1.
+fn interleaved_subsets(
+    stride: usize,
+    mb: &MicroBuffer,
+    cache: &DirectionCache,
+) -> Result<Vec<DirectionSubset>, PbrError> {
     if stride == 1 {
         return Ok(Vec::new());
     }
@@ -275,25 +305,31 @@ impl Stage2 {
         let bvh = self.bvh.get_or_insert_with(|| Bvh::build(occluders));
         let dir_cache = DirectionCache::new(&mb, &self.env.radiance())?;
         let subsets = direction_subsets(&self.config, &mb, &dir_cache)?;
+        let grad_subsets = gradient_subsets(&self.config, &mb, &dir_cache)?;
         let lights = self.lights.for_normals(bvh, occluders, &mb.normals, &self.config.trace_params(), None)?;
-        self.back = Some(BackSide { mb, dir_cache, subsets, lights });
+        self.back = Some(BackSide { mb, dir_cache, subsets, grad_subsets, lights });
         Ok(())
     }
 
-    /// Shade `shade_directions` of the directions per iteration from now on
-    /// (`Stage2Config::shade_directions`), deriving both sides' subsets again.
-    pub fn set_shade_directions(&mut self, shade_directions: Option<usize>) -> Result<(), PbrError> {
-        let config = Stage2Config { shade_directions, ..self.config.clone() };
-        let subsets = direction_subsets(&config, &self.mb, &self.dir_cache)?;
-        let back = match &self.back {
-            Some(b) => Some(direction_subsets(&config, &b.mb, &b.dir_cache)?),
-            None => None,
+    /// Shade `shade_directions` of the directions per iteration and estimate the shading's
+    /// gradients on `gradient_directions` from now on (`Stage2Config::shade_directions`,
+    /// `Stage2Config::gradient_directions`), deriving both sides' subsets again.
+    pub fn set_directions(
+        &mut self,
+        shade_directions: Option<usize>,
+        gradient_directions: Option<usize>,
+    ) -> Result<(), PbrError> {
+        let config = Stage2Config { shade_directions, gradient_directions, ..self.config.clone() };
+        let derive = |mb: &MicroBuffer, cache: &DirectionCache| -> Result<_, PbrError> {
+            Ok((direction_subsets(&config, mb, cache)?, gradient_subsets(&config, mb, cache)?))
         };
-        self.config.shade_directions = shade_directions;
-        self.subsets = subsets;
+        let front = derive(&self.mb, &self.dir_cache)?;
+        let back = self.back.as_ref().map(|b| derive(&b.mb, &b.dir_cache)).transpose()?;
+        (self.subsets, self.grad_subsets) = front;
         if let (Some(b), Some(s)) = (&mut self.back, back) {
-            b.subsets = s;
+            (b.subsets, b.grad_subsets) = s;
         }
+        self.config = config;
         Ok(())
     }
 
@@ -333,6 +369,7 @@ impl Stage2 {
         let surfels_opacity = surfels.opacity_logits.clone();
         let dir_cache = DirectionCache::new(&mb, &env.radiance())?;
         let subsets = direction_subsets(&config, &mb, &dir_cache)?;
+        let grad_subsets = gradient_subsets(&config, &mb, &dir_cache)?;
         let lr = &config.lr;
         let groups = [
             AdamGroup::new("opacity", lr.opacity, 1, n),
@@ -354,6 +391,7 @@ impl Stage2 {
             mb,
             dir_cache,
             subsets,
+            grad_subsets,
             groups,
             iteration: 0,
             rng,

@@ -5,16 +5,12 @@
 
 use super::*;
 
-/// [`shading_set`] or [`gradient_set`].
-type SetPick = for<'a> fn(
-    &Stage2Config,
-    u64,
-    &'a MicroBuffer,
-    &'a DirectionCache,
-    &'a [DirectionSubset],
-) -> (&'a MicroBuffer, &'a DirectionCache);
-
 impl Stage2 {
+    /// The back sides' shading with micro-buffer `mb` (a set of the back's) and its cache.
+    fn back_shading<'a>(&'a self, mb: &'a MicroBuffer, cache: &'a DirectionCache) -> BackShading<'a> {
+        BackShading { mb, cache: Some(cache), indirect: self.indirect(), lights: self.active_back_lights() }
+    }
+
     /// One stage-2 iteration on a random training view (sun search first when one is due).
     pub fn step(&mut self, dataset: &Dataset) -> Result<Stage2Step, PbrError> {
         let cfg = self.config.clone();
@@ -117,20 +113,21 @@ impl Stage2 {
             },
             cache: Some(front_cache),
         };
-        let back_with = |set: SetPick| {
-            self.back.as_ref().map(|b| {
-                let (mb, cache) = set(&cfg, self.iteration, &b.mb, &b.dir_cache, &b.subsets);
-                BackShading { mb, cache: Some(cache), indirect: self.indirect(), lights: self.active_back_lights() }
-            })
-        };
-        let back_shading = back_with(shading_set);
+        let back_shading = self.back.as_ref().map(|b| {
+            let (mb, cache) = shading_set(&cfg, self.iteration, &b.mb, &b.dir_cache, &b.subsets);
+            self.back_shading(mb, cache)
+        });
         let back_normals = back_shading.as_ref().map(|_| negated(&act.normals));
         let back = render::back_side(&front, back_shading.as_ref(), &back_shade, back_normals.as_deref());
-        // The sides the shading's gradients are estimated on: the same, or a subset of the
-        // directions (`subset_gradients`).
-        let (grad_mb, grad_cache) = gradient_set(&cfg, self.iteration, &self.mb, &self.dir_cache, &self.subsets);
+        // The sides the shading's gradients are estimated on: the same, or subsets of the
+        // directions (`gradient_directions`).
+        let (grad_mb, grad_cache) =
+            gradient_set(&cfg, self.iteration, &self.mb, &self.dir_cache, &self.subsets, &self.grad_subsets);
         let front_grad = Side { inputs: ShadeInputs { mb: grad_mb, ..front.inputs }, cache: Some(grad_cache) };
-        let back_grad_shading = back_with(gradient_set);
+        let back_grad_shading = self.back.as_ref().map(|b| {
+            let (mb, cache) = gradient_set(&cfg, self.iteration, &b.mb, &b.dir_cache, &b.subsets, &b.grad_subsets);
+            self.back_shading(mb, cache)
+        });
         let back_grad =
             render::back_side(&front_grad, back_grad_shading.as_ref(), &back_shade, back_normals.as_deref());
         let (mut shaded, mut scratch) = (ShadeOutput::colour_only(), ShadeOutput::colour_only());
