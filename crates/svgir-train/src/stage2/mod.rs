@@ -15,8 +15,9 @@
 //!    keeps training, SPEC 6 Eqn 15; `sh_channels`), divide by opacity, linear -> sRGB,
 //!    composite over the background.
 //! 3. Losses of Eqn 15 on both images plus L_rc, L_n, smoothness, |dN|^2 and env TV; backward
-//!    through the PBR pass (for both images), the shading and the activations; one Adam step
-//!    per group.
+//!    through the PBR pass (for both images), the shading (over `config.gradient_directions`,
+//!    an unbiased estimate of the shaded directions' gradients) and the activations; one Adam
+//!    step per group.
 
 mod config;
 pub mod objective;

@@ -1,6 +1,7 @@
 //! One stage-2 iteration (SPEC 6): the SH pass (or, with `ShadeSets::LastVisit`, only its
 //! projection), the PBR pass over the shaded set, Eqn 15's loss with L_rc beside it, the
-//! backward through the PBR pass, the shading and the activations, and one Adam step per group.
+//! backward through the PBR pass, the shading (on the gradient subset, `gradient_set`) and the
+//! activations, and one Adam step per group.
 //! The steps are listed in the note of `stage2`; the model and its set-up live there.
 
 use super::*;
