@@ -643,12 +643,13 @@ fn backward_tile_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
                     for ch in 0..ce {
                         gw += ge[ch] * ext[ch];
                     }
+                    let l = ef.lerped;
                     for vtx in 0..ef.vertices {
                         let base = (gid * ef.vertices + vtx) * ce;
-                        let row = &ef.data[base..base + ce];
+                        let row = &ef.data[base..base + l];
                         let cw = wgt * we[vtx];
                         let mut dot = F::ZERO;
-                        for ch in 0..ce {
+                        for ch in 0..l {
                             slot[ctx.off_ext + vtx * ce + ch] += cw * ge[ch];
                             dot += ge[ch] * row[ch];
                         }
@@ -656,6 +657,11 @@ fn backward_tile_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
                             gut += weu[vtx] * dot;
                             gvt += wev[vtx] * dot;
                         }
+                    }
+                    // Uniform channels: one value, its gradient at vertex 0, and no (u, v) term
+                    // (the constant does not move with the hit).
+                    for ch in l..ce {
+                        slot[ctx.off_ext + ch] += wgt * ge[ch];
                     }
                 }
                 let v_alpha = ti * gw - p.acc * inv_one_m;

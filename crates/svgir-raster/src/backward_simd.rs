@@ -213,12 +213,13 @@ impl<S: Lanes> Entry<'_, S> {
                 g_ext = ld(ARRAYS + ch).mul_add(extv.eval(ef, &we, ch), g_ext);
             }
             gw = gw.add(g_ext);
+            let l = ef.lerped;
             for vtx in 0..ef.vertices {
                 let cw = wgt_m.mul(we[vtx]);
                 let mut dot = zero;
-                for ch in 0..ce {
+                for ch in 0..l {
                     let ge = ld(ARRAYS + ch);
-                    let k = n_col + vtx * ce + ch;
+                    let k = n_col + vtx * l + ch;
                     fsum[k] = cw.mul_add(ge, fsum[k]);
                     if GEO {
                         dot = ge.mul_add(extv.at(vtx * ce + ch), dot);
@@ -228,6 +229,12 @@ impl<S: Lanes> Entry<'_, S> {
                     gut = weu[vtx].mul_add(dot, gut);
                     gvt = wev[vtx].mul_add(dot, gvt);
                 }
+            }
+            // Uniform channels (`FeatView::lerped`): one sum each, after the vertices' (see
+            // `fsum`), no (u, v) term.
+            for ch in l..ce {
+                let k = n_col + ef.vertices * l + ch - l;
+                fsum[k] = wgt_m.mul_add(ld(ARRAYS + ch), fsum[k]);
             }
         }
         let mut v_z = if GEO && geom { wgt.mul(gd) } else { zero };
@@ -371,7 +378,12 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
     let (mut colv, mut extv) = (FeatLanes::<S>::new(), FeatLanes::<S>::new());
     let zero = sp(0.0);
     let n_col = if ci { cf.vertices * 3 } else { 0 };
-    let mut fsum = vec![zero; n_col + ef.vertices * ce];
+    // The extra table's sums: `M x lerped`, vertex-major, then one per uniform channel (whose
+    // gradient goes to vertex 0); with no uniform channel, the slots' own layout.
+    let l = ef.lerped;
+    let n_ext = ef.vertices * l + ce - l;
+    let mut fsum = vec![zero; n_col + n_ext];
+    let mut ext_sums = vec![0f32; if l < ce { n_ext } else { 0 }];
     by_ncon.sort_unstable_by_key(|a| std::cmp::Reverse(a.0));
     let mut next_act = 0;
     // The slots are zeroed as the entries are reached, so that the sums below add into cached
@@ -444,8 +456,18 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
             add_hsums(&fsum[..n_col], &mut slot[OFF_COL..OFF_COL + n_col]);
         }
         if FEAT {
-            let n_ext = fsum.len() - n_col;
-            add_hsums(&fsum[n_col..], &mut slot[ctx.off_ext..ctx.off_ext + n_ext]);
+            let ext = &mut slot[ctx.off_ext..ctx.off_ext + ef.vertices * ce];
+            if l == ce {
+                add_hsums(&fsum[n_col..], ext);
+            } else {
+                ext_sums.fill(0.0);
+                add_hsums(&fsum[n_col..], &mut ext_sums);
+                let (lerped, uniform) = ext_sums.split_at(ef.vertices * l);
+                for (row, sums) in ext.chunks_exact_mut(ce).zip(lerped.chunks_exact(l.max(1))) {
+                    row[..l].iter_mut().zip(sums).for_each(|(o, x)| *o += x);
+                }
+                ext[l..ce].iter_mut().zip(uniform).for_each(|(o, x)| *o += x);
+            }
         }
         let one_colour = !(FEAT && ci);
         if !GEO {

@@ -367,8 +367,9 @@ fn row(s: &mut String, size: &str, n: usize, threads: usize, pairs: u64, evals: 
 }
 
 /// Forward and forward+backward timings of a given (trained) scene seen from `cameras`, on 1
-/// and `threads` threads: each call renders the next camera; the median over `reps` calls per
-/// camera is reported, with pair counts averaged over the cameras.
+/// and `threads` threads, for each variant of the outputs differentiated: the variants and
+/// cameras take turns call by call, `reps` rounds after an untimed one; the median over each
+/// camera's calls, then over the cameras, is reported, with pair counts averaged over them.
 pub fn bench_scene(surfels: Surfels, cameras: &[Camera], background: [f32; 3], threads: usize, reps: usize) -> String {
     assert!(!cameras.is_empty(), "bench_scene needs at least one camera");
     let mut s = String::new();
@@ -386,74 +387,97 @@ pub fn bench_scene(surfels: Surfels, cameras: &[Camera], background: [f32; 3], t
     // training differentiates (colour, opacity, depth, normal; distortion off, as its weight);
     // "colour": 3DGS's loss (`--profile views`), no distortion and no geometry outputs;
     // "stage 2 SH" and "stage 2 PBR": stage 2's two renders, whose geometry is frozen (the SH
-    // colour alone; colours and 7 material channels interpolated from 4 vertices), each also
-    // with the geometry gradients stage 2 does not need.
+    // colour alone; colours interpolated from 4 vertices with the training pass's extra
+    // channels: 7 material channels interpolated and the SH colour uniform, or interpolated as
+    // well to compare), each also with the geometry gradients stage 2 does not need.
     let colour = RasterConfig { distortion: false, geometry: false, ..Default::default() };
     let pbr = RasterConfig { distortion: false, ..Default::default() };
+    let frozen = RasterConfig { geometry_grads: false, ..pbr };
+    // The feature tables' uniform channels (`None`: SH colours, no extra table).
     let variants = [
-        ("all", RasterConfig::default(), false),
-        ("stage 1", pbr, false),
-        ("colour", colour, false),
-        ("stage 2 SH", RasterConfig { geometry_grads: false, ..colour }, false),
-        ("stage 2 PBR, with geometry gradients", pbr, true),
-        ("stage 2 PBR", RasterConfig { geometry_grads: false, ..pbr }, true),
+        ("all", RasterConfig::default(), None),
+        ("stage 1", pbr, None),
+        ("colour", colour, None),
+        ("stage 2 SH", RasterConfig { geometry_grads: false, ..colour }, None),
+        ("stage 2 PBR, with geometry gradients", pbr, Some(UNIFORM)),
+        ("stage 2 PBR", frozen, Some(UNIFORM)),
+        ("stage 2 PBR, the SH colour interpolated too", frozen, Some(0)),
     ];
     // Stage 2's feature tables: smooth made-up values (the timing does not depend on them).
     const M: usize = 4;
-    const CE: usize = 7;
+    const CE: usize = 10;
+    const UNIFORM: usize = 3;
     let colf: Vec<f32> = (0..n * M * 3).map(|i| 0.2 + 0.6 * ((i % 17) as f32 / 17.0)).collect();
     let extf: Vec<f32> = (0..n * M * CE).map(|i| 0.1 + 0.8 * ((i % 13) as f32 / 13.0)).collect();
     let npx = w as usize * h as usize;
     let g_ext = vec![1e-3f32; npx * CE];
-    for (label, cfg, feat) in variants {
+    // The variants take turns call by call (each rep runs every camera under every variant), so
+    // that a slow minute of a noisy machine falls on all of them alike.
+    let nv = variants.len();
+    let mut rows: Vec<String> = vec![String::new(); nv];
+    for t in thread_counts(threads) {
+        let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().expect("rayon pool");
+        let k = problems.len();
+        let (mut pairs, mut evals) = (vec![0usize; nv], vec![0u64; nv]);
+        // Per variant and camera, the calls' milliseconds; per variant, every call's phases.
+        let (mut fwd, mut fb) = (vec![vec![Vec::new(); k]; nv], vec![vec![Vec::new(); k]; nv]);
+        let mut phases: Vec<Vec<Vec<(String, f64)>>> = vec![Vec::new(); nv];
+        pool.install(|| {
+            for rep in 0..=reps {
+                for (j, p) in problems.iter().enumerate() {
+                    for (v, (_, cfg, feat)) in variants.iter().enumerate() {
+                        let mut input = p.input();
+                        input.background = Background::Color(background);
+                        let mut grads = p.grads();
+                        if let Some(uniform) = *feat {
+                            let colors = crate::Features { data: &colf, vertices: M, channels: 3, uniform: 0 };
+                            input.colors = ColorSource::Features(colors);
+                            input.extra = Some(crate::Features { data: &extf, vertices: M, channels: CE, uniform });
+                            grads.extra = Some(&g_ext);
+                            grads.normal = None;
+                        }
+                        if !cfg.distortion {
+                            grads.distortion = None;
+                        }
+                        if rep == 0 {
+                            // The first round counts the work and warms the caches, untimed.
+                            let (_, st) = render(&input, cfg);
+                            pairs[v] += st.num_tile_entries();
+                            evals[v] += st.box_evaluations();
+                            continue;
+                        }
+                        fwd[v][j].push(median_ms(|| drop(render(&input, cfg)), 1));
+                        fb[v][j].push(median_ms(
+                            || {
+                                let (out, st) = render(&input, cfg);
+                                let g = crate::backward(&input, cfg, &st, &out, &grads);
+                                phases[v].push(phases_of(&st.phases, &g.phases));
+                            },
+                            1,
+                        ));
+                    }
+                }
+            }
+        });
+        // The median over each camera's calls, then over the cameras.
+        let med = |per_camera: &mut Vec<Vec<f64>>| {
+            let mut m: Vec<f64> = per_camera.iter_mut().map(|c| median(c)).collect();
+            median(&mut m)
+        };
+        for v in 0..nv {
+            let (p, e) = ((pairs[v] / k) as u64, evals[v] / k as u64);
+            row(&mut rows[v], &format!("{w}x{h}"), n, t, p, e, med(&mut fwd[v]), med(&mut fb[v]));
+            rows[v] += &phase_line(&format!("phases, {t}t"), &phases[v]);
+            rows[v].push('\n');
+        }
+    }
+    for ((label, cfg, _), r) in variants.iter().zip(&rows) {
         let _ = writeln!(
             s,
             "gradients on: {label} outputs{}",
             if cfg.geometry_grads { "" } else { " (no geometry gradients)" }
         );
-        for t in thread_counts(threads) {
-            let pool = rayon::ThreadPoolBuilder::new().num_threads(t).build().expect("rayon pool");
-            let (mut pairs, mut evals) = (0usize, 0u64);
-            let (mut fwd, mut fb) = (Vec::new(), Vec::new());
-            let mut phases: Vec<Vec<(String, f64)>> = Vec::new();
-            for p in &problems {
-                let mut input = p.input();
-                input.background = Background::Color(background);
-                let mut grads = p.grads();
-                if feat {
-                    input.colors = ColorSource::Features(crate::Features { data: &colf, vertices: M, channels: 3 });
-                    input.extra = Some(crate::Features { data: &extf, vertices: M, channels: CE });
-                    grads.extra = Some(&g_ext);
-                    grads.normal = None;
-                }
-                if !cfg.distortion {
-                    grads.distortion = None;
-                }
-                pool.install(|| {
-                    let (_, st) = render(&input, &cfg);
-                    pairs += st.num_tile_entries();
-                    evals += st.box_evaluations();
-                    fwd.push(median_ms(|| drop(render(&input, &cfg)), reps));
-                    fb.push(median_ms(
-                        || {
-                            let (out, st) = render(&input, &cfg);
-                            let g = crate::backward(&input, &cfg, &st, &out, &grads);
-                            phases.push(phases_of(&st.phases, &g.phases));
-                        },
-                        reps,
-                    ));
-                });
-            }
-            let k = problems.len();
-            let med = |v: &mut Vec<f64>| {
-                v.sort_by(|a, b| a.total_cmp(b));
-                v[v.len() / 2]
-            };
-            row(&mut s, &format!("{w}x{h}"), n, t, (pairs / k) as u64, evals / k as u64, med(&mut fwd), med(&mut fb));
-            // Phases over every camera's calls (medians).
-            s += &phase_line(&format!("phases, {t}t"), &phases);
-            s.push('\n');
-        }
+        s += r;
     }
     s
 }

@@ -45,22 +45,31 @@ pub struct FeatView<'a, F> {
     pub vertices: usize,
     /// Channels per vertex (0 for an absent table).
     pub channels: usize,
+    /// The first `lerped` channels are interpolated over the vertices; the rest hold one value
+    /// per Gaussian, read at vertex 0 ([`crate::FeaturesOf::uniform`]). `channels` with one
+    /// vertex.
+    pub lerped: usize,
 }
 
 impl<'a, F: Real> FeatView<'a, F> {
     /// The colour table: SH colours (one vertex) or the given features.
     pub fn colors(colors: &ColorSourceOf<'a, F>, sh_colors: &'a [[F; 3]]) -> Self {
         match colors {
-            ColorSourceOf::Sh => Self { data: sh_colors.as_flattened(), vertices: 1, channels: 3 },
-            ColorSourceOf::Features(f) => Self { data: f.data, vertices: f.vertices, channels: 3 },
+            ColorSourceOf::Sh => Self { data: sh_colors.as_flattened(), vertices: 1, channels: 3, lerped: 3 },
+            ColorSourceOf::Features(f) => Self { data: f.data, vertices: f.vertices, channels: 3, lerped: 3 },
         }
     }
 
     /// The extra-feature table; empty (0 channels) without extra features.
     pub fn extra(extra: &Option<crate::FeaturesOf<'a, F>>) -> Self {
         match extra {
-            Some(f) => Self { data: f.data, vertices: f.vertices, channels: f.channels },
-            None => Self { data: &[], vertices: 1, channels: 0 },
+            Some(f) => Self {
+                data: f.data,
+                vertices: f.vertices,
+                channels: f.channels,
+                lerped: if f.vertices > 1 { f.channels - f.uniform } else { f.channels },
+            },
+            None => Self { data: &[], vertices: 1, channels: 0, lerped: 0 },
         }
     }
 
@@ -91,13 +100,15 @@ impl<'a, F: Real> FeatView<'a, F> {
             return;
         }
         // The first vertex's product, then the others' by FMA in vertex order (what the SIMD
-        // kernels compute lane by lane).
-        for ch in 0..c {
+        // kernels compute lane by lane); the uniform channels as vertex 0 holds them.
+        let l = self.lerped;
+        for ch in 0..l {
             out[ch] = w[0] * self.data[base + ch];
         }
+        out[l..c].copy_from_slice(&self.data[base + l..base + c]);
         for m in 1..self.vertices {
-            let row = &self.data[base + m * c..base + (m + 1) * c];
-            for ch in 0..c {
+            let row = &self.data[base + m * c..base + m * c + l];
+            for ch in 0..l {
                 out[ch] = w[m].mul_add(row[ch], out[ch]);
             }
         }

@@ -158,12 +158,13 @@ impl<'a, S: Lanes> FeatLanes<'a, S> {
         S::splat(*self.row.get_unchecked(i))
     }
 
-    /// Channel `c` at vertex weights `w` (`FeatView::eval`'s operations: one vertex is copied,
-    /// several are the first vertex's product plus the others' by FMA, in vertex order).
+    /// Channel `c` at vertex weights `w` (`FeatView::eval`'s operations: one vertex and the
+    /// uniform channels are copied, the others are the first vertex's product plus the others'
+    /// by FMA, in vertex order).
     #[inline(always)]
     pub(crate) unsafe fn eval(&self, f: &FeatView<f32>, w: &[S; MAX_VERTICES], c: usize) -> S {
         let ch = f.channels;
-        if f.vertices == 1 {
+        if f.vertices == 1 || c >= f.lerped {
             return self.at(c);
         }
         let mut out = w[0].mul(self.at(c));

@@ -118,6 +118,17 @@ pub enum RasterError {
     /// Colour features with a channel count other than 3.
     #[error("colour features must have 3 channels, got {0}")]
     ColorChannels(usize),
+    /// A feature table (named) with more uniform channels than channels, or colour features
+    /// with any ([`FeaturesOf::uniform`]).
+    #[error("{what}: {uniform} uniform channels of {channels} (colour features allow none)")]
+    Uniform {
+        /// The table's name.
+        what: &'static str,
+        /// Its uniform channels.
+        uniform: usize,
+        /// Its channels.
+        channels: usize,
+    },
     /// [`try_render_reusing`] given a prior render of other Gaussians, another camera or
     /// settings, or colours not interpolated from vertices.
     #[error("a render can reuse only a projection of the same Gaussians by the same camera and settings, with colours from several vertices")]
@@ -189,6 +200,12 @@ pub struct FeaturesOf<'a, F> {
     pub vertices: usize,
     /// Channels per vertex.
     pub channels: usize,
+    /// How many of the last channels hold one value per Gaussian (stored at every vertex):
+    /// with several vertices the kernels read these at vertex 0 instead of interpolating them,
+    /// and return their gradients at vertex 0 (the other vertices' are 0). Interpolating a
+    /// constant gives the constant (the SPEC 3 weights sum to one), so only the rounding and
+    /// the work change. Stage 2's PBR pass carries the SH colour so (`sh_channels`).
+    pub uniform: usize,
 }
 /// [`FeaturesOf`] in `f32`, as training uses it.
 pub type Features<'a> = FeaturesOf<'a, f32>;
@@ -423,6 +440,9 @@ pub fn check_input<F: Real, P: GaussianParams<F> + ?Sized>(
     let check_f = |what: &'static str, f: &FeaturesOf<F>| {
         if !interp::supported_vertices(f.vertices) {
             return Err(RasterError::Vertices(what, f.vertices));
+        }
+        if f.uniform > f.channels || (what == "colour features" && f.uniform > 0) {
+            return Err(RasterError::Uniform { what, uniform: f.uniform, channels: f.channels });
         }
         let expected = n * f.vertices * f.channels;
         if f.data.len() != expected {

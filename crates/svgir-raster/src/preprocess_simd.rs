@@ -457,8 +457,10 @@ mod tests {
                     _ => {}
                 }
             }
-            let colors =
-                [ColorSourceOf::Sh, ColorSourceOf::Features(crate::FeaturesOf { data: &[], vertices: 1, channels: 3 })];
+            let colors = [
+                ColorSourceOf::Sh,
+                ColorSourceOf::Features(crate::FeaturesOf { data: &[], vertices: 1, channels: 3, uniform: 0 }),
+            ];
             for c in &colors {
                 let cfg = RasterConfig { simd: Simd::Scalar, ..Default::default() };
                 let (want, want_rgb) = preprocess(&s, &cam, c, &cfg);

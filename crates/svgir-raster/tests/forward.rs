@@ -59,9 +59,9 @@ fn tiled_matches_dense_reference() {
                 colors: if variant == 0 {
                     ColorSourceOf::Sh
                 } else {
-                    ColorSourceOf::Features(FeaturesOf { data: &colf, vertices: m, channels: 3 })
+                    ColorSourceOf::Features(FeaturesOf { data: &colf, vertices: m, channels: 3, uniform: 0 })
                 },
-                extra: (variant == 1).then_some(FeaturesOf { data: &extf, vertices: me, channels: 2 }),
+                extra: (variant == 1).then_some(FeaturesOf { data: &extf, vertices: me, channels: 2, uniform: 0 }),
                 background: if variant == 0 {
                     BackgroundOf::Color([0.2, 0.5, 0.9])
                 } else {
@@ -171,13 +171,15 @@ fn rejects_bad_inputs() {
     let input = RenderInput {
         surfels: &surfels,
         camera: &cam,
-        colors: ColorSource::Features(FeaturesOf { data: &bad, vertices: 4, channels: 3 }),
+        colors: ColorSource::Features(FeaturesOf { data: &bad, vertices: 4, channels: 3, uniform: 0 }),
         extra: None,
         background: BackgroundOf::Color([0.0; 3]),
     };
     assert!(svgir_raster::try_render(&input, &RasterConfig::default()).is_err());
     let ok = vec![0.0f32; surfels.len() * 3 * 3];
-    let input =
-        RenderInput { colors: ColorSource::Features(FeaturesOf { data: &ok, vertices: 3, channels: 3 }), ..input };
+    let input = RenderInput {
+        colors: ColorSource::Features(FeaturesOf { data: &ok, vertices: 3, channels: 3, uniform: 0 }),
+        ..input
+    };
     assert!(svgir_raster::try_render(&input, &RasterConfig::default()).is_err());
 }

@@ -16,6 +16,8 @@ struct Case {
     /// Colour vertices; 0 = SH.
     color_m: usize,
     extra: Option<(usize, usize)>,
+    /// The extra table's uniform channels ([`FeaturesOf::uniform`]).
+    uniform: usize,
     bg_image: bool,
 }
 
@@ -72,9 +74,14 @@ fn run_case(case: &Case) -> (usize, usize, usize, f64) {
                 colors: if case.color_m == 0 {
                     ColorSourceOf::Sh
                 } else {
-                    ColorSourceOf::Features(FeaturesOf { data: $colf, vertices: cm, channels: 3 })
+                    ColorSourceOf::Features(FeaturesOf { data: $colf, vertices: cm, channels: 3, uniform: 0 })
                 },
-                extra: case.extra.map(|_| FeaturesOf { data: $extf, vertices: me, channels: ce }),
+                extra: case.extra.map(|_| FeaturesOf {
+                    data: $extf,
+                    vertices: me,
+                    channels: ce,
+                    uniform: case.uniform,
+                }),
                 background: if case.bg_image {
                     BackgroundOf::Image($bg)
                 } else {
@@ -155,8 +162,8 @@ fn run_case(case: &Case) -> (usize, usize, usize, f64) {
 fn report(case: &Case) {
     let (checked, skipped, nonzero, worst) = run_case(case);
     eprintln!(
-        "seed {} colour M={} extra {:?}: {checked} gradients checked ({nonzero} non-negligible), {skipped} skipped at cut-offs, worst rel err {worst:.2e}",
-        case.seed, case.color_m, case.extra
+        "seed {} colour M={} extra {:?} uniform {}: {checked} gradients checked ({nonzero} non-negligible), {skipped} skipped at cut-offs, worst rel err {worst:.2e}",
+        case.seed, case.color_m, case.extra, case.uniform
     );
     assert!(checked > 100);
     assert!(nonzero * 2 > checked, "most checked gradients should be non-negligible");
@@ -165,22 +172,24 @@ fn report(case: &Case) {
 
 #[test]
 fn gradients_sh_colour() {
-    report(&Case { seed: 1, color_m: 0, extra: None, bg_image: false });
-    report(&Case { seed: 2, color_m: 0, extra: Some((4, 2)), bg_image: true });
+    report(&Case { seed: 1, color_m: 0, extra: None, uniform: 0, bg_image: false });
+    report(&Case { seed: 2, color_m: 0, extra: Some((4, 2)), uniform: 0, bg_image: true });
 }
 
 #[test]
 fn gradients_colour_features_m1_m2() {
-    report(&Case { seed: 3, color_m: 1, extra: Some((4, 2)), bg_image: true });
-    report(&Case { seed: 4, color_m: 2, extra: Some((6, 1)), bg_image: false });
+    report(&Case { seed: 3, color_m: 1, extra: Some((4, 2)), uniform: 0, bg_image: true });
+    report(&Case { seed: 4, color_m: 2, extra: Some((6, 1)), uniform: 0, bg_image: false });
 }
 
 #[test]
 fn gradients_colour_features_m4_m6() {
-    report(&Case { seed: 5, color_m: 4, extra: Some((1, 3)), bg_image: false });
-    report(&Case { seed: 6, color_m: 6, extra: Some((2, 2)), bg_image: true });
+    report(&Case { seed: 5, color_m: 4, extra: Some((1, 3)), uniform: 0, bg_image: false });
+    report(&Case { seed: 6, color_m: 6, extra: Some((2, 2)), uniform: 0, bg_image: true });
     // Interpolated colour without extra channels (its own specialised kernel).
-    report(&Case { seed: 7, color_m: 4, extra: None, bg_image: false });
+    report(&Case { seed: 7, color_m: 4, extra: None, uniform: 0, bg_image: false });
+    // Extra channels partly uniform over the vertices (stage 2's SH colour in the PBR pass).
+    report(&Case { seed: 8, color_m: 4, extra: Some((4, 3)), uniform: 2, bg_image: true });
 }
 
 /// The f32 instantiation (what training runs) agrees with the f64 one.
@@ -298,7 +307,7 @@ fn sh_colors_backward_gives_the_sh_renders_own_rows() {
 
     let colours: Vec<f32> = sh_st.sh_colors().iter().flatten().copied().collect();
     let feat_input = RenderInput {
-        colors: ColorSourceOf::Features(FeaturesOf { data: &colours, vertices: 1, channels: 3 }),
+        colors: ColorSourceOf::Features(FeaturesOf { data: &colours, vertices: 1, channels: 3, uniform: 0 }),
         ..sh_input
     };
     let (feat_out, feat_st) = render(&feat_input, &cfg);
@@ -321,5 +330,97 @@ fn sh_colors_backward_gives_the_sh_renders_own_rows() {
     assert!(matches!(
         svgir_raster::sh_colors_backward(&feat_input, &feat_st.projected(), &v_colors),
         Err(svgir_raster::RasterError::NotSh)
+    ));
+}
+
+/// Uniform extra channels ([`FeaturesOf::uniform`]) render what interpolating the same value at
+/// every vertex renders (the weights sum to one), and their gradients, all at vertex 0, are the
+/// sums over the vertices of the interpolated table's; the other channels keep theirs. On every
+/// path of this CPU, with frozen geometry as stage 2's PBR pass runs.
+#[test]
+fn uniform_channels_match_interpolating_a_constant() {
+    let (w, h) = (48u32, 40u32);
+    let npx = (w * h) as usize;
+    let cam = test_camera(w, h);
+    let surfels = small_scene(9, 24);
+    let n = surfels.len();
+    let (m, ce, un) = (4usize, 5usize, 2usize);
+    let mut rng = Rng::new(9);
+    let colf: Vec<f32> = random_vec(&mut rng, n * m * 3, 0.0, 1.0).iter().map(|&x| x as f32).collect();
+    let mut extf: Vec<f32> = random_vec(&mut rng, n * m * ce, -1.0, 1.0).iter().map(|&x| x as f32).collect();
+    for g in 0..n {
+        for v in 1..m {
+            for c in ce - un..ce {
+                extf[(g * m + v) * ce + c] = extf[g * m * ce + c];
+            }
+        }
+    }
+    let lw = LossWeights::new(9, npx, ce);
+    let to32 = |v: &[f64]| v.iter().map(|&x| x as f32).collect::<Vec<f32>>();
+    let (gc, ga, ge) = (to32(&lw.color), to32(&lw.alpha), to32(&lw.extra));
+    let og = OutputGrads { color: Some(&gc), alpha: Some(&ga), extra: Some(&ge), ..Default::default() };
+    for simd in svgir_raster::simd::Simd::available() {
+        let cfg = RasterConfig { geometry_grads: false, simd, ..RasterConfig::default() };
+        let run = |uniform: usize| {
+            let input = RenderInput {
+                surfels: &surfels,
+                camera: &cam,
+                colors: ColorSourceOf::Features(FeaturesOf { data: &colf, vertices: m, channels: 3, uniform: 0 }),
+                extra: Some(FeaturesOf { data: &extf, vertices: m, channels: ce, uniform }),
+                background: BackgroundOf::Color([0.3, 0.6, 0.1]),
+            };
+            let (out, st) = render(&input, &cfg);
+            let g = backward(&input, &cfg, &st, &out, &og);
+            (out, g)
+        };
+        let ((out_l, g_l), (out_u, g_u)) = (run(0), run(un));
+        let name = simd.name();
+        assert_eq!(out_u.color, out_l.color, "{name}: the colours do not change");
+        let f = |v: &[f32]| v.iter().map(|&x| f64::from(x)).collect::<Vec<f64>>();
+        assert!(max_diff(&f(&out_u.extra), &f(&out_l.extra)) <= 1e-5, "{name}: the extra image");
+        let scale = g_l.v_extra.iter().fold(0.0f32, |a, v| a.max(v.abs()));
+        assert!(scale > 1e-3, "{name}: the loss reaches the extra table");
+        for g in 0..n {
+            for c in 0..ce {
+                let at = |gr: &[f32], v: usize| gr[(g * m + v) * ce + c];
+                if c < ce - un {
+                    for v in 0..m {
+                        let (a, b) = (at(&g_u.v_extra, v), at(&g_l.v_extra, v));
+                        assert!((a - b).abs() <= 1e-5 * scale, "{name}: Gaussian {g} vertex {v} channel {c}");
+                    }
+                } else {
+                    let sum: f32 = (0..m).map(|v| at(&g_l.v_extra, v)).sum();
+                    let got = at(&g_u.v_extra, 0);
+                    assert!((got - sum).abs() <= 1e-5 * scale, "{name}: Gaussian {g} channel {c}: {got} vs {sum}");
+                    assert!((1..m).all(|v| at(&g_u.v_extra, v) == 0.0), "{name}: Gaussian {g} channel {c}");
+                }
+            }
+        }
+        let diff = max_diff(&f(&g_u.v_opacity_logits), &f(&g_l.v_opacity_logits));
+        assert!(diff <= 1e-5 * f64::from(scale.max(1.0)), "{name}: opacity gradients differ by {diff}");
+    }
+}
+
+/// A feature table with more uniform channels than channels, or colours with any, is refused.
+#[test]
+fn uniform_channels_are_checked() {
+    let cam = test_camera(8, 8);
+    let surfels = small_scene(3, 2);
+    let n = surfels.len();
+    let (c, e) = (vec![0.5f32; n * 4 * 3], vec![0.5f32; n * 4 * 2]);
+    let colors = ColorSourceOf::Features(FeaturesOf { data: &c, vertices: 4, channels: 3, uniform: 0 });
+    let base =
+        RenderInput { surfels: &surfels, camera: &cam, colors, extra: None, background: BackgroundOf::Color([0.0; 3]) };
+    let cfg = RasterConfig::default();
+    let extra = |uniform| Some(FeaturesOf { data: &e, vertices: 4, channels: 2, uniform });
+    assert!(svgir_raster::check_input(&RenderInput { extra: extra(2), ..base }, &cfg).is_ok());
+    assert!(matches!(
+        svgir_raster::check_input(&RenderInput { extra: extra(3), ..base }, &cfg),
+        Err(svgir_raster::RasterError::Uniform { uniform: 3, channels: 2, .. })
+    ));
+    let colors = ColorSourceOf::Features(FeaturesOf { data: &c, vertices: 4, channels: 3, uniform: 1 });
+    assert!(matches!(
+        svgir_raster::check_input(&RenderInput { colors, ..base }, &cfg),
+        Err(svgir_raster::RasterError::Uniform { uniform: 1, .. })
     ));
 }

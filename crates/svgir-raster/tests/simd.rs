@@ -132,18 +132,19 @@ fn scene(seed: u64, n: usize) -> Surfels {
 }
 
 /// Stage 2's feature tables: colours from `cm` vertices (1: the SH colour), `ce` extra channels
-/// from `me` vertices.
+/// from `me` vertices, the last `un` of them uniform ([`FeaturesOf::uniform`]).
 #[derive(Clone, Copy)]
 struct Feat {
     cm: usize,
     me: usize,
     ce: usize,
+    un: usize,
 }
 
 /// Colours from `cm` vertices of `data`, or the SH colour when `cm` is 1.
 fn colors<T>(data: &[T], cm: usize) -> ColorSourceOf<'_, T> {
     if cm > 1 {
-        ColorSourceOf::Features(FeaturesOf { data, vertices: cm, channels: 3 })
+        ColorSourceOf::Features(FeaturesOf { data, vertices: cm, channels: 3, uniform: 0 })
     } else {
         ColorSourceOf::Sh
     }
@@ -173,7 +174,7 @@ fn check_scene_tiles(
     let surfels = scene(seed, n);
     let camera = bench_camera(res, res);
     let npx = (res * res) as usize;
-    let Feat { cm, me, ce } = feat.unwrap_or(Feat { cm: 1, me: 1, ce: 0 });
+    let Feat { cm, me, ce, un } = feat.unwrap_or(Feat { cm: 1, me: 1, ce: 0, un: 0 });
     let mut rng = svgir_core::Rng::new(seed);
     let colf: Vec<f32> = (0..n * cm * 3).map(|_| rng.uniform()).collect();
     let extf: Vec<f32> = (0..n * me * ce).map(|_| rng.normal()).collect();
@@ -183,7 +184,7 @@ fn check_scene_tiles(
         surfels: &surfels,
         camera: &camera,
         colors: colors(&colf, cm),
-        extra: (ce > 0).then_some(FeaturesOf { data: &extf, vertices: me, channels: ce }),
+        extra: (ce > 0).then_some(FeaturesOf { data: &extf, vertices: me, channels: ce, uniform: un }),
         background: Background::Color([0.3, 0.6, 0.1]),
     };
     let cfg = RasterConfig { tile, distortion: dist, geometry, simd: Simd::Scalar, ..Default::default() };
@@ -196,7 +197,7 @@ fn check_scene_tiles(
         surfels: &p64,
         camera: &camera,
         colors: colors(&c64, cm),
-        extra: (ce > 0).then_some(FeaturesOf { data: &e64[..], vertices: me, channels: ce }),
+        extra: (ce > 0).then_some(FeaturesOf { data: &e64[..], vertices: me, channels: ce, uniform: un }),
         background: BackgroundOf::Color([0.3, 0.6, 0.1]),
     };
     let grads64 = OutputGradsOf {
@@ -248,18 +249,22 @@ fn simd_paths_match_scalar() {
 }
 
 /// Stage 2's PBR render: colours interpolated from M vertices and extra channels (with M or one
-/// vertex), every output with a gradient, including the per-vertex feature gradients.
+/// vertex, some uniform), every output with a gradient, including the per-vertex feature
+/// gradients.
 #[test]
 fn simd_feature_paths_match_scalar() {
     let mut checked = 0;
-    for (seed, n, res, tile, cm, me, ce, dist, geometry) in [
-        (11u64, 3000usize, 64u32, 32u32, 4usize, 4usize, 7usize, false, true),
-        (12, 2500, 57, 16, 2, 1, 3, true, true),
-        (13, 2000, 48, 16, 6, 6, 2, true, true),
-        (14, 2000, 48, 32, 1, 4, 5, false, true),
-        (15, 2000, 48, 32, 4, 4, 3, true, false),
+    for (seed, n, res, tile, cm, me, ce, un, dist, geometry) in [
+        (11u64, 3000usize, 64u32, 32u32, 4usize, 4usize, 7usize, 0usize, false, true),
+        (12, 2500, 57, 16, 2, 1, 3, 0, true, true),
+        (13, 2000, 48, 16, 6, 6, 2, 0, true, true),
+        (14, 2000, 48, 32, 1, 4, 5, 0, false, true),
+        (15, 2000, 48, 32, 4, 4, 3, 0, true, false),
+        // Stage 2's PBR pass: seven interpolated channels and the SH colour uniform.
+        (16, 3000, 64, 32, 4, 4, 10, 3, false, false),
+        (17, 2000, 48, 16, 2, 2, 4, 1, true, true),
     ] {
-        checked += check_scene(seed, n, res, tile, dist, geometry, Some(Feat { cm, me, ce }));
+        checked += check_scene(seed, n, res, tile, dist, geometry, Some(Feat { cm, me, ce, un }));
     }
     if svgir_raster::simd::best_available() != Simd::Scalar {
         assert!(checked > 0);
@@ -342,7 +347,7 @@ fn frozen_geometry_changes_only_the_geometry_gradients() {
     let inputs = [
         ("sh", ColorSourceOf::Sh, None),
         ("features", c, Some(e)),
-        ("extra only", ColorSourceOf::Sh, Some(FeaturesOf { data: &extf, vertices: m, channels: ce })),
+        ("extra only", ColorSourceOf::Sh, Some(FeaturesOf { data: &extf, vertices: m, channels: ce, uniform: 0 })),
     ];
     let geometry_names = ["positions", "rotations", "log scales", "mean2d"];
     for path in Simd::available() {
@@ -494,8 +499,8 @@ fn feature_tables(seed: u64, n: usize, m: usize, ce: usize) -> (Vec<f32>, Vec<f3
 /// Colours and `ce` extra channels from `m` vertices.
 fn features<'a>(c: &'a [f32], e: &'a [f32], m: usize, ce: usize) -> (ColorSourceOf<'a, f32>, FeaturesOf<'a, f32>) {
     (
-        ColorSourceOf::Features(FeaturesOf { data: c, vertices: m, channels: 3 }),
-        FeaturesOf { data: e, vertices: m, channels: ce },
+        ColorSourceOf::Features(FeaturesOf { data: c, vertices: m, channels: 3, uniform: 0 }),
+        FeaturesOf { data: e, vertices: m, channels: ce, uniform: 0 },
     )
 }
 

@@ -326,7 +326,7 @@ pub fn render_share(surfels: &Surfels, selected: &[bool], camera: &Camera, raste
     let input = RenderInput {
         surfels,
         camera,
-        colors: ColorSource::Features(Features { data: &feats, vertices: 1, channels: 3 }),
+        colors: ColorSource::Features(Features { data: &feats, vertices: 1, channels: 3, uniform: 0 }),
         extra: None,
         background: Background::Color([0.0; 3]),
     };

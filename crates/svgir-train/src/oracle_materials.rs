@@ -96,7 +96,7 @@ pub fn fit(s2: &mut Stage2, ds: &Dataset, epochs: usize) -> Result<f64, PbrError
                 surfels: &s2.surfels,
                 camera: &v.camera,
                 colors: ColorSource::Sh,
-                extra: Some(Features { data: &feats, vertices: m, channels: CH }),
+                extra: Some(Features { data: &feats, vertices: m, channels: CH, uniform: 0 }),
                 background: Background::Color([0.0; 3]),
             };
             let (out, state) = render(&input, &s2.raster);

@@ -74,8 +74,8 @@ pub struct InverseArgs {
     /// on: an interleaved subset of the --directions, a different one at each iteration in
     /// turn, inside the subset the iteration shades (must divide --shade-directions, or
     /// --directions without it). Given the image's gradient the estimate is unbiased; the image
-    /// itself is shaded as --shade-directions says. `measured`: half of --shade-directions (8
-    /// of 64), also after --shade-directions-until, where the image shades every direction;
+    /// itself is shaded as --shade-directions says. `measured`: a quarter of --shade-directions
+    /// (4 of 64), also after --shade-directions-until, where the image shades every direction;
     /// `spec`: every direction shaded. With --resume it changes the resumed run's setting.
     /// (profile)
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
@@ -413,7 +413,7 @@ impl Resolved {
             shade_directions,
             shade_directions_until: a.shade_directions_until.unwrap_or(if m { a.iterations * 2 / 3 } else { 0 }),
             gradient_directions: a.gradient_directions.or(if m {
-                shade_directions.filter(|s| s.is_multiple_of(2)).map(|s| s / 2)
+                shade_directions.filter(|s| s.is_multiple_of(4)).map(|s| s / 4)
             } else {
                 None
             }),

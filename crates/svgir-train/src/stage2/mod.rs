@@ -40,7 +40,7 @@ use glam::Vec3;
 use objective::{extra_features_backward, stage2_objective, Stage2Outputs, Stage2Target};
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
-use sh_channels::{join_pass_grads, pass_features, sh_colour_grads, split_pass, PASS_CHANNELS};
+use sh_channels::{join_pass_grads, pass_features, sh_colour_grads, split_pass, PASS_CHANNELS, SH_CHANNELS};
 pub use shaded_set::ShadeSets;
 pub(crate) use shaded_set::ViewSets;
 use shaded_set::{faint, in_set_of, outside_set, stand_in_colours, visible_of, weighted};

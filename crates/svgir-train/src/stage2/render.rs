@@ -157,8 +157,8 @@ impl Stage2 {
         let input = RenderInput {
             surfels: &self.surfels,
             camera,
-            colors: ColorSource::Features(Features { data: &shaded.color, vertices: m, channels: 3 }),
-            extra: Some(Features { data: &extra, vertices: m, channels: EXTRA_CHANNELS }),
+            colors: ColorSource::Features(Features { data: &shaded.color, vertices: m, channels: 3, uniform: 0 }),
+            extra: Some(Features { data: &extra, vertices: m, channels: EXTRA_CHANNELS, uniform: 0 }),
             background: Background::Color([0.0; 3]),
         };
         let (out, _) = super::render_after(&input, &self.raster, &seen_state.projected());

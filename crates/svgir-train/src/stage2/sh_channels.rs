@@ -3,10 +3,12 @@
 //! SPEC 6 freezes the geometry, so the SH pass and the PBR pass composite the same entries with
 //! the same alphas (the PBR pass reuses the SH pass's projection, `render_after`). Training gives
 //! every vertex of a Gaussian that Gaussian's SH colour as three more extra channels of the PBR
-//! pass. A surfel's interpolation weights sum to one, so these channels composite to the SH pass's
-//! `sum w c` (to rounding), and with the background `bg (1 - A)` they are its image. The PBR pass's
+//! pass, declared uniform (`svgir_raster::FeaturesOf::uniform`): the kernels read them once per
+//! Gaussian instead of interpolating a constant, so they composite to the SH pass's `sum w c`
+//! (to rounding), and with the background `bg (1 - A)` they are its image. The PBR pass's
 //! backward then gives the SH image's gradients too:
-//! - each Gaussian's colour gradient is the sum of its vertices' SH-channel gradients, which
+//! - each Gaussian's colour gradient is the sum of its vertices' SH-channel gradients (all at
+//!   vertex 0 with uniform channels), which
 //!   `svgir_raster::sh_colors_backward` takes to the SH coefficients;
 //! - the opacities' gradient comes with the PBR image's, and the background's share enters
 //!   through the opacity output `A`.
@@ -203,8 +205,8 @@ mod tests {
         let pbr_input = RenderInput {
             surfels: &surfels,
             camera: &cam,
-            colors: ColorSource::Features(Features { data: &colours, vertices: m, channels: 3 }),
-            extra: Some(Features { data: &extra, vertices: m, channels: PASS_CHANNELS }),
+            colors: ColorSource::Features(Features { data: &colours, vertices: m, channels: 3, uniform: 0 }),
+            extra: Some(Features { data: &extra, vertices: m, channels: PASS_CHANNELS, uniform: SH_CHANNELS }),
             background: Background::Color([0.0; 3]),
         };
         let (pbr_out, pbr_state) = super::super::render_after(&pbr_input, &cfg, &sh_state.projected());

@@ -149,8 +149,8 @@ impl Stage2 {
         let pbr_input = RenderInput {
             surfels: &self.surfels,
             camera: cam,
-            colors: ColorSource::Features(Features { data: &shaded.color, vertices: m, channels: 3 }),
-            extra: Some(Features { data: &extra, vertices: m, channels: PASS_CHANNELS }),
+            colors: ColorSource::Features(Features { data: &shaded.color, vertices: m, channels: 3, uniform: 0 }),
+            extra: Some(Features { data: &extra, vertices: m, channels: PASS_CHANNELS, uniform: SH_CHANNELS }),
             background: Background::Color([0.0; 3]),
         };
         let (pbr_out, pbr_state) = render_after(&pbr_input, &self.raster, &sh_proj);
