@@ -101,15 +101,11 @@ pub fn random_scene(n: usize, seed: u64) -> Surfels {
     s
 }
 
-fn median_ms(mut f: impl FnMut(), reps: usize) -> f64 {
-    let mut t: Vec<f64> = (0..reps)
-        .map(|_| {
-            let t0 = Instant::now();
-            f();
-            t0.elapsed().as_secs_f64() * 1e3
-        })
-        .collect();
-    median(&mut t)
+/// Milliseconds one call of `f` takes.
+fn elapsed_ms(f: impl FnOnce()) -> f64 {
+    let t0 = Instant::now();
+    f();
+    t0.elapsed().as_secs_f64() * 1e3
 }
 
 fn median(t: &mut [f64]) -> f64 {
@@ -446,15 +442,12 @@ pub fn bench_scene(surfels: Surfels, cameras: &[Camera], background: [f32; 3], t
                             evals[v] += st.box_evaluations();
                             continue;
                         }
-                        fwd[v][j].push(median_ms(|| drop(render(&input, cfg)), 1));
-                        fb[v][j].push(median_ms(
-                            || {
-                                let (out, st) = render(&input, cfg);
-                                let g = crate::backward(&input, cfg, &st, &out, &grads);
-                                phases[v].push(phases_of(&st.phases, &g.phases));
-                            },
-                            1,
-                        ));
+                        fwd[v][j].push(elapsed_ms(|| drop(render(&input, cfg))));
+                        fb[v][j].push(elapsed_ms(|| {
+                            let (out, st) = render(&input, cfg);
+                            let g = crate::backward(&input, cfg, &st, &out, &grads);
+                            phases[v].push(phases_of(&st.phases, &g.phases));
+                        }));
                     }
                 }
             }

@@ -441,7 +441,7 @@ pub fn check_input<F: Real, P: GaussianParams<F> + ?Sized>(
         if !interp::supported_vertices(f.vertices) {
             return Err(RasterError::Vertices(what, f.vertices));
         }
-        if f.uniform > f.channels || (what == "colour features" && f.uniform > 0) {
+        if f.uniform > f.channels {
             return Err(RasterError::Uniform { what, uniform: f.uniform, channels: f.channels });
         }
         let expected = n * f.vertices * f.channels;
@@ -453,6 +453,9 @@ pub fn check_input<F: Real, P: GaussianParams<F> + ?Sized>(
     if let ColorSourceOf::Features(f) = &input.colors {
         if f.channels != 3 {
             return Err(RasterError::ColorChannels(f.channels));
+        }
+        if f.uniform > 0 {
+            return Err(RasterError::Uniform { what: "colour features", uniform: f.uniform, channels: f.channels });
         }
         check_f("colour features", f)?;
     }

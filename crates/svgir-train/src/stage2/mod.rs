@@ -165,9 +165,13 @@ fn shading_set<'a>(
     subsets: &'a [DirectionSubset],
 ) -> (&'a MicroBuffer, &'a DirectionCache) {
     let until = config.shade_directions_until;
-    let subset =
-        subsets.get((iteration % subsets.len().max(1) as u64) as usize).filter(|_| until == 0 || iteration <= until);
+    let subset = in_turn(subsets, iteration).filter(|_| until == 0 || iteration <= until);
     subset.map_or((mb, cache), |s| (&s.mb, &s.dir_cache))
+}
+
+/// The subset of `family` whose turn iteration `iteration` is (none for an empty family).
+fn in_turn(family: &[DirectionSubset], iteration: u64) -> Option<&DirectionSubset> {
+    family.get((iteration % family.len().max(1) as u64) as usize)
 }
 
 /// What iteration `iteration` estimates a side's shading gradients with: its shading set, or,
@@ -185,7 +189,7 @@ fn gradient_set<'a>(
         return shading_set(config, iteration, mb, cache, subsets);
     }
     let family = if grad_subsets.is_empty() { subsets } else { grad_subsets };
-    family.get((iteration % family.len().max(1) as u64) as usize).map_or((mb, cache), |s| (&s.mb, &s.dir_cache))
+    in_turn(family, iteration).map_or((mb, cache), |s| (&s.mb, &s.dir_cache))
 }
 
 /// The `config.shade_stride()` subsets of `mb`'s directions, none when that is 1.
