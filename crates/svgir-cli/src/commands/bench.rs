@@ -16,6 +16,9 @@ pub enum Kernel {
     Lpips,
     /// Convergence: stage-1 test PSNR against training wall time (lego_400 and the shipped scene).
     Train,
+    /// A stage-2 iteration against a stage-1 iteration on the same Gaussians, in turn in one
+    /// process (`--run RUN` with a stage-2 checkpoint).
+    Stages,
 }
 
 #[derive(Args)]
@@ -54,6 +57,8 @@ pub struct BenchArgs {
     pub reps: usize,
     #[command(flatten)]
     pub train: super::bench_train::TrainBenchArgs,
+    #[command(flatten)]
+    pub stages: super::bench_stages::StagesBenchArgs,
 }
 
 fn parse_simd(s: &str) -> Result<svgir_raster::Simd, String> {
@@ -90,7 +95,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
         anyhow::bail!("--ply {}: only the raster and trace tables time a trained scene", ply.display());
     }
     // The rasterizer table prints its own machine line.
-    if !matches!(args.kernel, Kernel::Raster) {
+    if !matches!(args.kernel, Kernel::Raster | Kernel::Stages) {
         println!("machine: {}", svgir_raster::bench::machine_line());
     }
     let threads = rayon::current_num_threads();
@@ -130,6 +135,7 @@ pub fn run(args: BenchArgs) -> Result<()> {
             svgir_metrics::lpips::bench_table(&std::fs::read(vgg)?, &std::fs::read(alex)?, threads)?
         }
         Kernel::Train => super::bench_train::run(&args.train, &svgir_raster::bench::machine_line(), threads)?,
+        Kernel::Stages => super::bench_stages::run(&args.stages, &svgir_raster::bench::machine_line(), threads)?,
     };
     println!("{table}");
     Ok(())

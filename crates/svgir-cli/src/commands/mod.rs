@@ -5,6 +5,7 @@
 pub const ADVANCED: &str = "Advanced (research switches, ablations, diagnostics)";
 
 pub mod bench;
+pub mod bench_stages;
 pub mod bench_train;
 pub mod demo;
 pub mod eval;
