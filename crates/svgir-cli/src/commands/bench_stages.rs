@@ -2,12 +2,13 @@
 //! on the same Gaussians and images, timed in turn inside one process.
 //!
 //! Whole runs an hour apart do not resolve a ratio near 3 on a shared VM, whose speed can drift
-//! by 10-17% from one half hour to the next. Here both trainers are resumed from RUN's
-//! checkpoints (stage 1's `RUN/checkpoint.bin`, stage 2's `RUN/stage2/checkpoint.bin`) and run
-//! in short chunks, one after the other, round after round, so that a slow minute falls on
-//! both. Stage 2 is timed in both of its modes: shading subsets of the directions (up to
-//! `shade_directions_until`) and shading all of them (after), weighted as the run's schedule
-//! weights them. Nothing is written: the trainers live in memory only.
+//! by 10-17% from one half hour to the next, and by as much from one second to the next. Here
+//! both trainers are resumed from RUN's checkpoints (stage 1's `RUN/checkpoint.bin`, stage 2's
+//! `RUN/stage2/checkpoint.bin`) and take turns, one iteration each by default (a round: stage 1,
+//! stage 2 on subsets of the directions, stage 2 on all of them), so that a slow spell of the
+//! host falls on both. Stage 2's two modes (subsets up to `shade_directions_until`, all after)
+//! are weighted as the run's schedule weights them. The rounds are reported in blocks, whose
+//! spread shows how far the ratio is resolved. Nothing is written: the trainers live in memory.
 
 use anyhow::{Context, Result};
 use clap::Args;
@@ -24,11 +25,11 @@ pub struct StagesBenchArgs {
     #[arg(long = "run")]
     pub run: Option<PathBuf>,
     /// stages: timed rounds (each: a chunk of stage 1, of stage 2 on subsets, of stage 2 on all
-    /// directions), after one untimed round.
-    #[arg(long = "stage-rounds", default_value_t = 8)]
+    /// directions), after one untimed round; reported in 8 blocks.
+    #[arg(long = "stage-rounds", default_value_t = 160)]
     pub rounds: usize,
     /// stages: iterations per chunk.
-    #[arg(long = "stage-chunk", default_value_t = 20)]
+    #[arg(long = "stage-chunk", default_value_t = 1)]
     pub chunk: u64,
 }
 
@@ -148,55 +149,44 @@ pub fn run(args: &StagesBenchArgs, machine: &str, threads: usize) -> Result<Stri
     let weighted = |a: f64, b: f64| w_subsets * a + (1.0 - w_subsets) * b;
     writeln!(
         out,
-        "{:>5} {:>10} {:>14} {:>10} {:>14} {:>8} {:>14}",
-        "round", "stage 1 ms", "stage 2 subset", "stage 2 all", "stage 2 (wtd)", "ratio", "ratio (steps)"
+        "{:>5} {:>7} {:>10} {:>14} {:>10} {:>14} {:>8} {:>14}",
+        "block", "rounds", "stage 1 ms", "stage 2 subset", "stage 2 all", "stage 2 (wtd)", "ratio", "ratio (steps)"
     )?;
+    // Means of a set of rounds: (stage 1, subsets, all, weighted, ratio, ratio of whole steps).
+    let summary = |rs: &[Round]| {
+        let m = |f: fn(&Round) -> f64| mean(&rs.iter().map(f).collect::<Vec<_>>());
+        let (s1, sub, all) = (m(|r| r.stage1), m(|r| r.subsets), m(|r| r.all));
+        let w = weighted(sub, all);
+        (s1, sub, all, w, w / s1, weighted(m(|r| r.subsets_wall), m(|r| r.all_wall)) / s1)
+    };
+    let blocks = rounds.len().min(8);
     let mut ratios = Vec::new();
-    let mut ratios_wall = Vec::new();
-    for (i, r) in rounds.iter().enumerate() {
-        let s2w = weighted(r.subsets, r.all);
-        let ratio = s2w / r.stage1;
-        let ratio_wall = weighted(r.subsets_wall, r.all_wall) / r.stage1;
-        ratios.push(ratio);
-        ratios_wall.push(ratio_wall);
+    let row = |out: &mut String, name: &str, rs: &[Round]| -> std::fmt::Result {
+        let (s1, sub, all, w, ratio, ratio_wall) = summary(rs);
         writeln!(
             out,
-            "{:>5} {:>10.2} {:>14.2} {:>10.2} {:>14.2} {:>8.3} {:>14.3}",
-            i + 1,
-            r.stage1,
-            r.subsets,
-            r.all,
-            s2w,
-            ratio,
-            ratio_wall
-        )?;
+            "{name:>5} {:>7} {s1:>10.2} {sub:>14.2} {all:>10.2} {w:>14.2} {ratio:>8.3} {ratio_wall:>14.3}",
+            rs.len()
+        )
+    };
+    for b in 0..blocks {
+        let rs = &rounds[b * rounds.len() / blocks..(b + 1) * rounds.len() / blocks];
+        ratios.push(summary(rs).4);
+        row(&mut out, &(b + 1).to_string(), rs)?;
     }
-    let col = |f: fn(&Round) -> f64| rounds.iter().map(f).collect::<Vec<_>>();
-    let (m1, ms, ma) = (mean(&col(|r| r.stage1)), mean(&col(|r| r.subsets)), mean(&col(|r| r.all)));
-    let (msw, maw) = (mean(&col(|r| r.subsets_wall)), mean(&col(|r| r.all_wall)));
-    writeln!(
-        out,
-        "{:>5} {:>10.2} {:>14.2} {:>10.2} {:>14.2} {:>8.3} {:>14.3}",
-        "mean",
-        m1,
-        ms,
-        ma,
-        weighted(ms, ma),
-        weighted(ms, ma) / m1,
-        weighted(msw, maw) / m1
-    )?;
+    row(&mut out, "all", &rounds)?;
     let (lo, hi) = ratios.iter().fold((f64::INFINITY, f64::NEG_INFINITY), |(a, b), &x| (a.min(x), b.max(x)));
     writeln!(
         out,
-        "stage 2 / stage 1: median of the rounds {:.3} (range {lo:.3}-{hi:.3}); with stage 2's whole steps (sun \
-         searches, light updates) {:.3}",
-        median(ratios),
-        median(ratios_wall)
+        "stage 2 / stage 1: {:.3} over all rounds; median of the blocks {:.3} (range {lo:.3}-{hi:.3})",
+        summary(&rounds).4,
+        median(ratios)
     )?;
     writeln!(
         out,
         "ratio: stage 2's phases (render, loss, backward, Adam) per iteration, the two modes weighted as the schedule \
-         runs them, over stage 1's whole step; ratio (steps): stage 2's whole step"
+         runs them, over stage 1's whole step; ratio (steps): stage 2's whole step, with the sun searches and light \
+         updates that fell in the rounds"
     )?;
     Ok(out)
 }
