@@ -479,6 +479,7 @@ fn backward_tile_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
     let near = F::from_f32(ctx.cfg.near);
     let far = F::from_f32(ctx.cfg.far);
     let geom = ctx.cfg.geometry;
+    let normals = geom && ctx.cfg.normals;
     let half = F::c(0.5);
     let two = F::c(2.0);
     // 2DGS's distortion depth m = far / (far - near) (1 - near / z) (as [`distortion_depth`]).
@@ -519,7 +520,7 @@ fn backward_tile_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
                 acc: tn * (gc[0] * b[0] + gc[1] * b[1] + gc[2] * b[2]),
                 gc,
                 // Without the geometry outputs their gradients are ignored (read as zero).
-                gn: g.normal.filter(|_| geom).map_or([F::ZERO; 3], |v| [v[p * 3], v[p * 3 + 1], v[p * 3 + 2]]),
+                gn: g.normal.filter(|_| normals).map_or([F::ZERO; 3], |v| [v[p * 3], v[p * 3 + 1], v[p * 3 + 2]]),
                 go: g.alpha.map_or(F::ZERO, |v| v[p]),
                 gd: g.depth.filter(|_| geom).map_or(F::ZERO, |v| v[p]),
                 gdist: if DIST { g.distortion.map_or(F::ZERO, |v| v[p]) } else { F::ZERO },

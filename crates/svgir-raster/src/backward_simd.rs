@@ -121,6 +121,8 @@ struct Entry<'a, S: Lanes> {
     extv: &'a FeatLanes<'a, S>,
     /// Carry the normal and depth gradients ([`crate::RasterConfig::geometry`]).
     geom: bool,
+    /// Carry the normal gradient ([`crate::RasterConfig::normals`], with `geom`).
+    normals: bool,
 }
 
 impl<S: Lanes> Entry<'_, S> {
@@ -158,8 +160,9 @@ impl<S: Lanes> Entry<'_, S> {
         let gc = [ld(GC), ld(GC + 1), ld(GC + 2)];
         // Geometry off: the normal and depth gradients are zero, so their terms are skipped
         // (adding exact zeros changes no bit but a zero's sign).
-        let geom = self.geom;
-        let (gn, gd) = if geom { ([ld(GN), ld(GN + 1), ld(GN + 2)], ld(GD)) } else { ([zero; 3], zero) };
+        let (geom, normals) = (self.geom, self.normals);
+        let gn = if normals { [ld(GN), ld(GN + 1), ld(GN + 2)] } else { [zero; 3] };
+        let gd = if geom { ld(GD) } else { zero };
         // Interpolation weights and their derivatives at the hit (features only). The
         // derivatives, and every sum below that only feeds the hit's (u, v) and depth, reach
         // positions, rotations and scales alone: skipped without `GEO`.
@@ -195,9 +198,11 @@ impl<S: Lanes> Entry<'_, S> {
         };
         // dL/dw as a tree of sums (a chain of eight adds was on the critical path).
         let g_col = gc[0].mul(col[0]).add(gc[1].mul(col[1])).add(gc[2].mul(col[2]));
-        let mut gw = if geom {
+        let mut gw = if normals {
             let g_nrm = gn[0].mul(nrm[0]).add(gn[1].mul(nrm[1])).add(gn[2].mul(nrm[2]));
             g_col.add(g_nrm).add(ld(GO).add(gd.mul(ev.z)))
+        } else if geom {
+            g_col.add(ld(GO).add(gd.mul(ev.z)))
         } else {
             g_col.add(ld(GO))
         };
@@ -254,7 +259,7 @@ impl<S: Lanes> Entry<'_, S> {
                 // One colour per Gaussian (interpolated colours are summed per vertex above).
                 sm.v_col[ch] = wgt_m.mul_add(gc[ch], sm.v_col[ch]);
             }
-            if GEO && geom {
+            if GEO && normals {
                 sm.v_n[ch] = wgt_m.mul_add(gn[ch], sm.v_n[ch]);
             }
         }
@@ -320,6 +325,7 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
     let near = ctx.cfg.near;
     let far = ctx.cfg.far;
     let geom = ctx.cfg.geometry;
+    let normals = geom && ctx.cfg.normals;
     let m_scale = far / (far - near);
     let wu = ctx.w as usize;
     let tile = bins.tile as usize;
@@ -352,7 +358,7 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
             }
             let gc = g.color.map_or([0.0; 3], |v| [v[p * 3], v[p * 3 + 1], v[p * 3 + 2]]);
             // Without the geometry outputs their gradients are ignored (read as zero).
-            let gn = g.normal.filter(|_| geom).map_or([0.0; 3], |v| [v[p * 3], v[p * 3 + 1], v[p * 3 + 2]]);
+            let gn = g.normal.filter(|_| normals).map_or([0.0; 3], |v| [v[p * 3], v[p * 3 + 1], v[p * 3 + 2]]);
             let b = background_at(ctx.bg, p);
             let set = |k: usize, v: f32| *arr(k).add(li) = v;
             set(T, tn);
@@ -436,6 +442,7 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
             colv: &colv,
             extv: &extv,
             geom,
+            normals,
         };
         let mut sm = Sums::<S>::zero();
         groups.list::<S>(s, &tr, row_act, stride);

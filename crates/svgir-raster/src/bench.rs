@@ -385,18 +385,21 @@ pub fn bench_scene(surfels: Surfels, cameras: &[Camera], background: [f32; 3], t
     // "stage 2 SH" and "stage 2 PBR": stage 2's two renders, whose geometry is frozen (the SH
     // colour alone; colours interpolated from 4 vertices with the training pass's extra
     // channels: 7 material channels interpolated and the SH colour uniform, or interpolated as
-    // well to compare), each also with the geometry gradients stage 2 does not need.
+    // well to compare; the PBR pass's depth without its splat normals, or with them to compare),
+    // each also with the geometry gradients stage 2 does not need.
     let colour = RasterConfig { distortion: false, geometry: false, ..Default::default() };
     let pbr = RasterConfig { distortion: false, ..Default::default() };
-    let frozen = RasterConfig { geometry_grads: false, ..pbr };
+    let frozen_normals = RasterConfig { geometry_grads: false, ..pbr };
+    let frozen = RasterConfig { normals: false, ..frozen_normals };
     // The feature tables' uniform channels (`None`: SH colours, no extra table).
     let variants = [
         ("all", RasterConfig::default(), None),
         ("stage 1", pbr, None),
         ("colour", colour, None),
         ("stage 2 SH", RasterConfig { geometry_grads: false, ..colour }, None),
-        ("stage 2 PBR, with geometry gradients", pbr, Some(UNIFORM)),
+        ("stage 2 PBR, with geometry gradients", RasterConfig { normals: false, ..pbr }, Some(UNIFORM)),
         ("stage 2 PBR", frozen, Some(UNIFORM)),
+        ("stage 2 PBR, with the normal output", frozen_normals, Some(UNIFORM)),
         ("stage 2 PBR, the SH colour interpolated too", frozen, Some(0)),
     ];
     // Stage 2's feature tables: smooth made-up values (the timing does not depend on them).

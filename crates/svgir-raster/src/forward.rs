@@ -441,6 +441,7 @@ fn render_tiles_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
     let t_stop = F::from_f32(cfg.t_stop);
     let half = F::c(0.5);
     let geom = cfg.geometry;
+    let normals = geom && cfg.normals;
     let two = F::c(2.0);
     let wu = w as usize;
     let ce = ef.channels;
@@ -515,10 +516,12 @@ fn render_tiles_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
                         // Colours from feature tables by FMA, as the SIMD kernels.
                         a.color[ch] = if CI { wgt.mul_add(col[ch], a.color[ch]) } else { a.color[ch] + wgt * col[ch] };
                     }
-                    if geom {
+                    if normals {
                         for ch in 0..3 {
                             a.normal[ch] += wgt * s.normal[ch];
                         }
+                    }
+                    if geom {
                         a.depth += wgt * hit.z;
                         if tcur > half {
                             a.median = hit.z;

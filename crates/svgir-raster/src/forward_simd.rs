@@ -202,6 +202,8 @@ struct Composite<'a, S: Lanes> {
     local: S,
     /// Accumulate normal, depth and median depth ([`crate::RasterConfig::geometry`]).
     geom: bool,
+    /// Accumulate the normal ([`crate::RasterConfig::normals`], with `geom`).
+    normals: bool,
     cf: &'a FeatView<'a, f32>,
     ef: &'a FeatView<'a, f32>,
     colv: &'a FeatLanes<'a, S>,
@@ -258,10 +260,12 @@ impl<S: Lanes> Composite<'_, S> {
                 add(COL + ch, comp, wgt.mul(col[ch]));
             }
         }
-        if self.geom {
+        if self.normals {
             for ch in 0..3 {
                 add(NRM + ch, comp, wgt.mul(self.nrm[ch]));
             }
+        }
+        if self.geom {
             add(DEP, comp, wgt.mul(ev.z));
             set(MED, S::and(comp, tcur.gt(sp(0.5))), ev.z);
         }
@@ -354,6 +358,7 @@ unsafe fn tiles<S: Lanes, const DIST: bool, const FEAT: bool>(
                 nrm: s.normal.map(sp),
                 local: sp((e - r0 as usize + 1) as f32),
                 geom: cfg.geometry,
+                normals: cfg.geometry && cfg.normals,
                 cf,
                 ef,
                 colv: &colv,

@@ -69,6 +69,11 @@ pub struct RasterConfig {
     /// bit. The f32 tile kernels then skip those accumulators (about 5% of a forward+backward
     /// on a trained lego): for a loss that reads colour alone (3DGS's, the `views` profile).
     pub geometry: bool,
+    /// With `geometry`, compute the normal output too. When false it is left at 0 and a gradient
+    /// given for it is ignored, while depth and median depth are computed as before (to the
+    /// bit): for a loss that reads the depth but not the splats' normals (stage 2's PBR pass,
+    /// whose shading normals come as feature channels), three accumulators fewer per pixel.
+    pub normals: bool,
     /// Compute the gradients of positions, rotations and log-scales (and the densification
     /// statistic `v_mean2d_norm`). When false they are returned as zeros, and the f32 tile
     /// kernels skip every per-pixel term that only reaches them: the hit's (u, v) and depth chain,
@@ -90,6 +95,7 @@ impl Default for RasterConfig {
             tile: 32,
             distortion: true,
             geometry: true,
+            normals: true,
             geometry_grads: true,
             simd: Simd::Auto,
         }

@@ -330,6 +330,59 @@ fn geometry_off_changes_only_the_geometry_outputs() {
     }
 }
 
+/// `RasterConfig::normals = false` on every path (stage 2's PBR pass): every output but the
+/// normal keeps its bits, the normal stays 0, and the gradients equal those of the full render
+/// given a zero normal gradient (whatever is passed for it), with and without geometry gradients.
+#[test]
+fn normals_off_changes_only_the_normal_output() {
+    let (n, res, m, ce) = (3000, 64u32, 4usize, 7usize);
+    let surfels = scene(23, n);
+    let camera = bench_camera(res, res);
+    let npx = (res * res) as usize;
+    let (colf, extf) = feature_tables(23, n, m, ce);
+    let (g3, g1, ge) = upstream_grads(npx, ce);
+    let z3 = vec![0.0f32; npx * 3];
+    let (c, e) = features(&colf, &extf, m, ce);
+    let inputs = [("sh", ColorSourceOf::Sh, None), ("features", c, Some(e))];
+    for path in Simd::available() {
+        for (kind, colors, extra) in &inputs {
+            for geometry_grads in [true, false] {
+                let input = RenderInput {
+                    surfels: &surfels,
+                    camera: &camera,
+                    colors: *colors,
+                    extra: *extra,
+                    background: Background::Color([0.3, 0.6, 0.1]),
+                };
+                let on = RasterConfig { simd: path, geometry_grads, ..Default::default() };
+                let off = RasterConfig { normals: false, ..on };
+                let (a, sa) = render(&input, &on);
+                let (b, sb) = render(&input, &off);
+                let what = format!("{} {kind} geometry grads {geometry_grads}", path.name());
+                assert_eq!(a.color, b.color, "{what}: colour");
+                assert_eq!(a.alpha, b.alpha, "{what}: alpha");
+                assert_eq!(a.depth, b.depth, "{what}: depth");
+                assert_eq!(a.median_depth, b.median_depth, "{what}: median depth");
+                assert_eq!(a.distortion, b.distortion, "{what}: distortion");
+                assert_eq!(a.extra, b.extra, "{what}: extra");
+                assert_eq!(a.accum_weight, b.accum_weight, "{what}: weights");
+                assert!(a.normal.iter().any(|&v| v != 0.0), "{what}: normal all zero");
+                assert!(b.normal.iter().all(|&v| v == 0.0), "{what}: normal not zero");
+                let full = every_grad(&g3, &g1, true, extra.map(|_| ge.as_slice()));
+                let zero_normal = OutputGrads { normal: Some(&z3), ..full };
+                let ga = backward(&input, &on, &sa, &a, &zero_normal);
+                let gb = backward(&input, &off, &sb, &b, &full);
+                for ((name, x), (_, y)) in grad_arrays(&ga).iter().zip(grad_arrays(&gb).iter()) {
+                    assert_eq!(x, y, "{what}: {name}");
+                }
+                // The normal gradient does reach the full render's gradients.
+                let gc = backward(&input, &on, &sa, &a, &full);
+                assert_ne!(gc.v_opacity_logits, ga.v_opacity_logits, "{what}: normal gradient ignored");
+            }
+        }
+    }
+}
+
 /// What stage 2 relies on when it freezes the geometry (SPEC 6): without geometry gradients,
 /// every path returns the opacity, SH, colour, feature and background gradients of the full
 /// backward bit for bit, and zeros for positions, rotations, scales and the densification

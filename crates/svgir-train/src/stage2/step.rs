@@ -153,7 +153,10 @@ impl Stage2 {
             extra: Some(Features { data: &extra, vertices: m, channels: PASS_CHANNELS, uniform: SH_CHANNELS }),
             background: Background::Color([0.0; 3]),
         };
-        let (pbr_out, pbr_state) = render_after(&pbr_input, &self.raster, &sh_proj);
+        // The loss reads the PBR pass's depth but not its splat normals (the shading normals are
+        // feature channels), so that output is not accumulated.
+        let pbr_raster = RasterConfig { normals: false, ..self.raster };
+        let (pbr_out, pbr_state) = render_after(&pbr_input, &pbr_raster, &sh_proj);
         let (materials_out, sh_image) = split_pass(&pbr_out.extra, &pbr_out.alpha, bg);
         let t1 = Instant::now();
 
@@ -213,7 +216,7 @@ impl Stage2 {
         let v_pass = join_pass_grads(&obj.v_extra, &obj.v_sh_color, bg, &mut obj.v_alpha);
         let g_pbr = backward(
             &pbr_input,
-            &self.raster,
+            &pbr_raster,
             &pbr_state,
             &pbr_out,
             &OutputGrads {
