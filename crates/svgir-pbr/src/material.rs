@@ -265,6 +265,10 @@ pub fn activate_backward<F: Real>(
         .enumerate()
         .with_min_len(1024)
         .for_each(|(v, ((out, d), g))| {
+            // A vertex without a gradient keeps its zero: `(0 - n 0) / len` is +0 as well.
+            if g.iter().all(|&x| x == F::ZERO) {
+                return;
+            }
             let (nm, len, ok) = offset_normal(normals[v / m], d);
             if ok {
                 let g = [g[0], g[1], g[2]];
@@ -350,6 +354,36 @@ mod tests {
                 close((p - q) / (2.0 * h), g.v_normal_offset[i], "offset");
             }
         }
+    }
+
+    /// Vertices without a gradient are passed by: their raw gradients are +0 (what the formulas
+    /// give), and the other vertices' keep their bits.
+    #[test]
+    fn backward_passes_by_vertices_without_a_gradient() {
+        let mut rng = Rng::new(5);
+        let (n, m) = (40usize, 4usize);
+        let normals: Vec<Vec3> =
+            (0..n).map(|_| Vec3::new(rng.normal(), rng.normal(), rng.normal()).normalize()).collect();
+        let mut draw = |len: usize, s: f32| (0..len).map(|_| s * rng.normal()).collect::<Vec<f32>>();
+        let (a, r, d) = (draw(n * m * 3, 2.0), draw(n * m, 2.0), draw(n * m * 3, 0.4));
+        let (ga, gr, gn) = (draw(n * m * 3, 1.0), draw(n * m, 1.0), draw(n * m * 3, 1.0));
+        let full = activate_backward(m, &a, &r, &d, &normals, &ga, &gr, &gn).unwrap();
+        // Every third vertex without a gradient.
+        let quiet = |v: usize| v % 3 == 0;
+        let zeroed = |g: &[f32], w: usize| -> Vec<f32> {
+            g.iter().enumerate().map(|(i, &x)| if quiet(i / w) { 0.0 } else { x }).collect()
+        };
+        let part =
+            activate_backward(m, &a, &r, &d, &normals, &zeroed(&ga, 3), &zeroed(&gr, 1), &zeroed(&gn, 3)).unwrap();
+        let check = |x: &[f32], y: &[f32], w: usize, what: &str| {
+            for (i, (x, y)) in x.iter().zip(y).enumerate() {
+                let want = if quiet(i / w) { 0.0f32 } else { *x };
+                assert_eq!(y.to_bits(), want.to_bits(), "{what} {i}");
+            }
+        };
+        check(&full.v_albedo_raw, &part.v_albedo_raw, 3, "albedo");
+        check(&full.v_roughness_raw, &part.v_roughness_raw, 1, "roughness");
+        check(&full.v_normal_offset, &part.v_normal_offset, 3, "offset");
     }
 
     #[test]

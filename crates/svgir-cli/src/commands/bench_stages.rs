@@ -84,6 +84,10 @@ pub fn run(args: &StagesBenchArgs, machine: &str, threads: usize) -> Result<Stri
         (Some(_), 0) => 1.0,
         (Some(_), u) => (u.min(iters) as f64) / iters as f64,
     };
+    // The timed iterations train the materials, as every iteration after `materials_from`
+    // (most of a run) does, even from a checkpoint made before it.
+    let materials_from = s2.config.materials_from;
+    s2.config.materials_from = materials_from.min(s2.iteration);
     // Room for the timed iterations past each run's end, so that neither trainer stops.
     let steps = (args.rounds as u64 + 1) * args.chunk;
     s1.config.iterations = s1.config.iterations.max(s1.iteration + steps);
@@ -109,6 +113,13 @@ pub fn run(args: &StagesBenchArgs, machine: &str, threads: usize) -> Result<Stri
          gradients on {:?}",
         s2.config.shade_directions, s2.config.directions, w_subsets, s2.config.gradient_directions
     )?;
+    if materials_from > s2.iteration {
+        writeln!(
+            out,
+            "stage 2: the materials train from iteration {materials_from} in the run; here from its checkpoint's {}",
+            s2.iteration
+        )?;
+    }
     let stage1_chunk = |s1: &mut svgir_train::Stage1| -> f64 {
         let t = Instant::now();
         for _ in 0..args.chunk {
