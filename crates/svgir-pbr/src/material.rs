@@ -369,7 +369,7 @@ mod tests {
         let (ga, gr, gn) = (draw(n * m * 3, 1.0), draw(n * m, 1.0), draw(n * m * 3, 1.0));
         let full = activate_backward(m, &a, &r, &d, &normals, &ga, &gr, &gn).unwrap();
         // Every third vertex without a gradient.
-        let quiet = |v: usize| v % 3 == 0;
+        let quiet = |v: usize| v.is_multiple_of(3);
         let zeroed = |g: &[f32], w: usize| -> Vec<f32> {
             g.iter().enumerate().map(|(i, &x)| if quiet(i / w) { 0.0 } else { x }).collect()
         };
