@@ -87,6 +87,23 @@ fn quick_demo_writes_a_report_with_metrics() {
     let cached = svgir().args(["eval", "--cached", "--run"]).arg(out.join("stage2")).output().unwrap();
     assert!(cached.status.success());
     assert!(String::from_utf8_lossy(&cached.stdout).contains(row), "--cached prints a different row");
+
+    // `svgir bench stages` times both stages in turn on the run's two checkpoints and prints a
+    // finite ratio; without a stage-2 checkpoint it says which file is missing.
+    let res = svgir().args(["bench", "stages", "--stage-rounds", "2", "--run"]).arg(&out).output().unwrap();
+    assert!(res.status.success(), "bench stages failed: {}", String::from_utf8_lossy(&res.stderr));
+    let text = String::from_utf8_lossy(&res.stdout);
+    let ratio: f64 = text
+        .lines()
+        .find_map(|l| l.strip_prefix("stage 2 / stage 1: "))
+        .and_then(|r| r.split_whitespace().next())
+        .and_then(|r| r.parse().ok())
+        .unwrap_or_else(|| panic!("no ratio in: {text}"));
+    assert!(ratio.is_finite() && ratio > 0.0, "ratio {ratio}");
+    std::fs::rename(out.join("stage2/checkpoint.bin"), out.join("stage2/moved.bin")).unwrap();
+    let res = svgir().args(["bench", "stages", "--run"]).arg(&out).output().unwrap();
+    let err = String::from_utf8_lossy(&res.stderr);
+    assert!(!res.status.success() && err.contains("no stage-2 checkpoint"), "{err}");
     std::fs::remove_dir_all(&out).ok();
 }
 
