@@ -43,6 +43,12 @@ impl PhaseTimes {
             densify: self.densify - before.densify,
         }
     }
+
+    /// The iteration's own phases (render, loss, backward, Adam), without densification: what
+    /// stage 2's "ms per iteration" counts.
+    pub fn step_seconds(&self) -> f64 {
+        self.forward + self.loss + self.backward + self.optimizer
+    }
 }
 
 /// What one iteration reports.

@@ -136,8 +136,7 @@ pub fn run(args: &StagesBenchArgs, machine: &str, threads: usize) -> Result<Stri
             s2.step(&dataset).map_err(|e| anyhow::anyhow!("stage 2: {e}"))?;
         }
         let wall = 1e3 * t.elapsed().as_secs_f64() / args.chunk as f64;
-        let p = s2.times.since(&before);
-        Ok((1e3 * (p.forward + p.loss + p.backward + p.optimizer) / args.chunk as f64, wall))
+        Ok((1e3 * s2.times.since(&before).step_seconds() / args.chunk as f64, wall))
     };
     let pb = crate::progress::bar(args.rounds as u64 + 1, "rounds");
     let mut rounds = Vec::new();

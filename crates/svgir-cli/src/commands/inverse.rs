@@ -619,7 +619,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         // and sun searches that run between iterations.
         let t = s2.times.since(&times_before);
         let its = (s2.iteration - first_iteration).max(1) as f64;
-        let ms2 = 1e3 * (t.forward + t.loss + t.backward + t.optimizer) / its;
+        let ms2 = 1e3 * t.step_seconds() / its;
         let wall_ms = 1e3 * start.elapsed().as_secs_f64() / its;
         eprintln!(
             "stage 2: {ms2:.1} ms per iteration (forward {:.1}, loss {:.1}, backward {:.1}, Adam {:.1}) over this session's {} iterations; {:.1} ms of wall time per iteration, {:.1} of them the lights' visibility traces",
