@@ -401,6 +401,15 @@ fn frozen_geometry_changes_only_the_geometry_gradients() {
         ("sh", ColorSourceOf::Sh, None),
         ("features", c, Some(e)),
         ("extra only", ColorSourceOf::Sh, Some(FeaturesOf { data: &extf, vertices: m, channels: ce, uniform: 0 })),
+        // Extra tables with the colours' vertex count, their own, or one vertex, and uniform
+        // channels: each a different layout of the backward's feature sums.
+        ("uniform channels", c, Some(FeaturesOf { data: &extf, vertices: m, channels: ce, uniform: 2 })),
+        (
+            "two extra vertices",
+            c,
+            Some(FeaturesOf { data: &extf[..n * 2 * ce], vertices: 2, channels: ce, uniform: 0 }),
+        ),
+        ("one extra vertex", c, Some(FeaturesOf { data: &extf[..n * ce], vertices: 1, channels: ce, uniform: 0 })),
     ];
     let geometry_names = ["positions", "rotations", "log scales", "mean2d"];
     for path in Simd::available() {
