@@ -336,24 +336,14 @@ fn geometry_off_changes_only_the_geometry_outputs() {
 #[test]
 fn normals_off_changes_only_the_normal_output() {
     let (n, res, m, ce) = (3000, 64u32, 4usize, 7usize);
-    let surfels = scene(23, n);
-    let camera = bench_camera(res, res);
-    let npx = (res * res) as usize;
-    let (colf, extf) = feature_tables(23, n, m, ce);
-    let (g3, g1, ge) = upstream_grads(npx, ce);
-    let z3 = vec![0.0f32; npx * 3];
-    let (c, e) = features(&colf, &extf, m, ce);
+    let p = FeatureProblem::new(23, n, res, m, ce);
+    let z3 = vec![0.0f32; p.npx * 3];
+    let (c, e) = features(&p.colf, &p.extf, m, ce);
     let inputs = [("sh", ColorSourceOf::Sh, None), ("features", c, Some(e))];
     for path in Simd::available() {
         for (kind, colors, extra) in &inputs {
             for geometry_grads in [true, false] {
-                let input = RenderInput {
-                    surfels: &surfels,
-                    camera: &camera,
-                    colors: *colors,
-                    extra: *extra,
-                    background: Background::Color([0.3, 0.6, 0.1]),
-                };
+                let input = p.input(*colors, *extra, [0.3, 0.6, 0.1]);
                 let on = RasterConfig { simd: path, geometry_grads, ..Default::default() };
                 let off = RasterConfig { normals: false, ..on };
                 let (a, sa) = render(&input, &on);
@@ -368,7 +358,7 @@ fn normals_off_changes_only_the_normal_output() {
                 assert_eq!(a.accum_weight, b.accum_weight, "{what}: weights");
                 assert!(a.normal.iter().any(|&v| v != 0.0), "{what}: normal all zero");
                 assert!(b.normal.iter().all(|&v| v == 0.0), "{what}: normal not zero");
-                let full = every_grad(&g3, &g1, true, extra.map(|_| ge.as_slice()));
+                let full = every_grad(&p.g3, &p.g1, true, extra.map(|_| p.ge.as_slice()));
                 let zero_normal = OutputGrads { normal: Some(&z3), ..full };
                 let ga = backward(&input, &on, &sa, &a, &zero_normal);
                 let gb = backward(&input, &off, &sb, &b, &full);
@@ -391,19 +381,16 @@ fn normals_off_changes_only_the_normal_output() {
 #[test]
 fn frozen_geometry_changes_only_the_geometry_gradients() {
     let (n, res, m, ce) = (3000, 64u32, 4usize, 7usize);
-    let surfels = scene(41, n);
-    let camera = bench_camera(res, res);
-    let npx = (res * res) as usize;
-    let (colf, extf) = feature_tables(41, n, m, ce);
-    let (g3, g1, ge) = upstream_grads(npx, ce);
-    let (c, e) = features(&colf, &extf, m, ce);
+    let p = FeatureProblem::new(41, n, res, m, ce);
+    let extf = &p.extf;
+    let (c, e) = features(&p.colf, extf, m, ce);
     let inputs = [
         ("sh", ColorSourceOf::Sh, None),
         ("features", c, Some(e)),
-        ("extra only", ColorSourceOf::Sh, Some(FeaturesOf { data: &extf, vertices: m, channels: ce, uniform: 0 })),
+        ("extra only", ColorSourceOf::Sh, Some(FeaturesOf { data: extf, vertices: m, channels: ce, uniform: 0 })),
         // Extra tables with the colours' vertex count, their own, or one vertex, and uniform
         // channels: each a different layout of the backward's feature sums.
-        ("uniform channels", c, Some(FeaturesOf { data: &extf, vertices: m, channels: ce, uniform: 2 })),
+        ("uniform channels", c, Some(FeaturesOf { data: extf, vertices: m, channels: ce, uniform: 2 })),
         (
             "two extra vertices",
             c,
@@ -415,17 +402,11 @@ fn frozen_geometry_changes_only_the_geometry_gradients() {
     for path in Simd::available() {
         for (kind, colors, extra) in &inputs {
             for (dist, geometry) in [(false, true), (true, true), (false, false)] {
-                let input = RenderInput {
-                    surfels: &surfels,
-                    camera: &camera,
-                    colors: *colors,
-                    extra: *extra,
-                    background: Background::Color([0.3, 0.6, 0.1]),
-                };
+                let input = p.input(*colors, *extra, [0.3, 0.6, 0.1]);
                 let full = RasterConfig { simd: path, distortion: dist, geometry, ..Default::default() };
                 let frozen = RasterConfig { geometry_grads: false, ..full };
                 let (out, st) = render(&input, &full);
-                let grads = every_grad(&g3, &g1, true, extra.map(|_| ge.as_slice()));
+                let grads = every_grad(&p.g3, &p.g1, true, extra.map(|_| p.ge.as_slice()));
                 let ga = backward(&input, &full, &st, &out, &grads);
                 let gb = backward(&input, &frozen, &st, &out, &grads);
                 let what = format!("{} {kind} dist {dist} geometry {geometry}", path.name());
@@ -449,20 +430,10 @@ fn frozen_geometry_changes_only_the_geometry_gradients() {
 #[test]
 fn reusing_a_projection_changes_no_bit() {
     let (n, res, m, ce) = (3000, 64u32, 4usize, 7usize);
-    let surfels = scene(43, n);
-    let camera = bench_camera(res, res);
-    let npx = (res * res) as usize;
-    let (colf, extf) = feature_tables(43, n, m, ce);
-    let (g3, g1, ge) = upstream_grads(npx, ce);
-    let grads = every_grad(&g3, &g1, false, Some(&ge));
-    let sh_input = RenderInput {
-        surfels: &surfels,
-        camera: &camera,
-        colors: ColorSourceOf::Sh,
-        extra: None,
-        background: Background::Color([0.0; 3]),
-    };
-    let (c, e) = features(&colf, &extf, m, ce);
+    let p = FeatureProblem::new(43, n, res, m, ce);
+    let grads = every_grad(&p.g3, &p.g1, false, Some(&p.ge));
+    let sh_input = p.input(ColorSourceOf::Sh, None, [0.0; 3]);
+    let (c, e) = features(&p.colf, &p.extf, m, ce);
     let input = RenderInput { colors: c, extra: Some(e), ..sh_input };
     for path in Simd::available() {
         for geometry_grads in [true, false] {
@@ -497,7 +468,7 @@ fn reusing_a_projection_changes_no_bit() {
             let other = bench_camera(res, res / 2);
             assert!(refused(&RenderInput { camera: &other, ..input }, &cfg), "{what}: camera");
             assert!(refused(&input, &RasterConfig { tile: 16, ..cfg }), "{what}: tile");
-            let (c1, e1) = features(&colf[..n * 3], &extf[..n * ce], 1, ce);
+            let (c1, e1) = features(&p.colf[..n * 3], &p.extf[..n * ce], 1, ce);
             assert!(refused(&RenderInput { colors: c1, extra: Some(e1), ..input }, &cfg), "{what}: one vertex");
             assert!(refused(&sh_input, &cfg), "{what}: SH");
         }
@@ -556,6 +527,39 @@ fn feature_tables(seed: u64, n: usize, m: usize, ce: usize) -> (Vec<f32>, Vec<f3
     let colf = (0..n * m * 3).map(|_| rng.uniform()).collect();
     let extf = (0..n * m * ce).map(|_| rng.normal()).collect();
     (colf, extf)
+}
+
+/// The feature tests' problem: a random scene of `n` surfels seen at `res` x `res`, colour and
+/// `ce`-channel extra tables of `m` vertices ([`feature_tables`]), and an upstream gradient for
+/// every output ([`upstream_grads`]).
+struct FeatureProblem {
+    surfels: Surfels,
+    camera: Camera,
+    npx: usize,
+    colf: Vec<f32>,
+    extf: Vec<f32>,
+    g3: Vec<f32>,
+    g1: Vec<f32>,
+    ge: Vec<f32>,
+}
+
+impl FeatureProblem {
+    fn new(seed: u64, n: usize, res: u32, m: usize, ce: usize) -> Self {
+        let npx = (res * res) as usize;
+        let (colf, extf) = feature_tables(seed, n, m, ce);
+        let (g3, g1, ge) = upstream_grads(npx, ce);
+        Self { surfels: scene(seed, n), camera: bench_camera(res, res), npx, colf, extf, g3, g1, ge }
+    }
+
+    /// The scene with these colours and extra channels over the colour `bg`.
+    fn input<'a>(
+        &'a self,
+        colors: ColorSourceOf<'a, f32>,
+        extra: Option<FeaturesOf<'a, f32>>,
+        bg: [f32; 3],
+    ) -> RenderInput<'a> {
+        RenderInput { surfels: &self.surfels, camera: &self.camera, colors, extra, background: Background::Color(bg) }
+    }
 }
 
 /// Colours and `ce` extra channels from `m` vertices.
