@@ -133,9 +133,9 @@ impl Problem {
     }
 }
 
-/// One row per (N, thread count) for the given sizes.
-pub fn bench_table_sizes(threads: usize, sizes: &[usize]) -> String {
-    let (m, k) = (4usize, 64usize);
+/// One row per (N, thread count) for the given sizes, with M = 4 and K directions.
+pub fn bench_table_sizes(threads: usize, sizes: &[usize], k: usize) -> String {
+    let m = 4usize;
     let mut out = String::new();
     let _ = writeln!(out, "svgir-pbr: vertex shading, M = {m}, K = {k}, all visible, traced indirect, env 32x64");
     let _ = writeln!(
@@ -202,7 +202,8 @@ pub fn bench_table_sizes(threads: usize, sizes: &[usize]) -> String {
     out
 }
 
-/// The table for N = 10k and 100k (what `svgir bench` prints).
+/// The table for N = 10k and 100k with SPEC's K = 64, then 100k with K = 4, the directions of
+/// stage 2's gradient subsets (a lane block of four; what `svgir bench` prints).
 pub fn bench_table(threads: usize) -> String {
-    bench_table_sizes(threads, &[10_000, 100_000])
+    bench_table_sizes(threads, &[10_000, 100_000], 64) + &bench_table_sizes(threads, &[100_000], 4)
 }

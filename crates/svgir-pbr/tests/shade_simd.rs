@@ -128,6 +128,8 @@ fn lane_kernels_match_the_scalar_ones_and_f64() {
         (2, 37, 3, Mode::Given, false, 64.0, Diffuse::Added),
         (6, 64, 2, Mode::Traced, true, 0.8, Diffuse::Layered),
         (4, 8, 0, Mode::Given, true, 64.0, Diffuse::Added),
+        // Stage 2's gradient subsets: four directions, fewer than a lane block.
+        (4, 4, 4, Mode::Traced, true, 64.0, Diffuse::Layered),
     ];
     let mut lane_differs = false;
     let mut checked_avx512 = false;

@@ -129,8 +129,11 @@ impl<S: Lanes> Entry<'_, S> {
     /// Runs group `gr` back to front through the tile arrays, adding its per-lane gradient sums
     /// to `sm` and the feature sums to `fsum`; false when no lane of it composited the entry
     /// (then it changed nothing: every update is masked, so the loop needs no branch).
+    /// `FIRST`: the entry's first group, which stores its feature sums instead of adding them,
+    /// so that `fsum` needs no zeroing per entry. `a * b` is `fma(a, b, 0)` but for the sign of
+    /// an exact zero, which the entry's slots (zeroed, then added to) do not keep.
     #[inline(always)]
-    unsafe fn group<const DIST: bool, const FEAT: bool, const GEO: bool, const PACKED: bool>(
+    unsafe fn group<const DIST: bool, const FEAT: bool, const GEO: bool, const PACKED: bool, const FIRST: bool>(
         &self,
         gr: &Group,
         sm: &mut Sums<S>,
@@ -180,7 +183,8 @@ impl<S: Lanes> Entry<'_, S> {
             for vtx in 0..cf.vertices {
                 let cw = wgt_m.mul(wc[vtx]);
                 for ch in 0..3 {
-                    fsum[vtx * 3 + ch] = cw.mul_add(gc[ch], fsum[vtx * 3 + ch]);
+                    let k = vtx * 3 + ch;
+                    fsum[k] = if FIRST { cw.mul(gc[ch]) } else { cw.mul_add(gc[ch], fsum[k]) };
                 }
             }
             if GEO {
@@ -225,7 +229,7 @@ impl<S: Lanes> Entry<'_, S> {
                 for ch in 0..l {
                     let ge = ld(ARRAYS + ch);
                     let k = n_col + vtx * l + ch;
-                    fsum[k] = cw.mul_add(ge, fsum[k]);
+                    fsum[k] = if FIRST { cw.mul(ge) } else { cw.mul_add(ge, fsum[k]) };
                     if GEO {
                         dot = ge.mul_add(extv.at(vtx * ce + ch), dot);
                     }
@@ -239,7 +243,8 @@ impl<S: Lanes> Entry<'_, S> {
             // `fsum`), no (u, v) term.
             for ch in l..ce {
                 let k = n_col + ef.vertices * l + ch - l;
-                fsum[k] = wgt_m.mul_add(ld(ARRAYS + ch), fsum[k]);
+                let ge = ld(ARRAYS + ch);
+                fsum[k] = if FIRST { wgt_m.mul(ge) } else { wgt_m.mul_add(ge, fsum[k]) };
             }
         }
         let mut v_z = if GEO && geom { wgt.mul(gd) } else { zero };
@@ -425,7 +430,6 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
             if ce > 0 {
                 extv.load(ef, s.id as usize);
             }
-            fsum.fill(zero);
         }
         let k = Entry {
             base,
@@ -446,12 +450,24 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
         };
         let mut sm = Sums::<S>::zero();
         groups.list::<S>(s, &tr, row_act, stride);
-        let mut any = false;
+        // The first group stores the feature sums (see `Entry::group`); with no group at all
+        // `any` stays false and `fsum` is not read.
+        let (mut any, mut first) = (false, FEAT);
         for gr in groups.wide() {
-            any |= k.group::<DIST, FEAT, GEO, false>(&gr, &mut sm, &mut fsum);
+            any |= if first {
+                first = false;
+                k.group::<DIST, FEAT, GEO, false, true>(&gr, &mut sm, &mut fsum)
+            } else {
+                k.group::<DIST, FEAT, GEO, false, false>(&gr, &mut sm, &mut fsum)
+            };
         }
         for gr in groups.packed() {
-            any |= k.group::<DIST, FEAT, GEO, true>(&gr, &mut sm, &mut fsum);
+            any |= if first {
+                first = false;
+                k.group::<DIST, FEAT, GEO, true, true>(&gr, &mut sm, &mut fsum)
+            } else {
+                k.group::<DIST, FEAT, GEO, true, false>(&gr, &mut sm, &mut fsum)
+            };
         }
         if !any {
             continue;
