@@ -22,7 +22,9 @@ use rayon::prelude::*;
 use svgir_core::EnvMap;
 use svgir_shading::hemisphere::{FibTable, HemiFrame};
 use svgir_shading::Float;
-use svgir_trace::{gather_pairs, gather_pairs_backward, GatherParams, MicroBuffer, VertexMaterials};
+use svgir_trace::{
+    gather_pairs, gather_pairs_backward, gather_pairs_with_backward, GatherParams, MicroBuffer, VertexMaterials,
+};
 
 /// Everything the radiance-consistency loss reads (SPEC 6, Eqn 14/16).
 #[derive(Clone, Copy, Debug)]
@@ -115,18 +117,23 @@ pub fn l1_loss<F: Float>(l1b: &[[F; 3]], traced: &[[F; 3]], rho: F) -> (F, Vec<[
         for c in 0..3 {
             let d = l1b[i][c] - rho * traced[i][c];
             loss += d.abs();
-            let s = if d > F::ZERO {
-                F::ONE
-            } else if d < F::ZERO {
-                -F::ONE
-            } else {
-                F::ZERO
-            };
+            let s = sign(d);
             v_l1b[i][c] = s * inv;
             v_rho -= s * inv * traced[i][c];
         }
     }
     (loss * inv, v_l1b, v_rho)
+}
+
+/// +1, -1, or 0 for zero and NaN.
+fn sign<F: Float>(d: F) -> F {
+    if d > F::ZERO {
+        F::ONE
+    } else if d < F::ZERO {
+        -F::ONE
+    } else {
+        F::ZERO
+    }
 }
 
 fn validate(inp: &ConsistencyInputs) -> Result<(), PbrError> {
@@ -144,6 +151,36 @@ pub fn radiance_consistency(inp: &ConsistencyInputs) -> Result<Consistency, PbrE
     let traced: Vec<[f32; 3]> = pairs.iter().map(|&(j, k)| inp.mb.radiance(j as usize, k as usize)).collect();
     let (loss, _, _) = l1_loss(&l1b, &traced, inp.rho);
     Ok(Consistency { loss, pairs, l1b, traced })
+}
+
+/// [`radiance_consistency`] and the gradients of `v_loss * L_rc`
+/// ([`radiance_consistency_backward`]) in one pass over the pairs: a pair's gradient needs only
+/// its own L1b, so its hit's escape list is filled once for both (`gather_pairs_with_backward`).
+/// The same values and gradients, bit for bit.
+pub fn radiance_consistency_with_grad(
+    inp: &ConsistencyInputs,
+    v_loss: f32,
+) -> Result<(Consistency, PbrGrads), PbrError> {
+    validate(inp)?;
+    let pairs = select_pairs(inp.mb, inp.positions, inp.camera_center, inp.visible);
+    let traced: Vec<[f32; 3]> = pairs.iter().map(|&(j, k)| inp.mb.radiance(j as usize, k as usize)).collect();
+    // `l1_loss`'s gradient per pair, times `v_loss`, in its operations.
+    let inv = 1.0 / ((3 * pairs.len()) as f64) as f32;
+    let rho = inp.rho;
+    let upstream = |i: usize, l1b: [f32; 3]| {
+        let t = traced[i];
+        [0, 1, 2].map(|c| sign(l1b[c] - rho * t[c]) * inv * v_loss)
+    };
+    let (l1b, g) = gather_pairs_with_backward(inp.mb, &inp.mats, inp.env, &inp.params, &pairs, upstream)?;
+    let (loss, _, v_rho) = l1_loss(&l1b, &traced, rho);
+    let grads = PbrGrads {
+        v_albedo: g.v_albedo,
+        v_roughness: g.v_roughness,
+        v_normals: g.v_normals,
+        v_env: g.v_env,
+        v_rho: v_rho * v_loss,
+    };
+    Ok((Consistency { loss, pairs, l1b, traced }, grads))
 }
 
 /// Gradients of `v_loss * L_rc` (the same inputs as the forward that produced `fwd`).

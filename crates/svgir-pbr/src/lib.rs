@@ -45,8 +45,8 @@ pub mod two_sided;
 
 pub use activation::Real;
 pub use consistency::{
-    l1_loss, mirror_pick, radiance_consistency, radiance_consistency_backward, select_pairs, Consistency,
-    ConsistencyInputs,
+    l1_loss, mirror_pick, radiance_consistency, radiance_consistency_backward, radiance_consistency_with_grad,
+    select_pairs, Consistency, ConsistencyInputs,
 };
 pub use env::{env_radiance, env_radiance_backward, EnvActivation, EnvLight, ENV_HEIGHT};
 pub use env_colour::ColourProjector;

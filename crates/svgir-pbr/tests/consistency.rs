@@ -6,9 +6,14 @@ use glam::Vec3;
 use svgir_core::{EnvMap, Rng};
 use svgir_pbr::bench::synthetic_materials;
 use svgir_pbr::{
-    activate, env_radiance, l1_loss, mirror_pick, radiance_consistency, radiance_consistency_backward, select_pairs,
-    ConsistencyInputs, EnvLight, SvgMaterials,
+    activate, env_radiance, l1_loss, mirror_pick, radiance_consistency, radiance_consistency_backward,
+    radiance_consistency_with_grad, select_pairs, ConsistencyInputs, EnvLight, SvgMaterials,
 };
+
+/// The bit patterns of a run of f32s.
+fn bits<'a>(v: impl Iterator<Item = &'a f32>) -> Vec<u32> {
+    v.map(|x| x.to_bits()).collect()
+}
 use svgir_shading::float::dot;
 use svgir_shading::{ggx, vertex_weights, Diffuse};
 use svgir_trace::pack::unorm16;
@@ -281,6 +286,22 @@ fn whole_loss_gradients_match_finite_differences() {
         }
         let g2 = radiance_consistency_backward(&inp, &fwd, 0.5).unwrap();
         assert!((g2.v_rho - 0.5 * grads.v_rho).abs() <= 1e-6 * grads.v_rho.abs());
+
+        // The one-pass forward and backward give the two calls' values and gradients, bit for bit.
+        for (v_loss, want) in [(1.0, &grads), (0.5, &g2)] {
+            let (c, g) = radiance_consistency_with_grad(&inp, v_loss).unwrap();
+            assert_eq!(c.pairs, fwd.pairs);
+            assert_eq!(c.loss.to_bits(), fwd.loss.to_bits());
+            assert_eq!(bits(c.l1b.iter().flatten()), bits(fwd.l1b.iter().flatten()));
+            assert_eq!(bits(c.traced.iter().flatten()), bits(fwd.traced.iter().flatten()));
+            for (got, exp) in
+                [(&g.v_albedo, &want.v_albedo), (&g.v_roughness, &want.v_roughness), (&g.v_normals, &want.v_normals)]
+            {
+                assert_eq!(bits(got.iter()), bits(exp.iter()), "M={m}, v_loss {v_loss}");
+            }
+            assert_eq!(bits(g.v_env.iter().flatten()), bits(want.v_env.iter().flatten()));
+            assert_eq!(g.v_rho.to_bits(), want.v_rho.to_bits());
+        }
         let _ = SvgMaterials::new(1, m).unwrap();
     }
 }

@@ -556,7 +556,7 @@ pub fn gather_pairs(
 }
 
 /// [`shade_pair`], in the lane kernels when `lanes` ([`lane_kernels`]).
-fn shade_f32(
+pub(crate) fn shade_f32(
     lanes: bool,
     mb: &MicroBuffer,
     mats: &VertexMaterials<f32>,

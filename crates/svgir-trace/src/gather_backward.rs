@@ -17,7 +17,9 @@
 //! partials are then added in block order. Block size depends only on N, so the result is
 //! bit-identical for any thread count.
 
-use crate::gather::{check, check_lights, check_pairs, Escapes, GatherParams, LightIn, RaySetup, VertexMaterials};
+use crate::gather::{
+    check, check_lights, check_pairs, shade_f32, Escapes, GatherParams, LightIn, RaySetup, VertexMaterials,
+};
 use crate::gather_lanes::lane_kernels;
 use crate::microbuffer::{MicroBuffer, NO_HIT};
 use crate::TraceError;
@@ -137,6 +139,21 @@ pub(crate) fn backward_generic<F: Float>(
     v_out: &[[F; 3]],
     simd: Simd,
 ) -> GatherGrads<F> {
+    backward_with(mb, mats, light, entries, simd, |up, _, _, _, _: &mut Vec<()>| v_out[up]).0
+}
+
+/// [`backward_generic`] with each entry's upstream gradient from `upstream(up, esc, j, k,
+/// records)`, called once per entry after its hit's escape list `esc` is filled, in the
+/// backward's own order (by hit Gaussian, blocks in order); what it pushes to `records` comes
+/// back in that order.
+fn backward_with<F: Float, R: Send>(
+    mb: &MicroBuffer,
+    mats: &VertexMaterials<F>,
+    light: &LightIn<F>,
+    entries: impl Iterator<Item = (usize, usize)>,
+    simd: Simd,
+    upstream: impl Fn(usize, &Escapes<F>, usize, usize, &mut Vec<R>) -> [F; 3] + Sync,
+) -> (GatherGrads<F>, Vec<R>) {
     let lanes = lane_kernels::<F>(simd);
     let n = mb.len();
     let m = mats.m;
@@ -144,7 +161,7 @@ pub(crate) fn backward_generic<F: Float>(
     let texels = light.env.len();
     let mut grads = GatherGrads::zeros(n, m, texels);
     if n == 0 || kk == 0 {
-        return grads;
+        return (grads, Vec::new());
     }
     // Counting sort of the entries by hit Gaussian.
     let mut start = vec![0usize; n + 1];
@@ -164,7 +181,7 @@ pub(crate) fn backward_generic<F: Float>(
     }
     list.clear();
     let block = (n / 64).max(256);
-    let partials: Vec<Option<Vec<[F; 3]>>> = grads
+    let partials: Vec<(Option<Vec<[F; 3]>>, Vec<R>)> = grads
         .v_albedo
         .par_chunks_mut(block * m * 3)
         .zip(grads.v_roughness.par_chunks_mut(block * m))
@@ -173,8 +190,9 @@ pub(crate) fn backward_generic<F: Float>(
         .map(|(bi, ((alb, rough), nrm))| {
             let h0 = bi * block;
             let h1 = (h0 + block).min(n);
+            let mut records = Vec::new();
             if start[h0] == start[h1] {
-                return None;
+                return (None, records);
             }
             let mut v_env = vec![[F::ZERO; 3]; texels];
             let mut esc = Escapes::new();
@@ -183,6 +201,7 @@ pub(crate) fn backward_generic<F: Float>(
                 let lh = h - h0;
                 for &(jk, up) in &sorted[start[h]..start[h + 1]] {
                     esc.fill(mb, light, h as u32);
+                    let g = upstream(up, &esc, jk / kk, jk % kk, &mut records);
                     let (alb, rough, nrm) = (
                         &mut alb[lh * m * 3..(lh + 1) * m * 3],
                         &mut rough[lh * m..(lh + 1) * m],
@@ -199,7 +218,7 @@ pub(crate) fn backward_generic<F: Float>(
                                 same(&esc),
                                 light.diffuse,
                                 (jk / kk, jk % kk),
-                                *same::<[F; 3], [f32; 3]>(&v_out[up]),
+                                *same::<[F; 3], [f32; 3]>(&g),
                                 same_mut(alb),
                                 same_mut(rough),
                                 same_mut(nrm),
@@ -209,31 +228,24 @@ pub(crate) fn backward_generic<F: Float>(
                         }
                         continue;
                     }
-                    backward_pair(
-                        mb,
-                        mats,
-                        &esc,
-                        light.diffuse,
-                        jk / kk,
-                        jk % kk,
-                        v_out[up],
-                        alb,
-                        rough,
-                        nrm,
-                        &mut v_env,
-                    );
+                    backward_pair(mb, mats, &esc, light.diffuse, jk / kk, jk % kk, g, alb, rough, nrm, &mut v_env);
                 }
             }
-            Some(v_env)
+            (Some(v_env), records)
         })
         .collect();
-    let parts: Vec<Vec<[F; 3]>> = partials.into_iter().flatten().collect();
+    let mut records = Vec::new();
+    let mut parts: Vec<Vec<[F; 3]>> = Vec::new();
+    for (part, recs) in partials {
+        parts.extend(part);
+        records.extend(recs);
+    }
     add_parts_in_order(&mut grads.v_env, &parts, |acc, x| {
         for c in 0..3 {
             acc[c] += x[c];
         }
     });
-    grads
+    (grads, records)
 }
 
 /// `x` as a `U`.
@@ -286,6 +298,37 @@ pub fn gather_pairs_backward(
     let entries = pairs.iter().enumerate().map(|(i, &(j, k))| (j as usize * mb.k + k as usize, i));
     check_lights(mb, env, p)?;
     Ok(backward_generic(mb, mats, &LightIn::new(env, p), entries, v_l1b, p.simd))
+}
+
+/// [`crate::gather_pairs`] and, in the same pass, [`gather_pairs_backward`] with the upstream
+/// gradient of pair i given by `v(i, L1b_i)` (radiance consistency, where it depends on the
+/// pair's own L1b alone). Each pair's L1b is shaded on its hit's escape list and the gradient
+/// runs on the same list, which is filled once for both. Returns L1b per pair (0 for pairs
+/// without a hit) and the gradients, with the bits of the two calls.
+pub fn gather_pairs_with_backward(
+    mb: &MicroBuffer,
+    mats: &VertexMaterials<f32>,
+    env: &EnvMap,
+    p: &GatherParams,
+    pairs: &[(u32, u32)],
+    v: impl Fn(usize, [f32; 3]) -> [f32; 3] + Sync,
+) -> Result<(Vec<[f32; 3]>, GatherGrads), TraceError> {
+    check(mb, mats, env)?;
+    check_pairs(mb, pairs.iter().map(|&(j, k)| (j as usize, k as usize)))?;
+    check_lights(mb, env, p)?;
+    let light = LightIn::new(env, p);
+    let lanes = lane_kernels::<f32>(p.simd);
+    let entries = pairs.iter().enumerate().map(|(i, &(j, k))| (j as usize * mb.k + k as usize, i));
+    let (grads, records) = backward_with(mb, mats, &light, entries, p.simd, |up, esc, j, k, records| {
+        let l1b = shade_f32(lanes, mb, mats, esc, light.diffuse, j, k);
+        records.push((up, l1b));
+        v(up, l1b)
+    });
+    let mut l1b = vec![[0.0; 3]; pairs.len()];
+    for (up, value) in records {
+        l1b[up] = value;
+    }
+    Ok((l1b, grads))
 }
 
 /// Add the gradient of `v . L1b(j, k)` into `grads` (sequential; one pair).

@@ -35,7 +35,9 @@ pub use direction_cache::DirectionCache;
 pub use gather::{
     gather_all, gather_from, gather_one, gather_pairs, gather_two_sided, GatherParams, HitSide, VertexMaterials,
 };
-pub use gather_backward::{gather_all_backward, gather_one_backward, gather_pairs_backward, GatherGrads};
+pub use gather_backward::{
+    gather_all_backward, gather_one_backward, gather_pairs_backward, gather_pairs_with_backward, GatherGrads,
+};
 pub use hit::{disks_of, Disk, Hit};
 pub use microbuffer::{Interleave, MicroBuffer, NO_HIT};
 pub use reference::BruteForce;

@@ -194,8 +194,7 @@ impl Stage2 {
             if !(cfg.consistency && cfg.indirect) {
                 return Ok(None);
             }
-            let c = radiance_consistency(&cons_in)?;
-            let g = radiance_consistency_backward(&cons_in, &c, wts.consistency)?;
+            let (c, g) = radiance_consistency_with_grad(&cons_in, wts.consistency)?;
             Ok(Some((c.loss, g)))
         };
         let penalties = || (self.materials.offset_penalty(), self.env.tv_l2(self.active_lights().map(|l| l.mask())));
