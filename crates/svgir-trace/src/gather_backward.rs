@@ -181,7 +181,9 @@ fn backward_with<F: Float, R: Send>(
     }
     list.clear();
     let block = (n / 64).max(256);
-    let partials: Vec<(Option<Vec<[F; 3]>>, Vec<R>)> = grads
+    // Per block: its partial env-map gradient (None without entries) and its records.
+    type Block<F, R> = (Option<Vec<[F; 3]>>, Vec<R>);
+    let partials: Vec<Block<F, R>> = grads
         .v_albedo
         .par_chunks_mut(block * m * 3)
         .zip(grads.v_roughness.par_chunks_mut(block * m))
