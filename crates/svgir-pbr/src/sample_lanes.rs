@@ -47,40 +47,28 @@ pub(crate) struct Samples8 {
 }
 
 impl Samples8 {
-    /// Writes the direction, direct and indirect light of the lanes that are samples, in lane
-    /// order, to rows `n..` of `dir`, `direct` and `ind` (which hold at least `n + 8`); returns
-    /// the next free row. All eight (the common case) are copied as whole rows.
+    /// Appends the direction, direct and indirect light of the lanes that are samples, in lane
+    /// order, to `dir`, `direct` and `ind`. All eight (the common case) go as whole rows.
     #[inline(always)]
-    pub(crate) fn write_rows(
-        &self,
-        dir: &mut [Vec<f32>; 3],
-        direct: &mut [Vec<f32>; 3],
-        ind: &mut [Vec<f32>; 3],
-        n: usize,
-    ) -> usize {
+    pub(crate) fn write_rows(&self, dir: &mut [Vec<f32>; 3], direct: &mut [Vec<f32>; 3], ind: &mut [Vec<f32>; 3]) {
         if self.yields == (1 << LANES) - 1 {
             for c in 0..3 {
-                dir[c][n..n + LANES].copy_from_slice(&self.dir[c]);
-                direct[c][n..n + LANES].copy_from_slice(&self.direct[c]);
-                for l in 0..LANES {
-                    ind[c][n + l] = self.ind[l][c];
-                }
+                dir[c].extend_from_slice(&self.dir[c]);
+                direct[c].extend_from_slice(&self.direct[c]);
+                ind[c].extend(self.ind.iter().map(|l| l[c]));
             }
-            return n + LANES;
+            return;
         }
-        let mut n = n;
         let mut y = self.yields;
         while y != 0 {
             let l = y.trailing_zeros() as usize;
             y &= y - 1;
             for c in 0..3 {
-                dir[c][n] = self.dir[c][l];
-                direct[c][n] = self.direct[c][l];
-                ind[c][n] = self.ind[l][c];
+                dir[c].push(self.dir[c][l]);
+                direct[c].push(self.direct[c][l]);
+                ind[c].push(self.ind[l][c]);
             }
-            n += 1;
         }
-        n
     }
 
     /// The light gradients of the lanes that are samples, in lane order, with `dL/dLin` from

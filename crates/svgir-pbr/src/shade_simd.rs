@@ -91,22 +91,15 @@ impl SampleRows {
                 // bit for bit), a tail of fewer than eight and the lights as the scalar code.
                 let k = inp.mb.k;
                 let full = k - k % LANES;
-                // Rows written in place up to `n` (at most `full` samples), cut to `n` after.
-                for v in [&mut self.dir, &mut self.direct, &mut self.ind].into_iter().flatten() {
-                    v.resize(full, 0.0);
-                }
-                let mut n = 0;
+                // Rows appended to (cleared above, their capacity kept from Gaussian to Gaussian).
                 for k0 in (0..full).step_by(LANES) {
                     // SAFETY: the caller of the `_avx2` kernels checked that the CPU has AVX2;
                     // k0 + 8 <= K and `serves` holds.
                     let s8 = unsafe { samples8(inp, table, c, &frame, i, k0) };
-                    n = s8.write_rows(&mut self.dir, &mut self.direct, &mut self.ind, n);
+                    s8.write_rows(&mut self.dir, &mut self.direct, &mut self.ind);
                     if keep {
                         self.kept8.push(s8);
                     }
-                }
-                for v in [&mut self.dir, &mut self.direct, &mut self.ind].into_iter().flatten() {
-                    v.truncate(n);
                 }
                 let tail = (full..k).filter_map(|kk| sample(inp, table, cache, &frame, i, kk));
                 for s in tail.chain(light_samples(inp, i)) {
