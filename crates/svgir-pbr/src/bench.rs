@@ -203,7 +203,7 @@ pub fn bench_table_sizes(threads: usize, sizes: &[usize], k: usize) -> String {
 }
 
 /// The table for N = 10k and 100k with SPEC's K = 64, then 100k with K = 4, the directions of
-/// stage 2's gradient subsets (a lane block of four; what `svgir bench` prints).
+/// stage 2's gradient subsets, fewer than a lane block (what `svgir bench` prints).
 pub fn bench_table(threads: usize) -> String {
     bench_table_sizes(threads, &[10_000, 100_000], 64) + &bench_table_sizes(threads, &[100_000], 4)
 }

@@ -13,7 +13,8 @@
 //! the *hit* Gaussians' albedo, roughness and shading normals and the env radiance texels, and
 //! `-sum sign(d) L/(3 count)` to rho. The selection depends only on frozen geometry and V.
 //! Work split: rayon over Gaussians for the selection, the gather parallelises over pairs; the
-//! forward saves the pairs and both radiances for backward.
+//! forward saves the pairs and both radiances for backward. Training calls
+//! [`radiance_consistency_with_grad`], which runs both in one pass over the pairs.
 
 use crate::grads::PbrGrads;
 use crate::{expect_len, PbrError};

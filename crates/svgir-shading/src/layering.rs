@@ -91,7 +91,7 @@ pub fn specular_albedo<F: Float>(nv: F, r: F) -> DiffuseWeight<F> {
 
 /// Cell index (so that index + 1 is a node) and the fraction inside it, for x in [0, nodes-1].
 /// The cast truncates, which is the floor for x >= 0 (and NaN casts to 0 either way); `floor`
-/// itself is a libm call on baseline x86-64, which cost a fifth of a layered vertex's set-up.
+/// itself is a libm call on baseline x86-64, about a sixth of a Gaussian's shading set-up.
 #[inline]
 fn cell<F: Float>(x: F, nodes: usize) -> (usize, F) {
     let i = (x.to_f64() as usize).min(nodes - 2);

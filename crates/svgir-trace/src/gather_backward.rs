@@ -15,7 +15,9 @@
 //! (a counting sort), and rayon runs over fixed blocks of h. Each block owns its h's slices of the
 //! material gradients outright and sums its environment-map gradient into a private partial; the
 //! partials are then added in block order. Block size depends only on N, so the result is
-//! bit-identical for any thread count.
+//! bit-identical for any thread count. [`gather_pairs_with_backward`] shades each pair's L1b in
+//! the same loop, on the escape list its backward fills, when the upstream gradient of a pair
+//! depends on its own L1b alone.
 
 use crate::gather::{
     check, check_lights, check_pairs, shade_f32, Escapes, GatherParams, LightIn, RaySetup, VertexMaterials,
