@@ -24,7 +24,8 @@ use svgir_core::EnvMap;
 use svgir_shading::hemisphere::{FibTable, HemiFrame};
 use svgir_shading::Float;
 use svgir_trace::{
-    gather_pairs, gather_pairs_backward, gather_pairs_with_backward, GatherParams, MicroBuffer, VertexMaterials,
+    gather_pairs, gather_pairs_backward, gather_pairs_with_backward, GatherGrads, GatherParams, MicroBuffer,
+    VertexMaterials,
 };
 
 /// Everything the radiance-consistency loss reads (SPEC 6, Eqn 14/16).
@@ -110,7 +111,7 @@ pub fn l1_loss<F: Float>(l1b: &[[F; 3]], traced: &[[F; 3]], rho: F) -> (F, Vec<[
     if count == 0 {
         return (F::ZERO, vec![[F::ZERO; 3]; l1b.len()], F::ZERO);
     }
-    let inv = F::ONE / F::from_f64((3 * count) as f64);
+    let inv = inv_channels::<F>(count);
     let mut loss = F::ZERO;
     let mut v_rho = F::ZERO;
     let mut v_l1b = vec![[F::ZERO; 3]; l1b.len()];
@@ -124,6 +125,28 @@ pub fn l1_loss<F: Float>(l1b: &[[F; 3]], traced: &[[F; 3]], rho: F) -> (F, Vec<[
         }
     }
     (loss * inv, v_l1b, v_rho)
+}
+
+/// `1 / (3 count)`, the mean's factor over `count` pairs' channels.
+fn inv_channels<F: Float>(count: usize) -> F {
+    F::ONE / F::from_f64((3 * count) as f64)
+}
+
+/// The traced radiance L of each pair.
+fn traced_of(mb: &MicroBuffer, pairs: &[(u32, u32)]) -> Vec<[f32; 3]> {
+    pairs.iter().map(|&(j, k)| mb.radiance(j as usize, k as usize)).collect()
+}
+
+/// The gather's gradients with rho's beside them, each times `v_loss` but the gather's (whose
+/// upstream already carries it).
+fn pbr_grads(g: GatherGrads, v_rho: f32, v_loss: f32) -> PbrGrads {
+    PbrGrads {
+        v_albedo: g.v_albedo,
+        v_roughness: g.v_roughness,
+        v_normals: g.v_normals,
+        v_env: g.v_env,
+        v_rho: v_rho * v_loss,
+    }
 }
 
 /// +1, -1, or 0 for zero and NaN.
@@ -149,7 +172,7 @@ pub fn radiance_consistency(inp: &ConsistencyInputs) -> Result<Consistency, PbrE
     validate(inp)?;
     let pairs = select_pairs(inp.mb, inp.positions, inp.camera_center, inp.visible);
     let l1b = gather_pairs(inp.mb, &inp.mats, inp.env, &inp.params, &pairs)?;
-    let traced: Vec<[f32; 3]> = pairs.iter().map(|&(j, k)| inp.mb.radiance(j as usize, k as usize)).collect();
+    let traced = traced_of(inp.mb, &pairs);
     let (loss, _, _) = l1_loss(&l1b, &traced, inp.rho);
     Ok(Consistency { loss, pairs, l1b, traced })
 }
@@ -164,9 +187,9 @@ pub fn radiance_consistency_with_grad(
 ) -> Result<(Consistency, PbrGrads), PbrError> {
     validate(inp)?;
     let pairs = select_pairs(inp.mb, inp.positions, inp.camera_center, inp.visible);
-    let traced: Vec<[f32; 3]> = pairs.iter().map(|&(j, k)| inp.mb.radiance(j as usize, k as usize)).collect();
+    let traced = traced_of(inp.mb, &pairs);
     // `l1_loss`'s gradient per pair, times `v_loss`, in its operations.
-    let inv = 1.0 / ((3 * pairs.len()) as f64) as f32;
+    let inv = inv_channels::<f32>(pairs.len());
     let rho = inp.rho;
     let upstream = |i: usize, l1b: [f32; 3]| {
         let t = traced[i];
@@ -174,14 +197,7 @@ pub fn radiance_consistency_with_grad(
     };
     let (l1b, g) = gather_pairs_with_backward(inp.mb, &inp.mats, inp.env, &inp.params, &pairs, upstream)?;
     let (loss, _, v_rho) = l1_loss(&l1b, &traced, rho);
-    let grads = PbrGrads {
-        v_albedo: g.v_albedo,
-        v_roughness: g.v_roughness,
-        v_normals: g.v_normals,
-        v_env: g.v_env,
-        v_rho: v_rho * v_loss,
-    };
-    Ok((Consistency { loss, pairs, l1b, traced }, grads))
+    Ok((Consistency { loss, pairs, l1b, traced }, pbr_grads(g, v_rho, v_loss)))
 }
 
 /// Gradients of `v_loss * L_rc` (the same inputs as the forward that produced `fwd`).
@@ -198,11 +214,5 @@ pub fn radiance_consistency_backward(
         *g = g.map(|x| x * v_loss);
     }
     let g = gather_pairs_backward(inp.mb, &inp.mats, inp.env, &inp.params, &fwd.pairs, &v_l1b)?;
-    Ok(PbrGrads {
-        v_albedo: g.v_albedo,
-        v_roughness: g.v_roughness,
-        v_normals: g.v_normals,
-        v_env: g.v_env,
-        v_rho: v_rho * v_loss,
-    })
+    Ok(pbr_grads(g, v_rho, v_loss))
 }

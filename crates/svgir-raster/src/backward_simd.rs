@@ -126,6 +126,23 @@ struct Entry<'a, S: Lanes> {
 }
 
 impl<S: Lanes> Entry<'_, S> {
+    /// [`Self::group`] for the entry's next group: the first (`first` set, then cleared) stores
+    /// the feature sums.
+    #[inline(always)]
+    unsafe fn next_group<const DIST: bool, const FEAT: bool, const GEO: bool, const PACKED: bool>(
+        &self,
+        gr: &Group,
+        sm: &mut Sums<S>,
+        fsum: &mut [S],
+        first: &mut bool,
+    ) -> bool {
+        if std::mem::take(first) {
+            self.group::<DIST, FEAT, GEO, PACKED, true>(gr, sm, fsum)
+        } else {
+            self.group::<DIST, FEAT, GEO, PACKED, false>(gr, sm, fsum)
+        }
+    }
+
     /// Runs group `gr` back to front through the tile arrays, adding its per-lane gradient sums
     /// to `sm` and the feature sums to `fsum`; false when no lane of it composited the entry
     /// (then it changed nothing: every update is masked, so the loop needs no branch).
@@ -454,20 +471,10 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
         // `any` stays false and `fsum` is not read.
         let (mut any, mut first) = (false, FEAT);
         for gr in groups.wide() {
-            any |= if first {
-                first = false;
-                k.group::<DIST, FEAT, GEO, false, true>(&gr, &mut sm, &mut fsum)
-            } else {
-                k.group::<DIST, FEAT, GEO, false, false>(&gr, &mut sm, &mut fsum)
-            };
+            any |= k.next_group::<DIST, FEAT, GEO, false>(&gr, &mut sm, &mut fsum, &mut first);
         }
         for gr in groups.packed() {
-            any |= if first {
-                first = false;
-                k.group::<DIST, FEAT, GEO, true, true>(&gr, &mut sm, &mut fsum)
-            } else {
-                k.group::<DIST, FEAT, GEO, true, false>(&gr, &mut sm, &mut fsum)
-            };
+            any |= k.next_group::<DIST, FEAT, GEO, true>(&gr, &mut sm, &mut fsum, &mut first);
         }
         if !any {
             continue;
