@@ -748,4 +748,53 @@ mod tests {
             }
         }
     }
+
+    /// The SIMD backward on the forward's kept lane groups gives the gradients of the same
+    /// backward listing each entry itself from the pixels that composited it: the lanes are the
+    /// same, only their grouping, and so the order of the per-lane sums, may differ. Both are
+    /// held to the scalar kernel's gradients: the kept groups may be off by no more than four
+    /// times what the own listing is (plus 1e-5 of the largest gradient). The sums cancel
+    /// heavily here, which is why the bound follows the paths' spread and not the gradients'
+    /// size. Half the Gaussians are nearly opaque, so many pixels stop at an entry the forward
+    /// had listed them for; a backward that kept them (`n_contrib` not tested) is off by 10^4
+    /// to 10^7 times the spread.
+    #[test]
+    fn kept_lane_groups_give_the_gradients_of_the_backwards_own_listing() {
+        let mut surfels = random_scene(30_000, 11);
+        for o in surfels.opacity_logits.iter_mut().step_by(2) {
+            *o = 6.0;
+        }
+        let p = Problem::with_surfels(surfels, 64);
+        let (input, grads) = (p.input(), p.grads());
+        let paths: Vec<Simd> = Simd::available().into_iter().filter(|&s| s != Simd::Scalar).collect();
+        if paths.is_empty() {
+            eprintln!("no SIMD path on this CPU: kept lane groups not checked");
+        }
+        let scalar_cfg = RasterConfig { simd: Simd::Scalar, distortion: true, ..Default::default() };
+        let (sout, sst) = render(&input, &scalar_cfg);
+        assert_eq!(sst.group_lanes, 0, "the scalar forward kept lane groups");
+        let scalar = bits(&backward(&input, &scalar_cfg, &sst, &sout, &grads));
+        let f = |v: &u32| f32::from_bits(*v);
+        let off = |a: &[u32], b: &[u32]| a.iter().zip(b).map(|(x, y)| (f(x) - f(y)).abs()).fold(0.0f32, f32::max);
+        for path in paths {
+            let cfg = RasterConfig { simd: path, ..scalar_cfg };
+            let (out, st) = render(&input, &cfg);
+            assert!(st.group_lanes > 0 && !st.tile_groups.is_empty(), "{}: the forward kept no groups", path.name());
+            let kept = bits(&backward(&input, &cfg, &st, &out, &grads));
+            let mut own = st.clone();
+            own.group_lanes = 0;
+            let listed = bits(&backward(&input, &cfg, &own, &out, &grads));
+            for (k, s) in scalar.iter().enumerate() {
+                let scale = s.iter().map(|v| f(v).abs()).fold(0.0f32, f32::max);
+                assert!(k >= 5 || scale > 0.0, "gradient array {k} is all zero");
+                let (e_kept, e_own) = (off(&kept[k], s), off(&listed[k], s));
+                assert!(
+                    e_kept <= 4.0 * e_own + 1e-5 * scale,
+                    "{}: gradient array {k} is {e_kept:e} from the scalar kernel's on kept groups, {e_own:e} on its \
+                     own listing (largest gradient {scale:e})",
+                    path.name()
+                );
+            }
+        }
+    }
 }

@@ -123,6 +123,9 @@ struct Entry<'a, S: Lanes> {
     geom: bool,
     /// Carry the normal gradient ([`crate::RasterConfig::normals`], with `geom`).
     normals: bool,
+    /// The entry's 0-based index in the tile: a pixel composited it when its `n_contrib`
+    /// exceeds it.
+    local: S,
 }
 
 impl<S: Lanes> Entry<'_, S> {
@@ -168,10 +171,13 @@ impl<S: Lanes> Entry<'_, S> {
         let x = gr.x::<S, PACKED>();
         let rows = self.plane.rows(gr.y::<S, PACKED>());
         let ev = eval_lanes::<S>(s, &rows, x, near);
-        let m = S::and(S::from_bits(gr.lb), ev.alpha.ne(zero));
+        let ld = |k: usize| gr.load::<S, PACKED>(arr(k));
+        // The forward's groups hold the pixels still open when it reached the entry; the
+        // pixel that stopped at it, and any whose last composited entry lies before it, drop
+        // out here (with the backward's own listing the test holds on every listed lane).
+        let m = S::and(S::and(S::from_bits(gr.lb), ev.alpha.ne(zero)), ld(NCON).gt(self.local));
         let yv = rows.y;
         let dy = sp(s.center[1]).sub(yv);
-        let ld = |k: usize| gr.load::<S, PACKED>(arr(k));
         let inv_one_m = sp(1.0).div(sp(1.0).sub(ev.alpha));
         let tcur = ld(T);
         let ti = tcur.mul(inv_one_m);
@@ -365,6 +371,11 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
     let [r0, _] = bins.ranges[t];
     let e_tile0 = r0 as usize;
     let (tx0, ty0) = (tr[0] as usize, tr[2] as usize);
+    // The tile's first pixel centre, from which its groups' centres are formed.
+    let origin = [(tx0 as f64 + 0.5) as f32, (ty0 as f64 + 0.5) as f32];
+    // The forward's lane groups, when it kept them at this width; else each entry is listed
+    // here, from the pixels that composited it.
+    let kept = st.group_lanes == S::N;
     let mut max_n = 0u32;
     by_ncon.clear();
     row_act.fill(0);
@@ -375,7 +386,7 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
             let tn = st.final_t[p];
             let nc = st.n_contrib[p];
             max_n = max_n.max(nc);
-            if nc > 0 {
+            if nc > 0 && !kept {
                 by_ncon.push((nc, ((y - ty0) * 64 + (x - tx0)) as u32));
             }
             let gc = g.color.map_or([0.0; 3], |v| [v[p * 3], v[p * 3 + 1], v[p * 3 + 2]]);
@@ -464,16 +475,22 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
             extv: &extv,
             geom,
             normals,
+            local: sp(local as f32),
         };
         let mut sm = Sums::<S>::zero();
-        groups.list::<S>(s, &tr, row_act, stride);
         // The first group stores the feature sums (see `Entry::group`); with no group at all
         // `any` stays false and `fsum` is not read.
         let (mut any, mut first) = (false, FEAT);
-        for gr in groups.wide() {
+        let listed = if kept {
+            Some(st.entry_groups[e].split(&st.tile_groups[t]))
+        } else {
+            groups.list_here::<S>(s, &tr, row_act)
+        };
+        let (wide, packed) = listed.unwrap_or_default();
+        for gr in wide.iter().map(|g| g.group(origin, stride)) {
             any |= k.next_group::<DIST, FEAT, GEO, false>(&gr, &mut sm, &mut fsum, &mut first);
         }
-        for gr in groups.packed() {
+        for gr in packed.iter().map(|g| g.group(origin, stride)) {
             any |= k.next_group::<DIST, FEAT, GEO, true>(&gr, &mut sm, &mut fsum, &mut first);
         }
         if !any {

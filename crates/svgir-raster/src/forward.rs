@@ -22,6 +22,7 @@
 //! are skipped (those outputs stay 0) and everything else keeps its bits.
 
 use crate::interp::{normalised_coord, weights, MAX_VERTICES};
+use crate::lane_groups::{EntryGroups, GroupSlot};
 use crate::phases::Stopwatch;
 use crate::preprocess::{preprocess, Cam, Splat};
 use crate::real::Real;
@@ -158,6 +159,10 @@ pub(crate) struct Outputs<'a, F> {
     m2: Disjoint<'a, F>,
     /// Per tile-list entry: sum of w.
     pub(crate) wsum: Disjoint<'a, F>,
+    /// Per tile, the SIMD kernel's lane groups ([`ForwardStateOf::tile_groups`]), and per
+    /// entry where its groups lie.
+    pub(crate) tile_groups: Disjoint<'a, Vec<GroupSlot>>,
+    pub(crate) entry_groups: Disjoint<'a, EntryGroups>,
 }
 
 /// One run of pixels (part of an image row) in every per-pixel output.
@@ -313,6 +318,10 @@ pub(crate) fn render_projected<F: Real, P: GaussianParams<F> + ?Sized>(
     let mut m1 = filled(npx, F::ZERO);
     let mut m2 = filled(npx, F::ZERO);
     let mut wsum = filled(bins.ids.len(), F::ZERO);
+    // Kept by the SIMD kernels only (f32); the scalar ones leave them empty.
+    let group_lanes = if crate::simd::is_f32::<F>() { crate::forward_simd::group_lanes(cfg.simd.resolve()) } else { 0 };
+    let mut tile_groups = vec![Vec::new(); if group_lanes > 0 { bins.ranges.len() } else { 0 }];
+    let mut entry_groups = filled(if group_lanes > 0 { bins.ids.len() } else { 0 }, EntryGroups::default());
 
     {
         let outs = Outputs {
@@ -328,6 +337,8 @@ pub(crate) fn render_projected<F: Real, P: GaussianParams<F> + ?Sized>(
             m1: Disjoint::new(&mut m1),
             m2: Disjoint::new(&mut m2),
             wsum: Disjoint::new(&mut wsum),
+            tile_groups: Disjoint::new(&mut tile_groups),
+            entry_groups: Disjoint::new(&mut entry_groups),
         };
         sw.lap("buffers");
         let runs = tile_runs(bins.ranges.len(), rayon::current_num_threads());
@@ -350,8 +361,18 @@ pub(crate) fn render_projected<F: Real, P: GaussianParams<F> + ?Sized>(
         })
         .collect();
     sw.lap("reduce");
-    let state =
-        ForwardStateOf { proj, final_t, n_contrib, moment1: m1, moment2: m2, entry_weight: wsum, phases: sw.finish() };
+    let state = ForwardStateOf {
+        proj,
+        final_t,
+        n_contrib,
+        moment1: m1,
+        moment2: m2,
+        entry_weight: wsum,
+        tile_groups,
+        entry_groups,
+        group_lanes,
+        phases: sw.finish(),
+    };
     (out, state)
 }
 

@@ -317,8 +317,14 @@ unsafe fn tiles<S: Lanes, const DIST: bool, const FEAT: bool>(
         let tr = bins.tile_rect(t, w, h);
         let [r0, r1] = bins.ranges[t];
         let (tx0, ty0) = (tr[0] as usize, tr[2] as usize);
+        // The tile's first pixel centre, from which its groups' centres are formed.
+        let origin = [(tx0 as f64 + 0.5) as f32, (ty0 as f64 + 0.5) as f32];
         // SAFETY (every `seg` of this tile): tile `t` alone owns its entries and its pixels.
         let wsum = unsafe { o.wsum.seg(r0 as usize, (r1 - r0) as usize) };
+        let kept = unsafe { &mut o.tile_groups.seg(t, 1)[0] };
+        // Four or five groups per entry on the random 400 x 400 scene; more grow the vector.
+        kept.reserve(6 * (r1 - r0) as usize);
+        let kept_at = unsafe { o.entry_groups.seg(r0 as usize, (r1 - r0) as usize) };
         buf[..np].fill(1.0);
         buf[np..].fill(0.0);
         let mut remaining = (tr[1] - tr[0]) as usize * (tr[3] - tr[2]) as usize;
@@ -334,10 +340,12 @@ unsafe fn tiles<S: Lanes, const DIST: bool, const FEAT: bool>(
                 }
             }
             // Boxes whose pixels have all finished (common behind opaque surfaces, while the
-            // tile's other pixels are still open) are passed by.
-            if !groups.list::<S>(s, &tr, &row_live, stride) {
+            // tile's other pixels are still open) are passed by. The groups are kept for the
+            // backward.
+            let Some(at) = groups.list::<S>(s, &tr, &row_live, kept) else {
                 continue;
-            }
+            };
+            kept_at[e - r0 as usize] = at;
             if FEAT {
                 if ci {
                     colv.load(cf, s.id as usize);
@@ -366,12 +374,13 @@ unsafe fn tiles<S: Lanes, const DIST: bool, const FEAT: bool>(
             };
             let mut ws = sp(0.0);
             // Branch-free: a group without stopping lanes clears nothing.
-            for gr in groups.wide() {
+            let (wide, packed) = at.split(kept);
+            for gr in wide.iter().map(|g| g.group(origin, stride)) {
                 let sb = k.group::<DIST, FEAT, false>(&gr, &mut ws);
                 gr.clear::<false>(&mut row_live, sb, S::N);
                 remaining -= sb.count_ones() as usize;
             }
-            for gr in groups.packed() {
+            for gr in packed.iter().map(|g| g.group(origin, stride)) {
                 let sb = k.group::<DIST, FEAT, true>(&gr, &mut ws);
                 gr.clear::<true>(&mut row_live, sb, S::N);
                 remaining -= sb.count_ones() as usize;
@@ -446,8 +455,28 @@ unsafe fn tiles_avx512<const DIST: bool, const FEAT: bool>(
     tiles::<crate::simd::F8k, DIST, FEAT>(o, run, bins, recs, cf, ef, bg, cfg, w, h)
 }
 
+/// The width of the lane groups that the SIMD path `path` (already resolved) runs and keeps
+/// for the backward ([`crate::ForwardStateOf::tile_groups`]); 0 for the scalar path.
+pub(crate) fn group_lanes(path: crate::simd::Simd) -> usize {
+    use crate::simd::Simd;
+    #[cfg(target_arch = "x86_64")]
+    {
+        use crate::simd::Lanes;
+        match path {
+            Simd::Avx2 => crate::simd::F8::N,
+            Simd::Avx512 => crate::simd::F8k::N,
+            _ => 0,
+        }
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let _ = path;
+        0
+    }
+}
+
 /// Runs the tiles `run` on the SIMD path `path` (already resolved); false when `path` is
-/// scalar (the caller runs the generic kernel).
+/// scalar (the caller runs the generic kernel). Each tile's lane groups are kept in `o`.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn render_tiles_simd(
     path: crate::simd::Simd,

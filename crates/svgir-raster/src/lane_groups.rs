@@ -5,8 +5,9 @@
 //!
 //! Work split: one entry at a time, inside the tile kernel's task. Per block of `N` box rows in
 //! lanes: the rows' chords and their pixel spans; then per row, without branches, the live span
-//! and its pieces. Nothing is saved: the forward and the backward each list an entry when they
-//! reach it (the backward with its own live pixels).
+//! and its pieces, written as [`GroupSlot`]s. The forward keeps its groups for the backward
+//! ([`crate::ForwardStateOf::tile_groups`]), which lists an entry itself only when the forward
+//! kept none at its width (then from the pixels that composited the entry).
 
 // The lane methods are `unsafe fn`s with one contract -- the CPU has the features of the path
 // that runs them (checked once by `Simd::resolve`) and every pointer stays inside its buffer --
@@ -122,23 +123,63 @@ impl Group {
     }
 }
 
-/// The lane groups of one entry: `wide` and `packed` (see [`Group`]), as indices into the
-/// entry's row pieces; [`Groups::wide`] and [`Groups::packed`] build each group as it is used.
-/// Every pixel of the entry lies in exactly one group, so the two lists may run in either order.
+/// A listed group ([`Groups::list`]) in six bytes, as the forward keeps it for the backward:
+/// the row and first column of each half in the tile (tiles are at most 64 pixels a side: the
+/// row masks are `u64`; both halves of a wide group are the same), and the live lanes.
+/// [`GroupSlot::group`] builds the [`Group`] that runs. (Packed into four bytes, the backward
+/// ran slower.)
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GroupSlot {
+    ry: [u8; 2],
+    c0: [u8; 2],
+    lb: u16,
+}
+
+/// Where an entry's kept groups lie in its tile's [`GroupSlot`]s: `wide` wide groups from
+/// `start`, then `packed` packed ones. An entry the forward did not list keeps none.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct EntryGroups {
+    pub(crate) start: u32,
+    pub(crate) wide: u16,
+    pub(crate) packed: u16,
+}
+
+impl GroupSlot {
+    /// The group in the tile whose first pixel centre is `origin` (`x + 0.5, y + 0.5`), its rows
+    /// `stride` apart. The centres are exact: integers and halves below 2^22.
+    #[inline(always)]
+    pub(crate) fn group(&self, origin: [f32; 2], stride: usize) -> Group {
+        let (ry, c0) = (self.ry.map(usize::from), self.c0.map(usize::from));
+        Group {
+            yf: self.ry.map(|r| origin[1] + f32::from(r)),
+            x0: self.c0.map(|c| origin[0] + f32::from(c)),
+            at: [0, 1].map(|i| (ry[i] * stride + c0[i]) as u32),
+            ry: ry.map(|r| r as u16),
+            c0: c0.map(|c| c as u16),
+            lb: u32::from(self.lb),
+        }
+    }
+}
+
+/// Lists the lane groups of one entry at a time ([`Groups::list`]), into a vector of
+/// [`GroupSlot`]s that the caller keeps (the forward, for the backward) or that the lister owns
+/// ([`Groups::list_here`]: the backward's own listing).
 pub(crate) struct Groups {
-    /// The row pieces of the entry (at most `n` pixels each).
-    pieces: Vec<Piece>,
-    /// Pieces that are wide groups on their own.
-    wide: Vec<u16>,
-    /// Pairs of short pieces, each a packed group.
-    packed: Vec<[u16; 2]>,
-    /// The short pieces, to be paired.
-    short: Vec<u16>,
-    /// Lanes per group of the last listing.
-    n: usize,
+    /// Short row pieces (at most `n/2` pixels), to be paired.
+    short: Vec<GroupSlot>,
+    /// The lister's own groups ([`Groups::list_here`]).
+    own: Vec<GroupSlot>,
     /// The row chords' pixels `[xa, xb)` of the entry's box rows ([`chord_pixels_lanes`]).
     xa: Vec<i32>,
     xb: Vec<i32>,
+}
+
+impl EntryGroups {
+    /// The entry's wide and packed groups in `slots` (its tile's).
+    #[inline(always)]
+    pub(crate) fn split<'a>(&self, slots: &'a [GroupSlot]) -> (&'a [GroupSlot], &'a [GroupSlot]) {
+        slots[self.start as usize..][..self.wide as usize + self.packed as usize].split_at(self.wide as usize)
+    }
 }
 
 impl Groups {
@@ -146,33 +187,23 @@ impl Groups {
     pub(crate) fn new(tile: usize) -> Self {
         // Chords are stored a whole lane group at a time.
         let len = tile + MAX_LANES;
-        Self {
-            pieces: Vec::new(),
-            wide: Vec::new(),
-            packed: Vec::new(),
-            short: Vec::new(),
-            n: 1,
-            xa: vec![0; len],
-            xb: vec![0; len],
-        }
+        Self { short: Vec::new(), own: Vec::new(), xa: vec![0; len], xb: vec![0; len] }
     }
 
-    /// The wide groups of the last listing.
+    /// [`Groups::list`] into the lister's own vector, replacing the last entry's groups; the
+    /// wide and the packed groups, or `None` when no pixel of the box is live.
     #[inline(always)]
-    pub(crate) fn wide(&self) -> impl Iterator<Item = Group> + '_ {
-        self.wide.iter().map(|&i| self.pieces[i as usize].group(None, self.n))
-    }
-
-    /// The packed groups of the last listing.
-    #[inline(always)]
-    pub(crate) fn packed(&self) -> impl Iterator<Item = Group> + '_ {
-        self.packed.iter().map(|&[a, b]| self.pieces[a as usize].group(Some(&self.pieces[b as usize]), self.n))
-    }
-
-    /// How many packed groups the last listing made.
-    #[cfg(test)]
-    pub(crate) fn packed_len(&self) -> usize {
-        self.packed.len()
+    pub(crate) unsafe fn list_here<S: Lanes>(
+        &mut self,
+        s: &TileRec<f32>,
+        tr: &[u32; 4],
+        live: &[u64],
+    ) -> Option<(&[GroupSlot], &[GroupSlot])> {
+        let mut own = std::mem::take(&mut self.own);
+        own.clear();
+        let at = self.list::<S>(s, tr, live, &mut own);
+        self.own = own;
+        at.map(|at| at.split(&self.own))
     }
 }
 
@@ -225,28 +256,17 @@ unsafe fn chord_pixels_lanes<S: Lanes>(lo: S, hi: S, x0: usize, x1: usize) -> (S
     (S::select(full, lo_px, fx0), S::select(full, hi_px, fx0))
 }
 
-/// One row piece of at most `n` pixels, before it is placed in a group.
-#[derive(Clone, Copy)]
-struct Piece {
-    yf: f32,
-    x0: f32,
-    at: u32,
-    ry: u16,
-    c0: u16,
-    lb: u32,
-}
-
 impl Groups {
     /// Lists the `n`-lane groups of entry `s` clipped to the tile with pixel rectangle `tr`,
-    /// where `live[row]` marks the tile's live columns and a tile row is `stride` apart. Pieces
-    /// of at most `n/2` pixels are paired into packed groups; an unpaired one is a wide group.
+    /// where `live[row]` marks the tile's live columns, and appends them to `out`: the wide groups, then the packed ones. The row pieces of at most
+    /// `n/2` pixels are paired in order into packed groups; an odd one out is the last wide one.
     ///
     /// Listing was a third of the tile kernels' time, so it is kept lean: the chord pixels of
-    /// `N` rows at a time in lanes, then per row no branch (an empty row gives one empty piece;
-    /// every piece index goes to both lists and is counted in the one it belongs to; only a row
-    /// longer than `n` pixels loops), and groups are built from pieces only as they run.
+    /// `N` rows at a time in lanes, then per row no branch (an empty row gives one empty piece,
+    /// written and not counted; a piece is written to both lists and counted in the one it
+    /// belongs to; only a row longer than `n` pixels loops).
     ///
-    /// Returns false, with no groups listed, when no pixel of the box is live: nothing is left
+    /// Returns `None`, with nothing appended, when no pixel of the box is live: nothing is left
     /// for the entry in this tile (in the forward, boxes behind pixels that have all finished).
     #[inline(always)]
     pub(crate) unsafe fn list<S: Lanes>(
@@ -254,18 +274,14 @@ impl Groups {
         s: &TileRec<f32>,
         tr: &[u32; 4],
         live: &[u64],
-        stride: usize,
-    ) -> bool {
+        out: &mut Vec<GroupSlot>,
+    ) -> Option<EntryGroups> {
         let n = S::N;
-        self.n = n;
-        self.pieces.clear();
-        self.wide.clear();
-        self.packed.clear();
-        self.short.clear();
+        const { assert!(S::N <= 16, "a group's live lanes are sixteen bits of its slot") };
         let (tx0, ty0) = (tr[0] as usize, tr[2] as usize);
         let bx = EntryBox::new(s, tr);
         if !bx.any_live(live, ty0) {
-            return false;
+            return None;
         }
         let rows = bx.rows.clone();
         let bounded = s.conic.bounded();
@@ -286,11 +302,12 @@ impl Groups {
         }
         // At most one piece per `n` columns of the tile on every row, and one per empty row.
         let cap = rows.len() * ((tr[1] - tr[0]) as usize / n + 2);
-        self.pieces.reserve(cap);
-        self.wide.reserve(cap);
+        let start = out.len();
+        out.reserve(cap + 1);
+        self.short.clear();
         self.short.reserve(cap);
-        let (pieces, wide, short) = (self.pieces.as_mut_ptr(), self.wide.as_mut_ptr(), self.short.as_mut_ptr());
-        let (mut np, mut nw, mut ns) = (0usize, 0usize, 0usize);
+        let (wide, short) = (out.as_mut_ptr().add(start), self.short.as_mut_ptr());
+        let (mut nw, mut ns) = (0usize, 0usize);
         for y in rows.clone() {
             let ry = y - ty0;
             let lv = live[ry];
@@ -298,19 +315,15 @@ impl Groups {
             let chord = bounded.then(|| (self.xa[i] as usize, self.xb[i] as usize));
             // `[xa, xb)`: the live span, empty (`xa == xb`) when the row has none.
             let (xa, xb) = bx.live_span_or_empty(chord, lv);
-            let yf = (y as f64 + 0.5) as f32;
             let mut k = xa;
             loop {
                 let (c0, lanes) = (k - tx0, (xb - k).min(n));
-                // The first pixel's centre as the scalar kernel takes it.
-                let x0 = (k as f64 + 0.5) as f32;
                 let lb = (lv >> c0) as u32 & ((1u64 << lanes) - 1) as u32;
+                let piece = GroupSlot { ry: [ry as u8; 2], c0: [c0 as u8; 2], lb: lb as u16 };
                 // SAFETY: at most `cap` pieces are written (see above), within the reserves.
-                pieces.add(np).write(Piece { yf, x0, at: (ry * stride + c0) as u32, ry: ry as u16, c0: c0 as u16, lb });
-                wide.add(nw).write(np as u16);
-                short.add(ns).write(np as u16);
+                wide.add(nw).write(piece);
+                short.add(ns).write(piece);
                 let (is_short, some) = (lanes <= n / 2, lb != 0);
-                np += some as usize;
                 nw += (some && !is_short) as usize;
                 ns += (some && is_short) as usize;
                 k += n;
@@ -319,39 +332,20 @@ impl Groups {
                 }
             }
         }
-        // SAFETY: the first `np` / `nw` / `ns` slots were written above.
-        self.pieces.set_len(np);
-        self.wide.set_len(nw);
+        // SAFETY: the first `nw` / `ns` slots were written above.
+        out.set_len(start + nw);
         self.short.set_len(ns);
         // Short pieces in pairs, in order; an odd one out is a wide group.
-        for pair in self.short.chunks(2) {
-            match *pair {
-                [a, b] => self.packed.push([a, b]),
-                [a] => self.wide.push(a),
-                _ => unreachable!(),
-            }
+        if ns % 2 == 1 {
+            out.push(self.short[ns - 1]);
         }
-        true
-    }
-}
-
-impl Piece {
-    /// A wide group of this piece alone, or a packed one with `hi` as its second half.
-    #[inline(always)]
-    fn group(&self, hi: Option<&Piece>, n: usize) -> Group {
-        let h = hi.unwrap_or(self);
-        let lb = match hi {
-            Some(h) => self.lb | (h.lb << (n / 2)),
-            None => self.lb,
-        };
-        Group {
-            yf: [self.yf, h.yf],
-            x0: [self.x0, h.x0],
-            at: [self.at, h.at],
-            ry: [self.ry, h.ry],
-            c0: [self.c0, h.c0],
-            lb,
-        }
+        let h = n / 2;
+        out.extend(self.short.chunks_exact(2).map(|p| GroupSlot {
+            ry: [p[0].ry[0], p[1].ry[0]],
+            c0: [p[0].c0[0], p[1].c0[0]],
+            lb: p[0].lb | (p[1].lb << h),
+        }));
+        Some(EntryGroups { start: start as u32, wide: (nw + ns % 2) as u16, packed: (ns / 2) as u16 })
     }
 }
 
@@ -406,7 +400,19 @@ mod tests {
                         }
                     }
                 }
-                unsafe { groups.list::<F8>(s, &tr, &live, stride) };
+                // Listed after the groups of earlier entries (three here), as the forward keeps
+                // a tile's groups.
+                let mut kept = vec![GroupSlot::default(); 3];
+                let at = unsafe { groups.list::<F8>(s, &tr, &live, &mut kept) };
+                let origin = [tr[0] as f32 + 0.5, tr[2] as f32 + 0.5];
+                let (wide, packed_groups) = match at {
+                    Some(at) => {
+                        assert_eq!(at.start, 3);
+                        assert_eq!(kept.len(), 3 + at.wide as usize + at.packed as usize);
+                        at.split(&kept)
+                    }
+                    None => (&[][..], &[][..]),
+                };
                 let mut got = std::collections::BTreeSet::new();
                 let mut lanes = |g: &Group, is_packed: bool| {
                     let (mut xs, mut ys) = ([0f32; 8], [0f32; 8]);
@@ -429,14 +435,14 @@ mod tests {
                         assert!(got.insert((y, x)), "pixel ({x}, {y}) in two groups");
                     }
                 };
-                for g in groups.wide() {
+                for g in wide.iter().map(|g| g.group(origin, stride)) {
                     lanes(&g, false);
                 }
-                for g in groups.packed() {
+                for g in packed_groups.iter().map(|g| g.group(origin, stride)) {
                     assert_ne!(g.ry[0], g.ry[1], "a packed group's halves share a row");
                     lanes(&g, true);
                 }
-                packed += groups.packed_len();
+                packed += packed_groups.len();
                 pixels += want.len();
                 assert_eq!(got, want, "entry {} of tile {t}", s.id);
             }

@@ -304,6 +304,13 @@ pub struct ForwardStateOf<F> {
     /// exactly when it composited none (or the tile finished before it), which lets the backward
     /// pass it by without listing its pixels.
     pub(crate) entry_weight: Vec<F>,
+    /// The SIMD forward's lane groups, kept so that the backward need not list them again: per
+    /// tile its groups, per entry where they lie; `group_lanes` is their width (0 when none were
+    /// kept: the scalar and f64 kernels). The backward keeps to the pixels that composited each
+    /// entry with a per-lane test of `n_contrib`.
+    pub(crate) tile_groups: Vec<Vec<lane_groups::GroupSlot>>,
+    pub(crate) entry_groups: Vec<lane_groups::EntryGroups>,
+    pub(crate) group_lanes: usize,
     /// Wall time of the forward's phases.
     pub phases: PhaseTimes,
 }
