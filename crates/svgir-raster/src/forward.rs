@@ -319,7 +319,8 @@ pub(crate) fn render_projected<F: Real, P: GaussianParams<F> + ?Sized>(
     let mut m2 = filled(npx, F::ZERO);
     let mut wsum = filled(bins.ids.len(), F::ZERO);
     // Kept by the SIMD kernels only (f32); the scalar ones leave them empty.
-    let group_lanes = if crate::simd::is_f32::<F>() { crate::forward_simd::group_lanes(cfg.simd.resolve()) } else { 0 };
+    let keep = cfg.for_backward && crate::simd::is_f32::<F>();
+    let group_lanes = if keep { crate::forward_simd::group_lanes(cfg.simd.resolve()) } else { 0 };
     let mut tile_groups = vec![Vec::new(); if group_lanes > 0 { bins.ranges.len() } else { 0 }];
     let mut entry_groups = filled(if group_lanes > 0 { bins.ids.len() } else { 0 }, EntryGroups::default());
 

@@ -313,6 +313,8 @@ unsafe fn tiles<S: Lanes, const DIST: bool, const FEAT: bool>(
     let (mut colv, mut extv) = (FeatLanes::<S>::new(), FeatLanes::<S>::new());
     let mut row_live = vec![0u64; tile];
     let mut groups = Groups::new(tile);
+    let keep = !o.tile_groups.is_empty();
+    let mut scratch = Vec::new();
     for t in run {
         let tr = bins.tile_rect(t, w, h);
         let [r0, r1] = bins.ranges[t];
@@ -321,10 +323,14 @@ unsafe fn tiles<S: Lanes, const DIST: bool, const FEAT: bool>(
         let origin = [(tx0 as f64 + 0.5) as f32, (ty0 as f64 + 0.5) as f32];
         // SAFETY (every `seg` of this tile): tile `t` alone owns its entries and its pixels.
         let wsum = unsafe { o.wsum.seg(r0 as usize, (r1 - r0) as usize) };
-        let kept = unsafe { &mut o.tile_groups.seg(t, 1)[0] };
-        // Four or five groups per entry on the random 400 x 400 scene; more grow the vector.
-        kept.reserve(6 * (r1 - r0) as usize);
-        let kept_at = unsafe { o.entry_groups.seg(r0 as usize, (r1 - r0) as usize) };
+        // The groups are listed into the tile's kept vector when a backward follows, else into
+        // `scratch`, one entry at a time.
+        let mut kept = keep.then(|| unsafe { &mut o.tile_groups.seg(t, 1)[0] });
+        let mut kept_at = keep.then(|| unsafe { o.entry_groups.seg(r0 as usize, (r1 - r0) as usize) });
+        if let Some(k) = kept.as_deref_mut() {
+            // Four or five groups per entry on the random 400 x 400 scene; more grow the vector.
+            k.reserve(6 * (r1 - r0) as usize);
+        }
         buf[..np].fill(1.0);
         buf[np..].fill(0.0);
         let mut remaining = (tr[1] - tr[0]) as usize * (tr[3] - tr[2]) as usize;
@@ -340,12 +346,20 @@ unsafe fn tiles<S: Lanes, const DIST: bool, const FEAT: bool>(
                 }
             }
             // Boxes whose pixels have all finished (common behind opaque surfaces, while the
-            // tile's other pixels are still open) are passed by. The groups are kept for the
-            // backward.
-            let Some(at) = groups.list::<S>(s, &tr, &row_live, kept) else {
+            // tile's other pixels are still open) are passed by.
+            let out = match kept.as_deref_mut() {
+                Some(k) => k,
+                None => {
+                    scratch.clear();
+                    &mut scratch
+                }
+            };
+            let Some(at) = groups.list::<S>(s, &tr, &row_live, out) else {
                 continue;
             };
-            kept_at[e - r0 as usize] = at;
+            if let Some(ka) = kept_at.as_deref_mut() {
+                ka[e - r0 as usize] = at;
+            }
             if FEAT {
                 if ci {
                     colv.load(cf, s.id as usize);
@@ -374,7 +388,7 @@ unsafe fn tiles<S: Lanes, const DIST: bool, const FEAT: bool>(
             };
             let mut ws = sp(0.0);
             // Branch-free: a group without stopping lanes clears nothing.
-            let (wide, packed) = at.split(kept);
+            let (wide, packed) = at.split(kept.as_deref().unwrap_or(&scratch));
             for gr in wide.iter().map(|g| g.group(origin, stride)) {
                 let sb = k.group::<DIST, FEAT, false>(&gr, &mut ws);
                 gr.clear::<false>(&mut row_live, sb, S::N);

@@ -131,7 +131,7 @@ impl Stage2 {
             extra: None,
             background: Background::Color([0.0; 3]),
         };
-        let (seen, seen_state) = render(&probe, &RasterConfig { geometry: false, ..self.raster });
+        let (seen, seen_state) = render(&probe, &RasterConfig { geometry: false, for_backward: false, ..self.raster });
         let blended = weighted(&visible_of(&seen.max_radius), &seen.accum_weight, 0.0);
         let (front_vis, back_vis) = self.sides(camera, &blended, shading.back.is_some());
         let back_normals = shading.back.as_ref().map(|_| negated(&act.normals));

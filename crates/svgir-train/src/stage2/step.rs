@@ -48,7 +48,8 @@ impl Stage2 {
         // (`sh_channels`), so no output of this pass reaches it and it needs no backward; it
         // skips the depth and normal outputs. With the view's set from its last render
         // (`ShadeSets::LastVisit`), only the projection is made.
-        let sh_raster = RasterConfig { geometry: false, ..self.raster };
+        // Forward only: the SH colours' gradients ride in the PBR pass.
+        let sh_raster = RasterConfig { geometry: false, for_backward: false, ..self.raster };
         let sh_input = RenderInput {
             surfels: &self.surfels,
             camera: cam,
