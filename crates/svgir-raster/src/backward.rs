@@ -750,7 +750,8 @@ mod tests {
     }
 
     /// The SIMD backward on the forward's kept lane groups gives the gradients of the same
-    /// backward listing each entry itself from the pixels that composited it: the lanes are the
+    /// backward listing each entry itself from the pixels that composited it (after a render
+    /// with `for_backward` off, which keeps none and gives the same images): the lanes are the
     /// same, only their grouping, and so the order of the per-lane sums, may differ. Both are
     /// held to the scalar kernel's gradients: the kept groups may be off by no more than four
     /// times what the own listing is (plus 1e-5 of the largest gradient). The sums cancel
@@ -781,9 +782,15 @@ mod tests {
             let (out, st) = render(&input, &cfg);
             assert!(st.group_lanes > 0 && !st.tile_groups.is_empty(), "{}: the forward kept no groups", path.name());
             let kept = bits(&backward(&input, &cfg, &st, &out, &grads));
-            let mut own = st.clone();
-            own.group_lanes = 0;
-            let listed = bits(&backward(&input, &cfg, &own, &out, &grads));
+            // A render no backward was announced for keeps none; its backward lists itself.
+            let (out_own, own) = render(&input, &RasterConfig { for_backward: false, ..cfg });
+            assert_eq!(own.group_lanes, 0, "{}: kept groups without a backward to follow", path.name());
+            assert!(
+                out_own.color == out.color && out_own.accum_weight == out.accum_weight,
+                "{}: images differ",
+                path.name()
+            );
+            let listed = bits(&backward(&input, &cfg, &own, &out_own, &grads));
             for (k, s) in scalar.iter().enumerate() {
                 let scale = s.iter().map(|v| f(v).abs()).fold(0.0f32, f32::max);
                 assert!(k >= 5 || scale > 0.0, "gradient array {k} is all zero");
