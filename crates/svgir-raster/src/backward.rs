@@ -716,17 +716,23 @@ mod tests {
         ]
     }
 
+    /// 30k random surfels at 64 x 64, every other one nearly opaque (opacity logit 6), so that
+    /// pixels finish after a few layers.
+    fn half_opaque() -> Problem {
+        let mut surfels = random_scene(30_000, 11);
+        for o in surfels.opacity_logits.iter_mut().step_by(2) {
+            *o = 6.0;
+        }
+        Problem::with_surfels(surfels, 64)
+    }
+
     /// Passing by the entries that composited nothing in the forward changes no gradient bit, on
     /// every path: the same backward with no entry marked empty gives the same gradients. Every
     /// other Gaussian is made nearly opaque, so pixels finish after a few layers and many entries
     /// further back in a tile find none of their pixels still open.
     #[test]
     fn entries_that_composited_nothing_are_passed_by_without_a_bit_changed() {
-        let mut surfels = random_scene(30_000, 11);
-        for o in surfels.opacity_logits.iter_mut().step_by(2) {
-            *o = 6.0;
-        }
-        let p = Problem::with_surfels(surfels, 64);
+        let p = half_opaque();
         let (input, grads) = (p.input(), p.grads());
         for path in Simd::available() {
             let cfg = RasterConfig { simd: path, distortion: true, ..Default::default() };
@@ -761,11 +767,7 @@ mod tests {
     /// to 10^7 times the spread.
     #[test]
     fn kept_lane_groups_give_the_gradients_of_the_backwards_own_listing() {
-        let mut surfels = random_scene(30_000, 11);
-        for o in surfels.opacity_logits.iter_mut().step_by(2) {
-            *o = 6.0;
-        }
-        let p = Problem::with_surfels(surfels, 64);
+        let p = half_opaque();
         let (input, grads) = (p.input(), p.grads());
         let paths: Vec<Simd> = Simd::available().into_iter().filter(|&s| s != Simd::Scalar).collect();
         if paths.is_empty() {
