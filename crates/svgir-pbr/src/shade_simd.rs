@@ -32,7 +32,7 @@
 #![allow(unsafe_op_in_unsafe_fn)]
 
 use crate::sample_lanes::{samples8, serves, Samples8, LANES};
-use crate::shade::{gaussian, light_samples, sample, samples, FibTable, Frame, Sample, ShadeInputs};
+use crate::shade::{for_light_samples, gaussian, sample, samples, FibTable, Frame, Sample, ShadeInputs};
 use crate::shade_backward::light_grads;
 use svgir_core::simd::{F8k, Lanes, F8};
 use svgir_shading::split::Lobe;
@@ -101,10 +101,12 @@ impl SampleRows {
                         self.kept8.push(s8);
                     }
                 }
-                let tail = (full..k).filter_map(|kk| sample(inp, table, cache, &frame, i, kk));
-                for s in tail.chain(light_samples(inp, i)) {
-                    self.push(s, keep);
+                for kk in full..k {
+                    if let Some(s) = sample(inp, table, cache, &frame, i, kk) {
+                        self.push(s, keep);
+                    }
                 }
+                for_light_samples(inp, i, |s| self.push(s, keep));
             }
             None => {
                 for s in samples(inp, table, cache, &frame, i) {
