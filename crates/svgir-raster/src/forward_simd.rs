@@ -472,10 +472,9 @@ unsafe fn tiles_avx512<const DIST: bool, const FEAT: bool>(
 /// The width of the lane groups that the SIMD path `path` (already resolved) runs and keeps
 /// for the backward ([`crate::ForwardStateOf::tile_groups`]); 0 for the scalar path.
 pub(crate) fn group_lanes(path: crate::simd::Simd) -> usize {
-    use crate::simd::Simd;
     #[cfg(target_arch = "x86_64")]
     {
-        use crate::simd::Lanes;
+        use crate::simd::{Lanes, Simd};
         match path {
             Simd::Avx2 => crate::simd::F8::N,
             Simd::Avx512 => crate::simd::F8k::N,
