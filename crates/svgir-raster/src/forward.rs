@@ -318,7 +318,8 @@ pub(crate) fn render_projected<F: Real, P: GaussianParams<F> + ?Sized>(
     let mut m1 = filled(npx, F::ZERO);
     let mut m2 = filled(npx, F::ZERO);
     let mut wsum = filled(bins.ids.len(), F::ZERO);
-    // Kept by the SIMD kernels only (f32); the scalar ones leave them empty.
+    // The SIMD kernels (f32) keep their lane groups when a backward follows (`for_backward`);
+    // otherwise, and for the scalar kernels, these stay empty.
     let keep = cfg.for_backward && crate::simd::is_f32::<F>();
     let group_lanes = if keep { crate::forward_simd::group_lanes(cfg.simd.resolve()) } else { 0 };
     let mut tile_groups = vec![Vec::new(); if group_lanes > 0 { bins.ranges.len() } else { 0 }];
