@@ -9,16 +9,16 @@ use svgir_pbr::{
     activate, env_radiance, l1_loss, mirror_pick, radiance_consistency, radiance_consistency_backward,
     radiance_consistency_with_grad, select_pairs, ConsistencyInputs, EnvLight, SvgMaterials,
 };
-
-/// The bit patterns of a run of f32s.
-fn bits<'a>(v: impl Iterator<Item = &'a f32>) -> Vec<u32> {
-    v.map(|x| x.to_bits()).collect()
-}
 use svgir_shading::float::dot;
 use svgir_shading::{ggx, vertex_weights, Diffuse};
 use svgir_trace::pack::unorm16;
 use svgir_trace::scenes::object_scene;
 use svgir_trace::{Bvh, GatherParams, MicroBuffer, TraceParams, NO_HIT};
+
+/// The bit patterns of a run of f32s.
+fn bits<'a>(v: impl Iterator<Item = &'a f32>) -> Vec<u32> {
+    v.map(|x| x.to_bits()).collect()
+}
 
 #[test]
 fn picks_the_occluded_direction_nearest_the_mirror() {

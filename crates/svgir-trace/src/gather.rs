@@ -320,6 +320,20 @@ pub(crate) fn check(mb: &MicroBuffer, mats: &VertexMaterials<impl Sized>, env: &
     Ok(())
 }
 
+/// The checks of a call on the (j, k) pairs `pairs`: the buffers, every pair in range, the
+/// lights.
+pub(crate) fn check_pair_call(
+    mb: &MicroBuffer,
+    mats: &VertexMaterials<impl Sized>,
+    env: &EnvMap,
+    p: &GatherParams,
+    pairs: &[(u32, u32)],
+) -> Result<(), TraceError> {
+    check(mb, mats, env)?;
+    check_pairs(mb, pairs.iter().map(|&(j, k)| (j as usize, k as usize)))?;
+    check_lights(mb, env, p)
+}
+
 /// `Err` unless `p.lights` (if any) index `env`'s grid and cover every Gaussian of `mb`, and
 /// `p.cache` (if any) was built from `mb` and a map of `env`'s size.
 pub(crate) fn check_lights(mb: &MicroBuffer, env: &EnvMap, p: &GatherParams) -> Result<(), TraceError> {
@@ -538,9 +552,7 @@ pub fn gather_pairs(
     p: &GatherParams,
     pairs: &[(u32, u32)],
 ) -> Result<Vec<[f32; 3]>, TraceError> {
-    check(mb, mats, env)?;
-    check_pairs(mb, pairs.iter().map(|&(j, k)| (j as usize, k as usize)))?;
-    check_lights(mb, env, p)?;
+    check_pair_call(mb, mats, env, p, pairs)?;
     let light = LightIn::new(env, p);
     let lanes = lane_kernels::<f32>(p.simd);
     Ok(pairs

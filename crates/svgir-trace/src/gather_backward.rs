@@ -20,7 +20,8 @@
 //! depends on its own L1b alone.
 
 use crate::gather::{
-    check, check_lights, check_pairs, shade_f32, Escapes, GatherParams, LightIn, RaySetup, VertexMaterials,
+    check, check_lights, check_pair_call, check_pairs, shade_f32, Escapes, GatherParams, LightIn, RaySetup,
+    VertexMaterials,
 };
 use crate::gather_lanes::lane_kernels;
 use crate::microbuffer::{MicroBuffer, NO_HIT};
@@ -294,14 +295,16 @@ pub fn gather_pairs_backward(
     pairs: &[(u32, u32)],
     v_l1b: &[[f32; 3]],
 ) -> Result<GatherGrads, TraceError> {
-    check(mb, mats, env)?;
+    check_pair_call(mb, mats, env, p, pairs)?;
     if v_l1b.len() != pairs.len() {
         return Err(TraceError::SizeMismatch { what: "v_l1b", got: v_l1b.len(), want: pairs.len() });
     }
-    check_pairs(mb, pairs.iter().map(|&(j, k)| (j as usize, k as usize)))?;
-    let entries = pairs.iter().enumerate().map(|(i, &(j, k))| (j as usize * mb.k + k as usize, i));
-    check_lights(mb, env, p)?;
-    Ok(backward_generic(mb, mats, &LightIn::new(env, p), entries, v_l1b, p.simd))
+    Ok(backward_generic(mb, mats, &LightIn::new(env, p), pair_entries(mb, pairs), v_l1b, p.simd))
+}
+
+/// The backward's entries of the pairs: `(j K + k, i)` for pair i = (j, k).
+fn pair_entries<'a>(mb: &'a MicroBuffer, pairs: &'a [(u32, u32)]) -> impl Iterator<Item = (usize, usize)> + 'a {
+    pairs.iter().enumerate().map(|(i, &(j, k))| (j as usize * mb.k + k as usize, i))
 }
 
 /// [`crate::gather_pairs`] and, in the same pass, [`gather_pairs_backward`] with the upstream
@@ -317,17 +320,15 @@ pub fn gather_pairs_with_backward(
     pairs: &[(u32, u32)],
     v: impl Fn(usize, [f32; 3]) -> [f32; 3] + Sync,
 ) -> Result<(Vec<[f32; 3]>, GatherGrads), TraceError> {
-    check(mb, mats, env)?;
-    check_pairs(mb, pairs.iter().map(|&(j, k)| (j as usize, k as usize)))?;
-    check_lights(mb, env, p)?;
+    check_pair_call(mb, mats, env, p, pairs)?;
     let light = LightIn::new(env, p);
     let lanes = lane_kernels::<f32>(p.simd);
-    let entries = pairs.iter().enumerate().map(|(i, &(j, k))| (j as usize * mb.k + k as usize, i));
-    let (grads, records) = backward_with(mb, mats, &light, entries, p.simd, |up, esc, j, k, records| {
-        let l1b = shade_f32(lanes, mb, mats, esc, light.diffuse, j, k);
-        records.push((up, l1b));
-        v(up, l1b)
-    });
+    let (grads, records) =
+        backward_with(mb, mats, &light, pair_entries(mb, pairs), p.simd, |up, esc, j, k, records| {
+            let l1b = shade_f32(lanes, mb, mats, esc, light.diffuse, j, k);
+            records.push((up, l1b));
+            v(up, l1b)
+        });
     let mut l1b = vec![[0.0; 3]; pairs.len()];
     for (up, value) in records {
         l1b[up] = value;
