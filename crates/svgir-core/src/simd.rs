@@ -205,13 +205,22 @@ pub trait Lanes: Copy {
     }
     /// `svgir_raster::real::exp_f32` per lane, same operations in the same order.
     unsafe fn exp_fast(self) -> Self;
-    /// `f32::clamp(self, -87, 88)` for non-NaN lanes.
+    /// `if o < self { o } else { self }` per lane: `self` when they are equal or `o` is NaN (the
+    /// scalar kernels' `min`). One instruction where a compare and a select are two, and a
+    /// shorter chain for the tile kernels to wait on.
+    #[inline(always)]
+    unsafe fn min(self, o: Self) -> Self {
+        Self::select(o.lt(self), o, self)
+    }
+    /// `if o > self { o } else { self }` per lane (the scalar kernels' `max`).
+    #[inline(always)]
+    unsafe fn max(self, o: Self) -> Self {
+        Self::select(o.gt(self), o, self)
+    }
+    /// `f32::clamp(self, -87, 88)` (a NaN lane stays NaN).
     #[inline(always)]
     unsafe fn clamp_exp(self) -> Self {
-        let lo = Self::splat(-87.0);
-        let hi = Self::splat(88.0);
-        let x = Self::select(self.lt(lo), lo, self);
-        Self::select(x.gt(hi), hi, x)
+        self.max(Self::splat(-87.0)).min(Self::splat(88.0))
     }
 }
 
@@ -231,11 +240,15 @@ mod x86 {
             let t = x.mul($s::splat(std::f32::consts::LOG2_E)).add(shifter);
             let n = t.sub(shifter);
             let r = x.sub(n.mul($s::splat(0.693_145_75))).sub(n.mul($s::splat(1.428_606_8e-6)));
-            // Horner from the innermost term: c + r * p, as the scalar nesting.
-            let mut p = $s::splat(1.0 / 720.0);
-            for c in [1.0 / 120.0, 1.0 / 24.0, 1.0 / 6.0, 0.5, 1.0, 1.0f32] {
-                p = $s::splat(c).add(r.mul(p));
-            }
+            // Estrin's scheme, as the scalar code groups it.
+            let sp = |c: f32| $s::splat(c);
+            let r2 = r.mul(r);
+            let r4 = r2.mul(r2);
+            let a = sp(1.0).add(r);
+            let b = sp(0.5).add(r.mul(sp(1.0 / 6.0)));
+            let c = sp(1.0 / 24.0).add(r.mul(sp(1.0 / 120.0)));
+            let d = c.add(r2.mul(sp(1.0 / 720.0)));
+            let p = a.add(r2.mul(b)).add(r4.mul(d));
             p.mul($int(t))
         }};
     }
@@ -291,6 +304,15 @@ mod x86 {
             #[inline(always)]
             unsafe fn mul_add(self, a: Self, b: Self) -> Self {
                 $t(_mm256_fmadd_ps(self.0, a.0, b.0))
+            }
+            #[inline(always)]
+            unsafe fn min(self, o: Self) -> Self {
+                // `minps a, b` is `a < b ? a : b`.
+                $t(_mm256_min_ps(o.0, self.0))
+            }
+            #[inline(always)]
+            unsafe fn max(self, o: Self) -> Self {
+                $t(_mm256_max_ps(o.0, self.0))
             }
             #[inline(always)]
             unsafe fn div(self, o: Self) -> Self {
@@ -541,6 +563,57 @@ mod tests {
     #[test]
     fn eight_sums_at_once_keep_each_sums_bits() {
         on_each_lane_type(sums_avx2, sums_avx512);
+    }
+
+    /// `min`, `max` and `clamp_exp` against their definitions by compare and select (the scalar
+    /// kernels' `if o < self { o } else { self }` and `f32::clamp`), bit for bit, on every pair
+    /// of special and ordinary values: NaN, both zeros, infinities, equal values, the clamp's ends.
+    unsafe fn min_max_are_the_selects<S: Lanes>() {
+        let vals = [
+            f32::NAN,
+            0.0,
+            -0.0,
+            1.0,
+            -1.0,
+            f32::INFINITY,
+            f32::NEG_INFINITY,
+            -87.0,
+            88.0,
+            -90.0,
+            1e30,
+            0.99,
+            0.990_000_1,
+            f32::MIN_POSITIVE,
+        ];
+        for (i, &a) in vals.iter().enumerate() {
+            for b in vals.iter().cycle().skip(i).take(8) {
+                let (la, lb) = (S::splat(a), S::splat(*b));
+                let mut got = [[0f32; 8]; 3];
+                la.min(lb).store(got[0].as_mut_ptr());
+                la.max(lb).store(got[1].as_mut_ptr());
+                la.clamp_exp().store(got[2].as_mut_ptr());
+                let want_min = if *b < a { *b } else { a };
+                let want_max = if *b > a { *b } else { a };
+                assert_eq!(got[0][3].to_bits(), want_min.to_bits(), "min({a}, {b})");
+                assert_eq!(got[1][5].to_bits(), want_max.to_bits(), "max({a}, {b})");
+                assert_eq!(got[2][7].to_bits(), a.clamp(-87.0, 88.0).to_bits(), "clamp_exp({a})");
+            }
+        }
+    }
+
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn min_max_avx2() {
+        min_max_are_the_selects::<F8>();
+    }
+
+    #[target_feature(enable = "avx512f,avx512vl,avx2,fma")]
+    unsafe fn min_max_avx512() {
+        min_max_are_the_selects::<F8k>();
+    }
+
+    #[test]
+    fn min_and_max_are_the_scalar_selects() {
+        on_each_lane_type(min_max_avx2, min_max_avx512);
     }
 
     #[target_feature(enable = "avx2,fma")]

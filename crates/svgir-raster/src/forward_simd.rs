@@ -93,11 +93,12 @@ pub(crate) unsafe fn eval_lanes<S: Lanes>(rec: &TileRec<f32>, r: &RowLanes<S>, x
     let dy = sp(rec.center[1]).sub(r.y);
     let rho2 = sp(2.0).mul(dx.mul(dx).add(dy.mul(dy)));
     let use3d = rho3.le(rho2);
-    let rho = S::select(use3d, rho3, rho2);
+    // `rho3 <= rho2 ? rho3 : rho2`; equal values have the same bits (both sums of squares).
+    let rho = rho2.min(rho3);
     let z = u.mul(sp(rec.h[6])).add(v.mul(sp(rec.h[7]))).add(sp(rec.h[8]));
     let g = sp(-0.5).mul(rho).exp_fast();
     let a = sp(rec.opacity).mul(g);
-    let alpha = S::select(a.gt(sp(0.99)), sp(0.99), a);
+    let alpha = a.min(sp(0.99));
     let valid =
         S::and(S::and(pz.ne(sp(0.0)), rho.le(sp(9.0))), S::and(z.ge(sp(near)), alpha.ge(sp((1.0f64 / 255.0) as f32))));
     Eval { alpha: S::select(valid, alpha, sp(0.0)), u, v, z, g, inv_pz, use3d }

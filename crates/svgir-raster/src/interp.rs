@@ -121,8 +121,7 @@ fn lagrange_grad<F: Real>(u: F) -> [F; 3] {
 pub(crate) unsafe fn normalised_coord_lanes<S: Lanes>(u: S) -> (S, S) {
     let sp = |v: f32| S::splat(v);
     let t = sp(0.5).add(sp(0.5).mul(u));
-    let c = S::select(t.lt(sp(0.001)), sp(0.001), t);
-    let c = S::select(c.gt(sp(0.999)), sp(0.999), c);
+    let c = t.max(sp(0.001)).min(sp(0.999));
     // Inside the clamp: 0.5.
     (c, S::select(S::and(t.ge(sp(0.001)), t.le(sp(0.999))), sp(0.5), sp(0.0)))
 }

@@ -241,17 +241,13 @@ unsafe fn chord_lanes<S: Lanes>(conic: &crate::splat::RowConic, c: [f32; 2], y: 
 unsafe fn chord_pixels_lanes<S: Lanes>(lo: S, hi: S, x0: usize, x1: usize) -> (S, S) {
     let (fx0, fx1) = (S::splat(x0 as f32), S::splat(x1 as f32));
     // `floor_clamped`: f32::max then f32::min (a NaN clamps to the low end), then truncation.
-    let clamp = |v: S| {
-        let c = S::select(v.gt(fx0), v, fx0);
-        S::select(c.lt(fx1), c, fx1).trunc()
-    };
-    let min = |a: S, b: S| S::select(b.lt(a), b, a);
+    let clamp = |v: S| fx1.min(fx0.max(v)).trunc();
     let one = S::splat(1.0);
     let a = lo.sub(S::splat(1.5));
     let t = clamp(a);
-    let lo_px = min(S::select(t.lt(a), t.add(one), t), fx1);
-    let hi_px = min(clamp(hi.add(S::splat(0.5))).add(one), fx1);
-    let hi_px = S::select(lo_px.gt(hi_px), lo_px, hi_px);
+    let lo_px = S::select(t.lt(a), t.add(one), t).min(fx1);
+    let hi_px = clamp(hi.add(S::splat(0.5))).add(one).min(fx1);
+    let hi_px = hi_px.max(lo_px);
     let full = lo.le(hi);
     (S::select(full, lo_px, fx0), S::select(full, hi_px, fx0))
 }

@@ -78,13 +78,15 @@ fn max_err(a: &[f64], b: &[f64]) -> f64 {
 }
 
 /// The SIMD gradients are as close to the f64 oracle as the scalar f32 ones: per array,
-/// `max |simd - f64| <= 2 max |scalar - f64| + 1e-4 max |f64|`. (Per element the two f32 paths
+/// `max |simd - f64| <= 2 max |scalar - f64| + 5e-4 max |f64|`. (Per element the two f32 paths
 /// can differ by far more than their own size where a gradient is a sum that cancels, e.g. the
 /// scale gradient of a splat whose terms are a million times larger than their sum; both are
 /// then f32 noise around the f64 value, and which path lands nearer is luck: seed 12's
 /// log-scale gradients were 2.6e-6 (SIMD) and 4.7e-6 (scalar) from f64 with one exact form of
-/// the hit plane and 5.6e-6 / 2.3e-6 with another, a largest gradient of 5.4e-2. A wrong
-/// gradient is off by a sizeable part of the largest one.)
+/// the hit plane and 5.6e-6 / 2.3e-6 with another, a largest gradient of 5.4e-2; with the
+/// exponential in Estrin's form, one of seed 17's is 5.3e-5 (SIMD) and -1.3e-5 (scalar) where
+/// f64 gives 1e-14, a largest gradient of 0.127. A wrong gradient is off by a sizeable part of
+/// the largest one.)
 fn same_grads(what: &str, simd: &Grads, scalar: &Grads, exact: &GradsOf<f64>) {
     for ((name, a), (b, c)) in
         grad_arrays(simd).iter().zip(grad_arrays(scalar).iter().map(|x| &x.1).zip(grad_arrays64(exact)))
@@ -92,7 +94,7 @@ fn same_grads(what: &str, simd: &Grads, scalar: &Grads, exact: &GradsOf<f64>) {
         let scale = c.iter().fold(0.0f64, |m, v| m.max(v.abs()));
         let (e_simd, e_scalar) = (max_err(a, &c), max_err(b, &c));
         assert!(
-            e_simd <= 2.0 * e_scalar + 1e-4 * scale,
+            e_simd <= 2.0 * e_scalar + 5e-4 * scale,
             "{what}: {name}: SIMD is {e_simd:.3e} from f64, scalar f32 {e_scalar:.3e} (largest gradient {scale:.3e})"
         );
     }
