@@ -204,7 +204,13 @@ pub trait Lanes: Copy {
         [v[0].hsum(), v[1].hsum(), v[2].hsum(), v[3].hsum(), v[4].hsum(), v[5].hsum(), v[6].hsum(), v[7].hsum()]
     }
     /// `svgir_raster::real::exp_f32` per lane, same operations in the same order.
-    unsafe fn exp_fast(self) -> Self;
+    #[inline(always)]
+    unsafe fn exp_fast(self) -> Self {
+        exp_fast_k([self])[0]
+    }
+    /// `2^n` from `t = x log2(e) + 1.5 * 2^23`, whose low mantissa bits hold `n + 2^22` (integer
+    /// operations, as `svgir_raster::real::exp_f32`).
+    unsafe fn pow2_shifted(t: Self) -> Self;
     /// `if o < self { o } else { self }` per lane: `self` when they are equal or `o` is NaN (the
     /// scalar kernels' `min`). One instruction where a compare and a select are two, and a
     /// shorter chain for the tile kernels to wait on.
@@ -224,6 +230,43 @@ pub trait Lanes: Copy {
     }
 }
 
+/// [`Lanes::exp_fast`] of `K` vectors, each step taken for all of them before the next: the
+/// steps of one vector form a chain of dependent operations that the tile kernels wait on, and
+/// written side by side, the chains of several lane groups overlap. Per vector, the operations
+/// of `svgir_raster::real::exp_f32` in its order, so the same bits.
+///
+/// # Safety
+/// The CPU has the features of `S`.
+#[inline(always)]
+pub unsafe fn exp_fast_k<S: Lanes, const K: usize>(x: [S; K]) -> [S; K] {
+    // Plain loops over the K vectors: closures (`map`, `from_fn`) are compiled without the
+    // kernel's CPU features and their lane operations stay calls.
+    let z = S::splat(0.0);
+    let (mut t, mut r, mut p) = ([z; K], [z; K], [z; K]);
+    let shifter = S::splat(12_582_912.0);
+    for i in 0..K {
+        let xc = x[i].clamp_exp();
+        t[i] = xc.mul(S::splat(std::f32::consts::LOG2_E)).add(shifter);
+        let n = t[i].sub(shifter);
+        r[i] = xc.sub(n.mul(S::splat(0.693_145_75))).sub(n.mul(S::splat(1.428_606_8e-6)));
+    }
+    // Estrin's scheme, as the scalar code groups it.
+    for i in 0..K {
+        let r = r[i];
+        let r2 = r.mul(r);
+        let r4 = r2.mul(r2);
+        let a = S::splat(1.0).add(r);
+        let b = S::splat(0.5).add(r.mul(S::splat(1.0 / 6.0)));
+        let c = S::splat(1.0 / 24.0).add(r.mul(S::splat(1.0 / 120.0)));
+        let d = c.add(r2.mul(S::splat(1.0 / 720.0)));
+        p[i] = a.add(r2.mul(b)).add(r4.mul(d));
+    }
+    for i in 0..K {
+        p[i] = p[i].mul(S::pow2_shifted(t[i]));
+    }
+    p
+}
+
 #[cfg(target_arch = "x86_64")]
 pub use x86::{F8k, F8};
 
@@ -231,27 +274,6 @@ pub use x86::{F8k, F8};
 mod x86 {
     use super::Lanes;
     use std::arch::x86_64::*;
-
-    /// The polynomial and constants of `svgir_raster::real::exp_f32`, shared by both lane types.
-    macro_rules! exp_body {
-        ($s:ident, $x:expr, $int:expr) => {{
-            let x = $x.clamp_exp();
-            let shifter = $s::splat(12_582_912.0);
-            let t = x.mul($s::splat(std::f32::consts::LOG2_E)).add(shifter);
-            let n = t.sub(shifter);
-            let r = x.sub(n.mul($s::splat(0.693_145_75))).sub(n.mul($s::splat(1.428_606_8e-6)));
-            // Estrin's scheme, as the scalar code groups it.
-            let sp = |c: f32| $s::splat(c);
-            let r2 = r.mul(r);
-            let r4 = r2.mul(r2);
-            let a = sp(1.0).add(r);
-            let b = sp(0.5).add(r.mul(sp(1.0 / 6.0)));
-            let c = sp(1.0 / 24.0).add(r.mul(sp(1.0 / 120.0)));
-            let d = c.add(r2.mul(sp(1.0 / 720.0)));
-            let p = a.add(r2.mul(b)).add(r4.mul(d));
-            p.mul($int(t))
-        }};
-    }
 
     /// The methods of an 8-lane type over `__m256` that do not involve masks.
     macro_rules! lanes8 {
@@ -358,12 +380,10 @@ mod x86 {
                 [t[0], t[4], t[1], t[5], t[2], t[6], t[3], t[7]]
             }
             #[inline(always)]
-            unsafe fn exp_fast(self) -> Self {
-                exp_body!($t, self, |t: $t| {
-                    let ni = _mm256_sub_epi32(_mm256_castps_si256(t.0), _mm256_set1_epi32(0x4B40_0000));
-                    let bits = _mm256_slli_epi32::<23>(_mm256_add_epi32(ni, _mm256_set1_epi32(127)));
-                    $t(_mm256_castsi256_ps(bits))
-                })
+            unsafe fn pow2_shifted(t: Self) -> Self {
+                let ni = _mm256_sub_epi32(_mm256_castps_si256(t.0), _mm256_set1_epi32(0x4B40_0000));
+                let bits = _mm256_slli_epi32::<23>(_mm256_add_epi32(ni, _mm256_set1_epi32(127)));
+                $t(_mm256_castsi256_ps(bits))
             }
         };
     }

@@ -81,27 +81,66 @@ impl<S: Lanes> PlaneLanes<S> {
 /// operations, same order, so the same bits).
 #[inline(always)]
 pub(crate) unsafe fn eval_lanes<S: Lanes>(rec: &TileRec<f32>, r: &RowLanes<S>, x: S, near: f32) -> Eval<S> {
+    let [ev] = eval_lanes_k(rec, [r], [x], near);
+    ev
+}
+
+/// [`eval_lanes`] for `K` lane groups at once, each step taken for all of them before the next:
+/// one group's steps form a long chain of dependent operations (a division, the exponential),
+/// and side by side the chains of several groups overlap. Per group, the same operations.
+#[inline(always)]
+pub(crate) unsafe fn eval_lanes_k<S: Lanes, const K: usize>(
+    rec: &TileRec<f32>,
+    r: [&RowLanes<S>; K],
+    x: [S; K],
+    near: f32,
+) -> [Eval<S>; K] {
+    // Plain loops over the K groups: closures (`map`, `from_fn`) are compiled without the
+    // kernel's CPU features and their lane operations stay calls.
     let sp = |v: f32| S::splat(v);
-    let px = x.mul(r.a[0]).sub(r.b[0]);
-    let py = x.mul(r.a[1]).sub(r.b[1]);
-    let pz = x.mul(r.a[2]).sub(r.b[2]);
-    let inv_pz = sp(1.0).div(pz);
-    let u = px.mul(inv_pz);
-    let v = py.mul(inv_pz);
-    let rho3 = u.mul(u).add(v.mul(v));
-    let dx = sp(rec.center[0]).sub(x);
-    let dy = sp(rec.center[1]).sub(r.y);
-    let rho2 = sp(2.0).mul(dx.mul(dx).add(dy.mul(dy)));
-    let use3d = rho3.le(rho2);
-    // `rho3 <= rho2 ? rho3 : rho2`; equal values have the same bits (both sums of squares).
-    let rho = rho2.min(rho3);
-    let z = u.mul(sp(rec.h[6])).add(v.mul(sp(rec.h[7]))).add(sp(rec.h[8]));
-    let g = sp(-0.5).mul(rho).exp_fast();
-    let a = sp(rec.opacity).mul(g);
-    let alpha = a.min(sp(0.99));
-    let valid =
-        S::and(S::and(pz.ne(sp(0.0)), rho.le(sp(9.0))), S::and(z.ge(sp(near)), alpha.ge(sp((1.0f64 / 255.0) as f32))));
-    Eval { alpha: S::select(valid, alpha, sp(0.0)), u, v, z, g, inv_pz, use3d }
+    let z0 = sp(0.0);
+    let (mut pz, mut inv_pz, mut u, mut v) = ([z0; K], [z0; K], [z0; K], [z0; K]);
+    let (mut rho3, mut rho2, mut rho, mut z, mut g) = ([z0; K], [z0; K], [z0; K], [z0; K], [z0; K]);
+    let mut px = [z0; K];
+    for i in 0..K {
+        px[i] = x[i].mul(r[i].a[0]).sub(r[i].b[0]);
+        pz[i] = x[i].mul(r[i].a[2]).sub(r[i].b[2]);
+    }
+    for i in 0..K {
+        inv_pz[i] = sp(1.0).div(pz[i]);
+    }
+    for i in 0..K {
+        let py = x[i].mul(r[i].a[1]).sub(r[i].b[1]);
+        u[i] = px[i].mul(inv_pz[i]);
+        v[i] = py.mul(inv_pz[i]);
+        rho3[i] = u[i].mul(u[i]).add(v[i].mul(v[i]));
+        let dx = sp(rec.center[0]).sub(x[i]);
+        let dy = sp(rec.center[1]).sub(r[i].y);
+        rho2[i] = sp(2.0).mul(dx.mul(dx).add(dy.mul(dy)));
+        // `rho3 <= rho2 ? rho3 : rho2`; equal values have the same bits (both sums of squares).
+        rho[i] = rho2[i].min(rho3[i]);
+        z[i] = u[i].mul(sp(rec.h[6])).add(v[i].mul(sp(rec.h[7]))).add(sp(rec.h[8]));
+        g[i] = sp(-0.5).mul(rho[i]);
+    }
+    let g = svgir_core::simd::exp_fast_k(g);
+    let mut out = [Eval { alpha: z0, u: z0, v: z0, z: z0, g: z0, inv_pz: z0, use3d: z0.lt(z0) }; K];
+    for i in 0..K {
+        let alpha = sp(rec.opacity).mul(g[i]).min(sp(0.99));
+        let valid = S::and(
+            S::and(pz[i].ne(sp(0.0)), rho[i].le(sp(9.0))),
+            S::and(z[i].ge(sp(near)), alpha.ge(sp((1.0f64 / 255.0) as f32))),
+        );
+        out[i] = Eval {
+            alpha: S::select(valid, alpha, sp(0.0)),
+            u: u[i],
+            v: v[i],
+            z: z[i],
+            g: g[i],
+            inv_pz: inv_pz[i],
+            use3d: rho3[i].le(rho2[i]),
+        };
+    }
+    out
 }
 
 // The tile's per-pixel accumulators, one array of `stride * tile` each.
@@ -212,10 +251,28 @@ struct Composite<'a, S: Lanes> {
 }
 
 impl<S: Lanes> Composite<'_, S> {
-    /// Composites group `gr` into the tile arrays; returns the lanes that stopped (transmittance
-    /// fell under `t_stop`) and adds the composited weights to `ws`.
+    /// The entry's evaluation on group `gr` ([`eval_lanes`]).
     #[inline(always)]
-    unsafe fn group<const DIST: bool, const FEAT: bool, const PACKED: bool>(&self, gr: &Group, ws: &mut S) -> u32 {
+    unsafe fn eval<const PACKED: bool>(&self, gr: &Group) -> Eval<S> {
+        eval_lanes::<S>(self.s, &self.plane.rows(gr.y::<S, PACKED>()), gr.x::<S, PACKED>(), self.near)
+    }
+
+    /// The entry's evaluations on two groups side by side ([`eval_lanes_k`]).
+    #[inline(always)]
+    unsafe fn eval2<const PACKED: bool>(&self, g0: &Group, g1: &Group) -> [Eval<S>; 2] {
+        let (r0, r1) = (self.plane.rows(g0.y::<S, PACKED>()), self.plane.rows(g1.y::<S, PACKED>()));
+        eval_lanes_k::<S, 2>(self.s, [&r0, &r1], [g0.x::<S, PACKED>(), g1.x::<S, PACKED>()], self.near)
+    }
+
+    /// Composites group `gr`, evaluated as `ev`, into the tile arrays; returns the lanes that
+    /// stopped (transmittance fell under `t_stop`) and adds the composited weights to `ws`.
+    #[inline(always)]
+    unsafe fn group<const DIST: bool, const FEAT: bool, const PACKED: bool>(
+        &self,
+        gr: &Group,
+        ev: Eval<S>,
+        ws: &mut S,
+    ) -> u32 {
         let sp = |v: f32| S::splat(v);
         let a = |k: usize| self.base.add(k * self.np);
         let (ld, add, set) = (
@@ -227,8 +284,6 @@ impl<S: Lanes> Composite<'_, S> {
         let (cf, ef) = (self.cf, self.ef);
         let (ci, ce) = (cf.vertices > 1, ef.channels);
         let interp = ci || (ce > 0 && ef.vertices > 1);
-        let x = gr.x::<S, PACKED>();
-        let ev = eval_lanes::<S>(self.s, &self.plane.rows(gr.y::<S, PACKED>()), x, self.near);
         let live = S::and(S::from_bits(gr.lb), ev.alpha.ne(sp(0.0)));
         let tcur = ld(T);
         let test = tcur.mul(sp(1.0).sub(ev.alpha));
@@ -390,16 +445,29 @@ unsafe fn tiles<S: Lanes, const DIST: bool, const FEAT: bool>(
             let mut ws = sp(0.0);
             // Branch-free: a group without stopping lanes clears nothing.
             let (wide, packed) = at.split(kept.as_deref().unwrap_or(&scratch));
-            for gr in wide.iter().map(|g| g.group(origin, stride)) {
-                let sb = k.group::<DIST, FEAT, false>(&gr, &mut ws);
-                gr.clear::<false>(&mut row_live, sb, S::N);
-                remaining -= sb.count_ones() as usize;
+            // Groups in pairs, evaluated side by side ([`eval_lanes_k`]: on the AVX2 path the
+            // forward tiles took 10% less), then composited in order.
+            macro_rules! run {
+                ($list:expr, $packed:literal) => {
+                    let mut pairs = $list.chunks_exact(2);
+                    for p in &mut pairs {
+                        let (g0, g1) = (p[0].group(origin, stride), p[1].group(origin, stride));
+                        let [e0, e1] = k.eval2::<$packed>(&g0, &g1);
+                        for (gr, ev) in [(&g0, e0), (&g1, e1)] {
+                            let sb = k.group::<DIST, FEAT, $packed>(gr, ev, &mut ws);
+                            gr.clear::<$packed>(&mut row_live, sb, S::N);
+                            remaining -= sb.count_ones() as usize;
+                        }
+                    }
+                    for gr in pairs.remainder().iter().map(|g| g.group(origin, stride)) {
+                        let sb = k.group::<DIST, FEAT, $packed>(&gr, k.eval::<$packed>(&gr), &mut ws);
+                        gr.clear::<$packed>(&mut row_live, sb, S::N);
+                        remaining -= sb.count_ones() as usize;
+                    }
+                };
             }
-            for gr in packed.iter().map(|g| g.group(origin, stride)) {
-                let sb = k.group::<DIST, FEAT, true>(&gr, &mut ws);
-                gr.clear::<true>(&mut row_live, sb, S::N);
-                remaining -= sb.count_ones() as usize;
-            }
+            run!(wide, false);
+            run!(packed, true);
             wsum[e - r0 as usize] = ws.hsum();
         }
         // The tile's rows out to the images, a row of each array at a time (slice copies and
