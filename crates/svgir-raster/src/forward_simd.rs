@@ -343,9 +343,10 @@ impl<S: Lanes> Composite<'_, S> {
 
 /// A run of tiles, `S::N` pixels at a time (see the module docs). `FEAT`: the colours or
 /// extra channels come from the feature tables `cf` / `ef` (interpolated over vertices).
+/// `PAIRS`: evaluate an entry's groups two at a time where it has no feature tables.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-unsafe fn tiles<S: Lanes, const DIST: bool, const FEAT: bool>(
+unsafe fn tiles<S: Lanes, const DIST: bool, const FEAT: bool, const PAIRS: bool>(
     o: &Outputs<f32>,
     run: Range<usize>,
     bins: &TileBins,
@@ -445,11 +446,11 @@ unsafe fn tiles<S: Lanes, const DIST: bool, const FEAT: bool>(
             let mut ws = sp(0.0);
             // Branch-free: a group without stopping lanes clears nothing.
             let (wide, packed) = at.split(kept.as_deref().unwrap_or(&scratch));
-            // Groups in pairs, evaluated side by side ([`eval_lanes_k`]: on the AVX2 path the
-            // forward tiles took 10% less), then composited in order.
+            // With `PAIRS` and no feature tables, groups in pairs, evaluated side by side
+            // ([`eval_lanes_k`]), then composited in order; else one at a time.
             macro_rules! run {
                 ($list:expr, $packed:literal) => {
-                    let mut pairs = $list.chunks_exact(2);
+                    let mut pairs = $list.chunks_exact(if PAIRS && !FEAT { 2 } else { usize::MAX });
                     for p in &mut pairs {
                         let (g0, g1) = (p[0].group(origin, stride), p[1].group(origin, stride));
                         let [e0, e1] = k.eval2::<$packed>(&g0, &g1);
@@ -517,7 +518,9 @@ unsafe fn tiles_avx2<const DIST: bool, const FEAT: bool>(
     w: u32,
     h: u32,
 ) {
-    tiles::<crate::simd::F8, DIST, FEAT>(o, run, bins, recs, cf, ef, bg, cfg, w, h)
+    // Pairs of groups side by side: the forward tiles took 8-10% less on the random 400 x 400
+    // scene (no less in stage 2's PBR pass, so `tiles` pairs them only without feature tables).
+    tiles::<crate::simd::F8, DIST, FEAT, true>(o, run, bins, recs, cf, ef, bg, cfg, w, h)
 }
 
 #[cfg(target_arch = "x86_64")]
@@ -535,7 +538,8 @@ unsafe fn tiles_avx512<const DIST: bool, const FEAT: bool>(
     w: u32,
     h: u32,
 ) {
-    tiles::<crate::simd::F8k, DIST, FEAT>(o, run, bins, recs, cf, ef, bg, cfg, w, h)
+    // No pairs: no gain on the random scene, and stage 2's PBR pass took 10-15% more with them.
+    tiles::<crate::simd::F8k, DIST, FEAT, false>(o, run, bins, recs, cf, ef, bg, cfg, w, h)
 }
 
 /// The width of the lane groups that the SIMD path `path` (already resolved) runs and keeps
