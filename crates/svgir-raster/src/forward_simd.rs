@@ -447,7 +447,8 @@ unsafe fn tiles<S: Lanes, const DIST: bool, const FEAT: bool, const PAIRS: bool>
             // Branch-free: a group without stopping lanes clears nothing.
             let (wide, packed) = at.split(kept.as_deref().unwrap_or(&scratch));
             // With `PAIRS` and no feature tables, groups in pairs, evaluated side by side
-            // ([`eval_lanes_k`]), then composited in order; else one at a time.
+            // ([`eval_lanes_k`]), then composited in order; else one at a time (chunks of
+            // `usize::MAX` leave every group to the remainder's loop).
             macro_rules! run {
                 ($list:expr, $packed:literal) => {
                     let mut pairs = $list.chunks_exact(if PAIRS && !FEAT { 2 } else { usize::MAX });

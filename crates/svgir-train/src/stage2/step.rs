@@ -46,8 +46,9 @@ impl Stage2 {
         // 1. SH pass: which Gaussians the view blends (radii and composited weights), and the
         // projection the PBR pass reuses. The loss reads the SH image from the PBR pass
         // (`sh_channels`), so no output of this pass reaches it and it needs no backward (nor
-        // keeps lane groups for one, `for_backward`); it skips the depth and normal outputs. With the view's set from its last render
-        // (`ShadeSets::LastVisit`), only the projection is made.
+        // keeps lane groups for one, `for_backward`); it skips the depth and normal outputs.
+        // With the view's set from its last render (`ShadeSets::LastVisit`), only the
+        // projection is made.
         let sh_raster = RasterConfig { geometry: false, for_backward: false, ..self.raster };
         let sh_input = RenderInput {
             surfels: &self.surfels,
