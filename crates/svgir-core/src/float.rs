@@ -119,6 +119,31 @@ macro_rules! impl_float {
 impl_float!(f32);
 impl_float!(f64);
 
+/// `exp(x)` as `2^n * p(r)`, `x = n ln2 + r`, `|r| <= ln2 / 2`, `p` the degree-6 Taylor
+/// polynomial in Estrin's form; branch-free and inlinable (libm's `expf` is a call on baseline
+/// x86-64).
+#[inline(always)]
+pub fn exp_f32(x: f32) -> f32 {
+    let x = x.clamp(-87.0, 88.0);
+    // Round-to-nearest via the 1.5 * 2^23 shifter (no SSE4.1 `round` needed).
+    let shifter = 12_582_912.0f32;
+    let t = x * std::f32::consts::LOG2_E + shifter;
+    let n = t - shifter;
+    let r = x - n * 0.693_145_75 - n * 1.428_606_8e-6;
+    // Estrin's scheme: the chain of dependent operations is five deep where Horner's is twelve,
+    // and the tile kernels wait on it (docs/performance.md).
+    let (r2, r4) = (r * r, r * r * (r * r));
+    let a = 1.0 + r;
+    let b = 0.5 + r * (1.0 / 6.0);
+    let d = (1.0 / 24.0 + r * (1.0 / 120.0)) + r2 * (1.0 / 720.0);
+    let p = (a + r2 * b) + r4 * d;
+    // The shifter's low mantissa bits hold n + 2^22: integer ops only (no saturating cast), so
+    // the loops calling this vectorise.
+    let ni = (t.to_bits() as i32).wrapping_sub(0x4B40_0000);
+    let bits = (ni.wrapping_add(127) as u32) << 23;
+    p * f32::from_bits(bits)
+}
+
 /// Small 3-vector helpers on `[F; 3]`.
 #[inline]
 pub fn dot<F: Float>(a: [F; 3], b: [F; 3]) -> F {
@@ -129,4 +154,24 @@ pub fn dot<F: Float>(a: [F; 3], b: [F; 3]) -> F {
 #[inline]
 pub fn to_f<F: Float>(a: [f32; 3]) -> [F; 3] {
     a.map(F::from_f32)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn fast_exp_is_accurate() {
+        let mut worst = 0.0f64;
+        for i in 0..=200_000 {
+            let x = -87.0 + 175.0 * i as f64 / 200_000.0;
+            let want = x.exp();
+            let got = exp_f32(x as f32) as f64;
+            // Compare against exp of the f32-rounded argument.
+            let want_r = ((x as f32) as f64).exp();
+            worst = worst.max(((got - want_r) / want_r).abs());
+            assert!(((got - want) / want).abs() < 1e-5);
+        }
+        assert!(worst < 3e-7, "worst relative error {worst}");
+    }
 }

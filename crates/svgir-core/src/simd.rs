@@ -203,13 +203,13 @@ pub trait Lanes: Copy {
     unsafe fn hsum8(v: &[Self; 8]) -> [f32; 8] {
         [v[0].hsum(), v[1].hsum(), v[2].hsum(), v[3].hsum(), v[4].hsum(), v[5].hsum(), v[6].hsum(), v[7].hsum()]
     }
-    /// `svgir_raster::real::exp_f32` per lane, same operations in the same order.
+    /// `svgir_core::float::exp_f32` per lane, same operations in the same order.
     #[inline(always)]
     unsafe fn exp_fast(self) -> Self {
         exp_fast_k([self])[0]
     }
     /// `2^n` from `t = x log2(e) + 1.5 * 2^23`, whose low mantissa bits hold `n + 2^22` (integer
-    /// operations, as `svgir_raster::real::exp_f32`).
+    /// operations, as `svgir_core::float::exp_f32`).
     unsafe fn pow2_shifted(t: Self) -> Self;
     /// `if o < self { o } else { self }` per lane: `self` when they are equal or `o` is NaN (the
     /// scalar kernels' `min`). One instruction where a compare and a select are two, and a
@@ -233,7 +233,7 @@ pub trait Lanes: Copy {
 /// [`Lanes::exp_fast`] of `K` vectors, each step taken for all of them before the next: the
 /// steps of one vector form a chain of dependent operations that the tile kernels wait on, and
 /// written side by side, the chains of several lane groups overlap. Per vector, the operations
-/// of `svgir_raster::real::exp_f32` in its order, so the same bits.
+/// of `svgir_core::float::exp_f32` in its order, so the same bits.
 ///
 /// # Safety
 /// The CPU has the features of `S`.

@@ -59,7 +59,9 @@ pub use material::{activate, activate_backward, ActivatedMaterials, MaterialGrad
 pub use shade::{shade, shade_into, shade_into_cached, Indirect, ShadeInputs, ShadeOutput, ShadeParams, ENV_MAX};
 pub use shade_backward::{shade_backward, shade_backward_cached};
 pub use svgir_trace::DirectionCache;
-pub use two_sided::{faces, negated, shade_sides_backward, shade_sides_into, split_by_side, Side};
+pub use two_sided::{
+    faces, negated, shade_sides_backward, shade_sides_backward_into, shade_sides_into, split_by_side, Side,
+};
 
 /// Everything the stage-2 shading can reject: bad parameters, mismatched array sizes, tracer errors.
 #[derive(Debug, thiserror::Error, PartialEq)]

@@ -168,7 +168,7 @@ fn check_shapes<F>(m: usize, n: usize, albedo: &[F], rough: &[F], offset: &[F]) 
     expect_len("normal_offset", offset.len(), n * m * 3)
 }
 
-#[inline]
+#[inline(always)]
 fn albedo_of<F: Real>(x: F) -> F {
     F::from_f64(ALBEDO_SCALE) * sigmoid(x) + F::from_f64(ALBEDO_BIAS)
 }
@@ -189,7 +189,7 @@ fn logit_clamped(s: f64) -> f32 {
     (s / (1.0 - s)).ln() as f32
 }
 
-#[inline]
+#[inline(always)]
 fn roughness_of<F: Real>(x: F) -> F {
     F::from_f64(ROUGHNESS_SCALE) * sigmoid(x) + F::from_f64(ROUGHNESS_BIAS)
 }
@@ -206,6 +206,32 @@ fn offset_normal<F: Real>(n: Vec3, d: &[F]) -> ([F; 3], F, bool) {
     }
 }
 
+/// Values per rayon task of the element-wise activations.
+const CHUNK: usize = 4096;
+
+/// `x.map(f)` as plain loops over chunks, in parallel: the loop bodies vectorise (a `map` over a
+/// parallel iterator left each value to a scalar call).
+fn map_in_chunks<F: Real>(x: &[F], f: impl Fn(F) -> F + Sync) -> Vec<F> {
+    let mut out = vec![F::ZERO; x.len()];
+    out.par_chunks_mut(CHUNK).zip(x.par_chunks(CHUNK)).for_each(|(o, x)| {
+        for (o, &x) in o.iter_mut().zip(x) {
+            *o = f(x);
+        }
+    });
+    out
+}
+
+/// `x.zip(y).map(f)` as [`map_in_chunks`].
+fn zip_in_chunks<F: Real>(x: &[F], y: &[F], f: impl Fn(F, F) -> F + Sync) -> Vec<F> {
+    let mut out = vec![F::ZERO; x.len()];
+    out.par_chunks_mut(CHUNK).zip(x.par_chunks(CHUNK).zip(y.par_chunks(CHUNK))).for_each(|(o, (x, y))| {
+        for ((o, &x), &y) in o.iter_mut().zip(x).zip(y) {
+            *o = f(x, y);
+        }
+    });
+    out
+}
+
 /// SPEC 3 activations for N = `normals.len()` Gaussians (generic; f64 for the tests).
 pub fn activate<F: Real>(
     m: usize,
@@ -215,8 +241,8 @@ pub fn activate<F: Real>(
     normals: &[Vec3],
 ) -> Result<ActivatedMaterials<F>, PbrError> {
     check_shapes(m, normals.len(), albedo_raw, roughness_raw, normal_offset)?;
-    let albedo = albedo_raw.par_iter().with_min_len(4096).map(|&x| albedo_of(x)).collect();
-    let roughness = roughness_raw.par_iter().with_min_len(4096).map(|&x| roughness_of(x)).collect();
+    let albedo = map_in_chunks(albedo_raw, albedo_of);
+    let roughness = map_in_chunks(roughness_raw, roughness_of);
     let mut shading = vec![F::ZERO; normal_offset.len()];
     shading.par_chunks_mut(3).zip(normal_offset.par_chunks(3)).enumerate().with_min_len(1024).for_each(
         |(v, (out, d))| {
@@ -240,23 +266,20 @@ pub fn activate_backward<F: Real>(
 ) -> Result<MaterialGrads<F>, PbrError> {
     check_shapes(m, normals.len(), albedo_raw, roughness_raw, normal_offset)?;
     check_shapes(m, normals.len(), v_albedo, v_roughness, v_normals)?;
-    // A Gaussian no view pixel saw has zero gradients (about half of them per view): returning
-    // the zero itself gives the product's bits (its sign included) without the `exp`.
+    // A Gaussian no view pixel saw has zero gradients (about half of them per view): it keeps
+    // the zero itself (its sign included), selected rather than branched to so that the loop
+    // vectorises.
     let dsig = |x: F, g: F, scale: f64| {
-        if g == F::ZERO {
-            return g;
-        }
         let s = sigmoid(x);
-        g * F::from_f64(scale) * s * (F::ONE - s)
+        let d = g * F::from_f64(scale) * s * (F::ONE - s);
+        if g == F::ZERO {
+            g
+        } else {
+            d
+        }
     };
-    let v_albedo_raw =
-        albedo_raw.par_iter().zip(v_albedo).with_min_len(4096).map(|(&x, &g)| dsig(x, g, ALBEDO_SCALE)).collect();
-    let v_roughness_raw = roughness_raw
-        .par_iter()
-        .zip(v_roughness)
-        .with_min_len(4096)
-        .map(|(&x, &g)| dsig(x, g, ROUGHNESS_SCALE))
-        .collect();
+    let v_albedo_raw = zip_in_chunks(albedo_raw, v_albedo, |x, g| dsig(x, g, ALBEDO_SCALE));
+    let v_roughness_raw = zip_in_chunks(roughness_raw, v_roughness, |x, g| dsig(x, g, ROUGHNESS_SCALE));
     let mut v_normal_offset = vec![F::ZERO; normal_offset.len()];
     v_normal_offset
         .par_chunks_mut(3)

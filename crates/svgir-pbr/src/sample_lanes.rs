@@ -14,6 +14,10 @@
 //! order. [`Samples8::write_rows`] hands them to the shading's rows, eight at a time when all
 //! eight are samples.
 //!
+//! A tail of fewer than eight directions (the backward's four gradient directions) runs in the
+//! same lanes on zero-padded copies of its inputs ([`samples_tail`]), its padded lanes yielding
+//! nothing.
+//!
 //! Work split: one call per (Gaussian, 8 directions); nothing is allocated or saved.
 
 // The kernel is an `unsafe fn` with one contract -- the CPU has AVX2 and the sample range lies
@@ -126,6 +130,23 @@ pub(crate) fn serves(inp: &ShadeInputs<f32>) -> bool {
 /// Lights compared with the taps in lanes in [`samples8`]; beyond this, the mask lookup.
 const MAX_COMPARED_LIGHTS: usize = 16;
 
+/// Where the eight lanes' inputs are read: the table rows of the directions, the visibility,
+/// the cached texel coordinates and the traced radiance, eight consecutive entries each.
+struct Lanes8 {
+    table: [*const f32; 4],
+    vis: *const u16,
+    coords: *const [f32; 2],
+    radiance: *const [u16; 3],
+}
+
+/// A tail's inputs copied into zero-padded rows of eight.
+struct Padded {
+    table: [[f32; LANES]; 4],
+    vis: [u16; LANES],
+    coords: [[f32; 2]; LANES],
+    radiance: [[u16; 3]; LANES],
+}
+
 /// Samples `(i, k0..k0 + 8)` of Gaussian i with frame `frame`.
 ///
 /// # Safety
@@ -141,6 +162,65 @@ pub(crate) unsafe fn samples8(
 ) -> Samples8 {
     let mb = inp.mb;
     let s0 = i * mb.k + k0;
+    let (coords, width, height) = cache.coords(s0, LANES);
+    let src = Lanes8 {
+        table: table.rows().map(|r| r[k0..k0 + LANES].as_ptr()),
+        vis: mb.vis[s0..s0 + LANES].as_ptr(),
+        coords: coords.as_ptr(),
+        radiance: mb.radiance[s0..s0 + LANES].as_ptr(),
+    };
+    samples_from(inp, frame, &src, width, height, LANES)
+}
+
+/// Samples `(i, k0..k0 + lanes)` for a tail of `1 <= lanes < 8` directions (the backward's four
+/// gradient directions): [`samples8`] on zero-padded copies, whose lanes past `lanes` yield
+/// nothing.
+///
+/// # Safety
+/// The CPU has AVX2, `1 <= lanes < 8`, `k0 + lanes <= K`, `cache` is the micro-buffer's, and
+/// [`serves`] holds.
+#[target_feature(enable = "avx2")]
+pub(crate) unsafe fn samples_tail(
+    inp: &ShadeInputs<f32>,
+    table: &FibTable,
+    cache: &DirectionCache,
+    frame: &Frame,
+    i: usize,
+    k0: usize,
+    lanes: usize,
+) -> Samples8 {
+    let mb = inp.mb;
+    let s0 = i * mb.k + k0;
+    debug_assert!((1..LANES).contains(&lanes) && k0 + lanes <= mb.k);
+    let (coords, width, height) = cache.coords(s0, lanes);
+    let mut pad =
+        Padded { table: [[0.0; LANES]; 4], vis: [0; LANES], coords: [[0.0; 2]; LANES], radiance: [[0; 3]; LANES] };
+    for (dst, row) in pad.table.iter_mut().zip(table.rows()) {
+        dst[..lanes].copy_from_slice(&row[k0..k0 + lanes]);
+    }
+    pad.vis[..lanes].copy_from_slice(&mb.vis[s0..s0 + lanes]);
+    pad.coords[..lanes].copy_from_slice(coords);
+    pad.radiance[..lanes].copy_from_slice(&mb.radiance[s0..s0 + lanes]);
+    let src = Lanes8 {
+        table: pad.table.each_ref().map(|r| r.as_ptr()),
+        vis: pad.vis.as_ptr(),
+        coords: pad.coords.as_ptr(),
+        radiance: pad.radiance.as_ptr(),
+    };
+    samples_from(inp, frame, &src, width, height, lanes)
+}
+
+/// The body of [`samples8`] and [`samples_tail`]: lanes `0..lanes` of `src` are samples, on a
+/// `width x height` map.
+#[inline(always)]
+unsafe fn samples_from(
+    inp: &ShadeInputs<f32>,
+    frame: &Frame,
+    src: &Lanes8,
+    width: u32,
+    height: u32,
+    lanes: usize,
+) -> Samples8 {
     let zero = _mm256_setzero_ps();
     let mut out = Samples8 {
         yields: 0,
@@ -157,9 +237,7 @@ pub(crate) unsafe fn samples8(
     // The direction (`HemiFrame::dir`): c = c_k cx - s_k sx, s = s_k cx + c_k sx,
     // d = (b1 (r c) + b2 (r s)) + n z.
     let (b1, b2, n, cx, sx) = frame.parts();
-    let [tc, ts, tr, tz] = table.rows();
-    let row = |r: &[f32]| _mm256_loadu_ps(r[k0..k0 + LANES].as_ptr());
-    let (ck, sk, rk, zk) = (row(tc), row(ts), row(tr), row(tz));
+    let [ck, sk, rk, zk] = src.table.map(|r| _mm256_loadu_ps(r));
     let (cxv, sxv) = (_mm256_set1_ps(cx), _mm256_set1_ps(sx));
     let c = _mm256_sub_ps(_mm256_mul_ps(ck, cxv), _mm256_mul_ps(sk, sxv));
     let s = _mm256_add_ps(_mm256_mul_ps(sk, cxv), _mm256_mul_ps(ck, sxv));
@@ -174,7 +252,7 @@ pub(crate) unsafe fn samples8(
 
     // The visibility: u16 unorm as `q as f32 * (1 / 65535)`, or 1 with the switch off.
     let vis = if inp.params.visibility {
-        let q = _mm_loadu_si128(mb.vis[s0..s0 + LANES].as_ptr() as *const __m128i);
+        let q = _mm_loadu_si128(src.vis as *const __m128i);
         const INV: f32 = 1.0 / 65535.0;
         _mm256_mul_ps(_mm256_cvtepi32_ps(_mm256_cvtepu16_epi32(q)), _mm256_set1_ps(INV))
     } else {
@@ -183,9 +261,8 @@ pub(crate) unsafe fn samples8(
     _mm256_storeu_ps(out.vis.as_mut_ptr(), vis);
 
     // The taps (`Taps::at` of the cached coordinates): truncation is floor for fx, fy >= 0.
-    let (coords, width, height) = cache.coords(s0, LANES);
     // The eight (fx, fy) pairs as two rows: two loads of four pairs, then shuffles (moves only).
-    let xy = coords.as_ptr() as *const f32;
+    let xy = src.coords as *const f32;
     let (lo, hi) = (_mm256_loadu_ps(xy), _mm256_loadu_ps(xy.add(LANES)));
     // Per 128-bit half: x0 x1 x4 x5 | x2 x3 x6 x7 (and y), then the 64-bit pairs reordered.
     let unpair = |v: __m256| _mm256_castpd_ps(_mm256_permute4x64_pd::<0b11_01_10_00>(_mm256_castps_pd(v)));
@@ -266,11 +343,11 @@ pub(crate) unsafe fn samples8(
     // Traced radiance: the eight samples' 24 halves decoded in place (the decode and the
     // product with rho are per element, so the interleaved order needs no shuffle).
     if let Indirect::Traced { rho } = inp.indirect {
-        let src = mb.radiance[s0..s0 + LANES].as_ptr() as *const __m128i;
+        let rad = src.radiance as *const __m128i;
         let traced = out.traced.as_mut_ptr() as *mut f32;
         let ind = out.ind.as_mut_ptr() as *mut f32;
         for q in 0..3 {
-            let x = half_lanes(_mm256_cvtepu16_epi32(_mm_loadu_si128(src.add(q))));
+            let x = half_lanes(_mm256_cvtepu16_epi32(_mm_loadu_si128(rad.add(q))));
             _mm256_storeu_ps(traced.add(8 * q), x);
             _mm256_storeu_ps(ind.add(8 * q), _mm256_mul_ps(x, _mm256_set1_ps(rho)));
         }
@@ -286,7 +363,7 @@ pub(crate) unsafe fn samples8(
             nonzero |= (_mm256_movemask_ps(_mm256_cmp_ps::<_CMP_NEQ_UQ>(x, zero)) as u32) << (8 * part);
         }
     }
-    for l in 0..LANES {
+    for l in 0..lanes {
         if dark >> l & 1 == 0 || nonzero >> (3 * l) & 7 != 0 {
             out.yields |= 1 << l;
         }
@@ -368,7 +445,8 @@ mod tests {
             eprintln!("SKIPPED: this CPU has no AVX2, so the sample lanes cannot run here");
             return;
         }
-        let (n, k) = (60, 64);
+        // K = 68: eight blocks of eight and a tail of four (padded lanes).
+        let (n, k) = (60, 68);
         let mb = synthetic_microbuffer(n, k, 3);
         let positions = synthetic_positions(&mb, 3);
         let mut env = EnvLight::new(8, 3).unwrap().radiance();
@@ -417,9 +495,17 @@ mod tests {
             for i in 0..n {
                 let frame = Frame::new(mb.normals[i], mb.xi[i]);
                 for k0 in (0..k).step_by(LANES) {
-                    // SAFETY: AVX2 checked above; k0 + 8 <= K.
-                    let got = unsafe { samples8(&inp, &table, &cache, &frame, i, k0) };
-                    for l in 0..LANES {
+                    let lanes = LANES.min(k - k0);
+                    // SAFETY: AVX2 checked above; k0 + lanes <= K.
+                    let got = unsafe {
+                        if lanes == LANES {
+                            samples8(&inp, &table, &cache, &frame, i, k0)
+                        } else {
+                            samples_tail(&inp, &table, &cache, &frame, i, k0, lanes)
+                        }
+                    };
+                    assert_eq!(got.yields >> lanes, 0, "padded lanes yield nothing");
+                    for l in 0..lanes {
                         let want = sample(&inp, &table, Some(&cache), &frame, i, k0 + l);
                         match want {
                             Some(w) => {

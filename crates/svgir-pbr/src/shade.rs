@@ -459,19 +459,52 @@ pub fn shade_into_cached<F: Float>(
     cache: Option<&DirectionCache>,
     out: &mut ShadeOutput<F>,
 ) -> Result<(), PbrError> {
-    inp.validate()?;
-    if let Some(c) = cache {
-        c.check(inp.mb, inp.env_geom)?;
+    shade_sides_into_cached(&[(inp, cache)], out)
+}
+
+/// One side's inputs and direction cache, as the shading passes take them.
+pub(crate) type SideRef<'a, F> = (&'a ShadeInputs<'a, F>, Option<&'a DirectionCache>);
+
+/// Checks one side's inputs and cache, and that they match the first side's N, M and map (the
+/// sides of [`shade_sides_into_cached`] and the backward's).
+pub(crate) fn check_sides<F: Float>(sides: &[SideRef<F>]) -> Result<(), PbrError> {
+    let first = sides.first().ok_or_else(|| PbrError::InvalidParameter("no side to shade".into()))?.0;
+    for (inp, cache) in sides {
+        inp.validate()?;
+        if let Some(c) = cache {
+            c.check(inp.mb, inp.env_geom)?;
+        }
+        expect_len("side's Gaussians", inp.mb.len(), first.mb.len())?;
+        expect_len("side's vertices", inp.mats.m, first.mats.m)?;
+        expect_len("side's environment texels", inp.env.len(), first.env.len())?;
     }
-    let m = inp.mats.m;
-    let len = inp.mb.len() * m * 3;
+    Ok(())
+}
+
+/// The side that shades Gaussian i: the first whose `visible` holds it.
+#[inline(always)]
+pub(crate) fn side_of<'s, 'a, F>(sides: &'s [SideRef<'a, F>], i: usize) -> Option<(usize, &'s SideRef<'a, F>)> {
+    sides.iter().enumerate().find(|(_, (inp, _))| inp.visible[i])
+}
+
+/// [`shade_into_cached`] over several sides in one pass: each Gaussian is shaded by the first
+/// side whose `visible` holds it (the two-sided shading's sides hold disjoint sets, so this is
+/// the sum of the sides' outputs without a second buffer or a pass to add them).
+pub(crate) fn shade_sides_into_cached<F: Float>(
+    sides: &[SideRef<F>],
+    out: &mut ShadeOutput<F>,
+) -> Result<(), PbrError> {
+    check_sides(sides)?;
+    let inp0 = sides[0].0;
+    let m = inp0.mats.m;
+    let len = inp0.mb.len() * m * 3;
     out.m = m;
     let split_len = if out.split { len } else { 0 };
     for (buf, len) in [(&mut out.color, len), (&mut out.direct, split_len), (&mut out.indirect, split_len)] {
         svgir_core::par::refill(buf, len, F::ZERO);
     }
-    let table = inp.mb.table();
-    let lane = lane_kernels::<F>(inp.params.simd);
+    let tables: Vec<FibTable> = sides.iter().map(|(inp, _)| inp.mb.table()).collect();
+    let lanes: Vec<Simd> = sides.iter().map(|(inp, _)| lane_kernels::<F>(inp.params.simd)).collect();
     // Without the split, the direct and indirect parts go to per-task scratch (scalar kernel)
     // or are not formed (lane kernel).
     if out.split {
@@ -482,14 +515,18 @@ pub fn shade_into_cached<F: Float>(
             .enumerate()
             .with_min_len(MIN_TASK)
             .for_each_init(LaneScratch::default, |rows, (i, ((c, d), ind))| {
-                shade_one(inp, &table, cache, rows, lane, i, c, Some((d, ind)));
+                if let Some((s, &(inp, cache))) = side_of(sides, i) {
+                    shade_one(inp, &tables[s], cache, rows, lanes[s], i, c, Some((d, ind)));
+                }
             });
     } else {
         out.color.par_chunks_mut(m * 3).enumerate().with_min_len(MIN_TASK).for_each_init(
             || (LaneScratch::default(), vec![F::ZERO; 2 * m * 3]),
             |(rows, scratch), (i, c)| {
-                let parts = (lane == Simd::Scalar).then(|| scratch.split_at_mut(m * 3));
-                shade_one(inp, &table, cache, rows, lane, i, c, parts);
+                if let Some((s, &(inp, cache))) = side_of(sides, i) {
+                    let parts = (lanes[s] == Simd::Scalar).then(|| scratch.split_at_mut(m * 3));
+                    shade_one(inp, &tables[s], cache, rows, lanes[s], i, c, parts);
+                }
             },
         );
     }
@@ -510,9 +547,6 @@ fn shade_one<F: Float>(
     c: &mut [F],
     parts: Option<(&mut [F], &mut [F])>,
 ) {
-    if !inp.visible[i] {
-        return;
-    }
     #[cfg(target_arch = "x86_64")]
     if lane != Simd::Scalar {
         // SAFETY: `lane_kernels` checked that `F` is `f32` and that the CPU has the path's

@@ -19,7 +19,9 @@
 use crate::grads::PbrGrads;
 #[cfg(target_arch = "x86_64")]
 use crate::shade::{as_f32_inputs, as_f32_mut, lane_kernels};
-use crate::shade::{gaussian, samples, FibTable, Frame, Gaussian, LaneScratch, ShadeInputs};
+use crate::shade::{
+    check_sides, gaussian, samples, side_of, FibTable, Frame, Gaussian, LaneScratch, ShadeInputs, SideRef,
+};
 use crate::{expect_len, PbrError};
 use rayon::prelude::*;
 use svgir_core::par::add_parts_in_order;
@@ -110,22 +112,39 @@ pub fn shade_backward_cached<F: Float>(
     cache: Option<&DirectionCache>,
     v_color: &[F],
 ) -> Result<PbrGrads<F>, PbrError> {
-    inp.validate()?;
-    if let Some(c) = cache {
-        c.check(inp.mb, inp.env_geom)?;
-    }
-    let n = inp.mb.len();
-    let m = inp.mats.m;
+    let mut grads = PbrGrads::zeros(inp.mb.len(), inp.mats.m, inp.env.len());
+    shade_sides_backward_cached(&[(inp, cache)], v_color, &mut grads)?;
+    Ok(grads)
+}
+
+/// [`shade_backward_cached`] over the sides of [`crate::shade::shade_sides_into_cached`] in one
+/// pass, added into `grads` (sized for the sides' N, M and map; the trainer passes the other
+/// terms' gradients, which saves a buffer and a pass to add it): each Gaussian's gradients come
+/// from the first side whose `visible` holds it, those of the second side (the back, shaded with
+/// negated normals) with the normal gradient negated (`d/dn_m = -d/d(-n_m)`). The env and rho
+/// gradients of both sides share each block's partial.
+pub(crate) fn shade_sides_backward_cached<F: Float>(
+    sides: &[SideRef<F>],
+    v_color: &[F],
+    grads: &mut PbrGrads<F>,
+) -> Result<(), PbrError> {
+    check_sides(sides)?;
+    let inp0 = sides[0].0;
+    let n = inp0.mb.len();
+    let m = inp0.mats.m;
     expect_len("v_color", v_color.len(), n * m * 3)?;
-    let texels = inp.env.len();
-    let mut grads = PbrGrads::zeros(n, m, texels);
+    let texels = inp0.env.len();
+    expect_len("albedo gradients", grads.v_albedo.len(), n * m * 3)?;
+    expect_len("roughness gradients", grads.v_roughness.len(), n * m)?;
+    expect_len("normal gradients", grads.v_normals.len(), n * m * 3)?;
+    expect_len("environment gradients", grads.v_env.len(), texels)?;
     if n == 0 {
-        return Ok(grads);
+        return Ok(());
     }
     let block = block_size(n);
-    let table = inp.mb.table();
+    let tables: Vec<FibTable> = sides.iter().map(|(inp, _)| inp.mb.table()).collect();
     #[cfg(target_arch = "x86_64")]
-    let lane = lane_kernels::<F>(inp.params.simd);
+    let lanes: Vec<Simd> = sides.iter().map(|(inp, _)| lane_kernels::<F>(inp.params.simd)).collect();
     let partials: Vec<Option<(Vec<[F; 3]>, F)>> = grads
         .v_albedo
         .par_chunks_mut(block * m * 3)
@@ -140,29 +159,36 @@ pub fn shade_backward_cached<F: Float>(
                 let i = i0 + li;
                 let g = &v_color[i * m * 3..(i + 1) * m * 3];
                 // Unshaded Gaussians and those no pixel saw have no gradient.
-                if !inp.visible[i] || g.iter().all(|&x| x == F::ZERO) {
+                let Some((side, &(inp, cache))) = side_of(sides, i) else { continue };
+                if g.iter().all(|&x| x == F::ZERO) {
                     continue;
                 }
                 let (v_env, v_rho) = part.get_or_insert_with(|| (vec![[F::ZERO; 3]; texels], F::ZERO));
-                let (alb, rough, nrm) = (
+                // The kernels write Gaussian i's material gradients here; they are added below.
+                let mut own = [[F::ZERO; 3 * MAX_VERTICES], [F::ZERO; 3 * MAX_VERTICES], [F::ZERO; 3 * MAX_VERTICES]];
+                let [own_alb, own_rough, own_nrm] = &mut own;
+                let (alb_out, rough_out, nrm_out) = (
                     &mut alb[li * m * 3..(li + 1) * m * 3],
                     &mut rough[li * m..(li + 1) * m],
                     &mut nrm[li * m * 3..(li + 1) * m * 3],
                 );
+                let (alb, rough, nrm) = (&mut own_alb[..m * 3], &mut own_rough[..m], &mut own_nrm[..m * 3]);
+                let table = &tables[side];
+                let mut done = false;
                 #[cfg(target_arch = "x86_64")]
-                if lane != Simd::Scalar {
+                if lanes[side] != Simd::Scalar {
                     // SAFETY: `lane_kernels` checked that `F` is `f32` and that the CPU has the
                     // path's features.
                     unsafe {
                         let g = std::slice::from_raw_parts(g.as_ptr() as *const f32, g.len());
                         let v_rho = &mut *(v_rho as *mut F as *mut f32);
-                        let kernel = match lane {
+                        let kernel = match lanes[side] {
                             Simd::Avx512 => crate::shade_simd::backward_gaussian_avx512,
                             _ => crate::shade_simd::backward_gaussian_avx2,
                         };
                         kernel(
                             as_f32_inputs(inp),
-                            &table,
+                            table,
                             cache,
                             &mut rows,
                             i,
@@ -174,10 +200,20 @@ pub fn shade_backward_cached<F: Float>(
                             v_rho,
                         );
                     }
-                    continue;
+                    done = true;
                 }
-                let _ = &mut rows;
-                backward_gaussian(inp, &table, cache, i, g, alb, rough, nrm, v_env, v_rho);
+                if !done {
+                    let _ = &mut rows;
+                    backward_gaussian(inp, table, cache, i, g, alb, rough, nrm, v_env, v_rho);
+                }
+                alb_out.iter_mut().zip(alb.iter()).for_each(|(o, x)| *o += *x);
+                rough_out.iter_mut().zip(rough.iter()).for_each(|(o, x)| *o += *x);
+                if side > 0 {
+                    // The back side shades with -n_m.
+                    nrm_out.iter_mut().zip(nrm.iter()).for_each(|(o, x)| *o -= *x);
+                } else {
+                    nrm_out.iter_mut().zip(nrm.iter()).for_each(|(o, x)| *o += *x);
+                }
             }
             part
         })
@@ -191,7 +227,7 @@ pub fn shade_backward_cached<F: Float>(
     for v_rho in v_rhos {
         grads.v_rho += v_rho;
     }
-    Ok(grads)
+    Ok(())
 }
 
 /// One sample's share of the light gradients (SPEC 4): `dL/dLin` (`v_lin`, per channel) times

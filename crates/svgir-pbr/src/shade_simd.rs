@@ -31,8 +31,8 @@
 // through `Simd::resolve`) -- so the operations inside need no block of their own.
 #![allow(unsafe_op_in_unsafe_fn)]
 
-use crate::sample_lanes::{samples8, serves, Samples8, LANES};
-use crate::shade::{for_light_samples, gaussian, sample, samples, FibTable, Frame, Sample, ShadeInputs};
+use crate::sample_lanes::{samples8, samples_tail, serves, Samples8, LANES};
+use crate::shade::{for_light_samples, gaussian, samples, FibTable, Frame, Sample, ShadeInputs};
 use crate::shade_backward::light_grads;
 use svgir_core::simd::{F8k, Lanes, F8};
 use svgir_shading::split::Lobe;
@@ -88,22 +88,22 @@ impl SampleRows {
         match cache.filter(|_| serves(inp)) {
             Some(c) => {
                 // The K directions eight at a time in lanes (`sample_lanes`, the scalar values
-                // bit for bit), a tail of fewer than eight and the lights as the scalar code.
+                // bit for bit; a tail of fewer than eight in padded lanes), the lights as the
+                // scalar code.
                 let k = inp.mb.k;
-                let full = k - k % LANES;
                 // Rows appended to (cleared above, their capacity kept from Gaussian to Gaussian).
-                for k0 in (0..full).step_by(LANES) {
+                for k0 in (0..k).step_by(LANES) {
                     // SAFETY: the caller of the `_avx2` kernels checked that the CPU has AVX2;
-                    // k0 + 8 <= K and `serves` holds.
-                    let s8 = unsafe { samples8(inp, table, c, &frame, i, k0) };
+                    // 1 <= lanes <= 8, k0 + lanes <= K and `serves` holds.
+                    let s8 = unsafe {
+                        match k - k0 {
+                            LANES.. => samples8(inp, table, c, &frame, i, k0),
+                            lanes => samples_tail(inp, table, c, &frame, i, k0, lanes),
+                        }
+                    };
                     s8.write_rows(&mut self.dir, &mut self.direct, &mut self.ind);
                     if keep {
                         self.kept8.push(s8);
-                    }
-                }
-                for kk in full..k {
-                    if let Some(s) = sample(inp, table, cache, &frame, i, kk) {
-                        self.push(s, keep);
                     }
                 }
                 for_light_samples(inp, i, |s| self.push(s, keep));

@@ -12,13 +12,14 @@
 //! The back inputs shade the others, with the back micro-buffers, their direction cache and light
 //! visibility, and the shading normals negated. Materials and light are shared.
 //!
-//! Work split: one call of the one-sided kernels per side. Each call skips the other side's
-//! Gaussians through `visible`, so the outputs add; so do the gradients, the back's normal
-//! gradient negated. Nothing is saved for backward.
+//! Work split: one pass of the one-sided kernels over the Gaussians, each shaded (and given its
+//! gradients) on the side whose `visible` holds it, the back's normal gradient negated. The
+//! sides' sets are disjoint, so this is the sum of two one-sided calls without a second output
+//! buffer and a pass to add it. Nothing is saved for backward.
 
 use crate::grads::PbrGrads;
-use crate::shade::{shade_into_cached, ShadeInputs, ShadeOutput};
-use crate::shade_backward::shade_backward_cached;
+use crate::shade::{shade_into_cached, shade_sides_into_cached, ShadeInputs, ShadeOutput};
+use crate::shade_backward::shade_sides_backward_cached;
 use crate::PbrError;
 use glam::Vec3;
 use rayon::prelude::*;
@@ -61,35 +62,21 @@ pub fn negated<F: Float>(normals: &[F]) -> Vec<F> {
     normals.par_iter().with_min_len(4096).map(|&x| -x).collect()
 }
 
-/// Shade the front side and the back side (into `scratch`, which holds it between calls), then
-/// add the back side's output. The two sides run side by side: each is a parallel loop over
-/// all Gaussians that shades few of them on the back side, and neither fills many cores alone.
+/// Shade the front side and the back side (if any) into `out`, in one pass over the Gaussians:
+/// each is shaded on the side whose `visible` holds it. The sides' visible sets must be
+/// disjoint ([`split_by_side`]), else an error.
 pub fn shade_sides_into<F: Float>(
     front: &Side<F>,
     back: Option<&Side<F>>,
     out: &mut ShadeOutput<F>,
-    scratch: &mut ShadeOutput<F>,
 ) -> Result<(), PbrError> {
-    let Some(back) = back else { return shade_into_cached(&front.inputs, front.cache, out) };
-    let (f, b) = rayon::join(
-        || shade_into_cached(&front.inputs, front.cache, out),
-        || shade_into_cached(&back.inputs, back.cache, scratch),
-    );
-    f?;
-    b?;
-    if scratch.color.len() != out.color.len() {
-        return Err(PbrError::SizeMismatch {
-            what: "back-side shading",
-            got: scratch.color.len(),
-            want: out.color.len(),
-        });
+    match back {
+        None => shade_into_cached(&front.inputs, front.cache, out),
+        Some(back) => {
+            disjoint(front, back)?;
+            shade_sides_into_cached(&[(&front.inputs, front.cache), (&back.inputs, back.cache)], out)
+        }
     }
-    for (o, s) in
-        [(&mut out.color, &scratch.color), (&mut out.direct, &scratch.direct), (&mut out.indirect, &scratch.indirect)]
-    {
-        o.par_iter_mut().zip(s).with_min_len(4096).for_each(|(a, b)| *a += *b);
-    }
-    Ok(())
 }
 
 /// Gradients of [`shade_sides_into`]'s colour for upstream `v_color`, with respect to the
@@ -99,17 +86,37 @@ pub fn shade_sides_backward<F: Float>(
     back: Option<&Side<F>>,
     v_color: &[F],
 ) -> Result<PbrGrads<F>, PbrError> {
-    let Some(back) = back else { return shade_backward_cached(&front.inputs, front.cache, v_color) };
-    // Side by side, as the forward.
-    let (g, b) = rayon::join(
-        || shade_backward_cached(&front.inputs, front.cache, v_color),
-        || shade_backward_cached(&back.inputs, back.cache, v_color),
-    );
-    let (mut g, mut b) = (g?, b?);
-    // The back side shades with -n_m: d/dn_m = -d/d(-n_m).
-    b.v_normals.par_iter_mut().with_min_len(4096).for_each(|x| *x = -*x);
-    if !g.add_scaled(&b, F::ONE) {
-        return Err(PbrError::InvalidParameter("front and back shading have different sizes".into()));
+    let inp = &front.inputs;
+    let mut grads = PbrGrads::zeros(inp.mb.len(), inp.mats.m, inp.env.len());
+    shade_sides_backward_into(front, back, v_color, &mut grads)?;
+    Ok(grads)
+}
+
+/// [`shade_sides_backward`] added into `grads` (sized for the sides' Gaussians, vertices and
+/// map, else an error): the trainer's other gradients of the same quantities, without a second
+/// buffer and a pass to add it.
+pub fn shade_sides_backward_into<F: Float>(
+    front: &Side<F>,
+    back: Option<&Side<F>>,
+    v_color: &[F],
+    grads: &mut PbrGrads<F>,
+) -> Result<(), PbrError> {
+    let mut sides = vec![(&front.inputs, front.cache)];
+    if let Some(back) = back {
+        disjoint(front, back)?;
+        sides.push((&back.inputs, back.cache));
     }
-    Ok(g)
+    shade_sides_backward_cached(&sides, v_color, grads)
+}
+
+/// No Gaussian is shaded on both sides.
+fn disjoint<F>(front: &Side<F>, back: &Side<F>) -> Result<(), PbrError> {
+    let (f, b) = (front.inputs.visible, back.inputs.visible);
+    if f.len() != b.len() {
+        return Err(PbrError::SizeMismatch { what: "back side's visible Gaussians", got: b.len(), want: f.len() });
+    }
+    if f.par_iter().zip(b).with_min_len(4096).any(|(x, y)| *x && *y) {
+        return Err(PbrError::InvalidParameter("a Gaussian is shaded on both sides".into()));
+    }
+    Ok(())
 }

@@ -464,8 +464,8 @@ fn two_sided_gradients_match_finite_differences_f64_and_flip_the_surfel() {
                 mats: VertexMaterials { normals: &back_n, ..*act },
                 ..bi
             };
-            let (mut out, mut scratch) = (ShadeOutput::new(), ShadeOutput::new());
-            shade_sides_into(&front, Some(&Side { inputs: bi, cache: None }), &mut out, &mut scratch).unwrap();
+            let mut out = ShadeOutput::new();
+            shade_sides_into(&front, Some(&Side { inputs: bi, cache: None }), &mut out).unwrap();
             out.color
         };
         let loss2 = |c: &Case, env: &[[f64; 3]], rho: f64, raw: [&[f64]; 3]| -> f64 {

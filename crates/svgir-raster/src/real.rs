@@ -7,6 +7,9 @@
 use glam::{DQuat, DVec2, DVec3, Quat, Vec2, Vec3};
 use std::fmt::Debug;
 use std::ops::{Add, AddAssign, Div, Mul, MulAssign, Neg, Sub, SubAssign};
+/// The branch-free exponential the f32 kernels use (defined beside core's `Float`, which the
+/// material activations share).
+pub use svgir_core::float::exp_f32;
 use svgir_core::ShCoeffs;
 
 /// A floating-point scalar (`f32` or `f64`), with the glam types gradients are returned in.
@@ -221,31 +224,6 @@ impl Real for f64 {
     }
 }
 
-/// `exp(x)` as `2^n * p(r)`, `x = n ln2 + r`, `|r| <= ln2 / 2`, `p` the degree-6 Taylor
-/// polynomial in Estrin's form; branch-free and inlinable (libm's `expf` is a call on baseline
-/// x86-64).
-#[inline(always)]
-pub fn exp_f32(x: f32) -> f32 {
-    let x = x.clamp(-87.0, 88.0);
-    // Round-to-nearest via the 1.5 * 2^23 shifter (no SSE4.1 `round` needed).
-    let shifter = 12_582_912.0f32;
-    let t = x * std::f32::consts::LOG2_E + shifter;
-    let n = t - shifter;
-    let r = x - n * 0.693_145_75 - n * 1.428_606_8e-6;
-    // Estrin's scheme: the chain of dependent operations is five deep where Horner's is twelve,
-    // and the tile kernels wait on it (docs/performance.md).
-    let (r2, r4) = (r * r, r * r * (r * r));
-    let a = 1.0 + r;
-    let b = 0.5 + r * (1.0 / 6.0);
-    let d = (1.0 / 24.0 + r * (1.0 / 120.0)) + r2 * (1.0 / 720.0);
-    let p = (a + r2 * b) + r4 * d;
-    // The shifter's low mantissa bits hold n + 2^22: integer ops only (no saturating cast), so
-    // the loops calling this vectorise.
-    let ni = (t.to_bits() as i32).wrapping_sub(0x4B40_0000);
-    let bits = (ni.wrapping_add(127) as u32) << 23;
-    p * f32::from_bits(bits)
-}
-
 /// `f64` twin of `svgir_core::sh::basis`, only for the finite-difference oracle (core's is `f32`);
 /// a test asserts the two agree.
 pub(crate) fn sh_basis_f64(degree: u32, d: [f64; 3], out: &mut [f64; 16]) {
@@ -350,21 +328,6 @@ pub(crate) fn matvec_t<F: Real>(m: &[[F; 3]; 3], v: [F; 3]) -> [F; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn fast_exp_is_accurate() {
-        let mut worst = 0.0f64;
-        for i in 0..=200_000 {
-            let x = -87.0 + 175.0 * i as f64 / 200_000.0;
-            let want = x.exp();
-            let got = exp_f32(x as f32) as f64;
-            // Compare against exp of the f32-rounded argument.
-            let want_r = ((x as f32) as f64).exp();
-            worst = worst.max(((got - want_r) / want_r).abs());
-            assert!(((got - want) / want).abs() < 1e-5);
-        }
-        assert!(worst < 3e-7, "worst relative error {worst}");
-    }
 
     #[test]
     fn f64_sh_twin_matches_core() {

@@ -44,6 +44,15 @@ impl PhaseTimes {
         }
     }
 
+    /// Adds `other` phase by phase.
+    pub fn add(&mut self, other: &PhaseTimes) {
+        self.forward += other.forward;
+        self.loss += other.loss;
+        self.backward += other.backward;
+        self.optimizer += other.optimizer;
+        self.densify += other.densify;
+    }
+
     /// The iteration's own phases (render, loss, backward, Adam), without densification: what
     /// stage 2's "ms per iteration" counts.
     pub fn step_seconds(&self) -> f64 {

@@ -16,6 +16,7 @@ use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::time::Instant;
 use svgir_train::checkpoint;
+use svgir_train::stage1::PhaseTimes;
 
 /// `svgir bench stages` settings.
 #[derive(Args, Clone, Debug)]
@@ -140,12 +141,21 @@ pub fn run(args: &StagesBenchArgs, machine: &str, threads: usize) -> Result<Stri
     };
     let pb = crate::progress::bar(args.rounds as u64 + 1, "rounds");
     let mut rounds = Vec::new();
+    // Each mode's phases summed over the timed rounds: stage 1, stage 2 on subsets, on all.
+    let mut phases = [PhaseTimes::default(), PhaseTimes::default(), PhaseTimes::default()];
     for r in 0..=args.rounds {
+        let before = [s1.times.clone(), s2.times.clone()];
         let stage1 = stage1_chunk(&mut s1);
+        let s1_phases = s1.times.since(&before[0]);
         let (subsets, subsets_wall) = stage2_chunk(&mut s2, true)?;
+        let mid = s2.times.clone();
+        let sub_phases = mid.since(&before[1]);
         let (all, all_wall) = stage2_chunk(&mut s2, false)?;
         if r > 0 {
             rounds.push(Round { stage1, subsets, all, subsets_wall, all_wall });
+            for (sum, p) in phases.iter_mut().zip([s1_phases, sub_phases, s2.times.since(&mid)]) {
+                sum.add(&p);
+            }
         }
         pb.inc(1);
     }
@@ -192,6 +202,24 @@ pub fn run(args: &StagesBenchArgs, machine: &str, threads: usize) -> Result<Stri
         summary(&rounds).4,
         median(ratios)
     )?;
+    // The phases in ms per iteration (stage 1's densification is outside its steps here).
+    let per_iter = 1e3 / (rounds.len() as f64 * args.chunk as f64);
+    writeln!(
+        out,
+        "ms per iteration by phase: {:>10} {:>8} {:>8} {:>8} {:>8}",
+        "mode", "render", "loss", "backward", "Adam"
+    )?;
+    for (name, p) in ["stage 1", "2 subset", "2 all"].iter().zip(&phases) {
+        writeln!(
+            out,
+            "{:>37} {:>8.2} {:>8.2} {:>8.2} {:>8.2}",
+            name,
+            per_iter * p.forward,
+            per_iter * p.loss,
+            per_iter * p.backward,
+            per_iter * p.optimizer
+        )?;
+    }
     writeln!(
         out,
         "ratio: stage 2's phases (render, loss, backward, Adam) per iteration, the two modes weighted as the schedule \

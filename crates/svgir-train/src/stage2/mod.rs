@@ -47,9 +47,9 @@ use shaded_set::{faint, in_set_of, outside_set, stand_in_colours, visible_of, we
 use std::time::Instant;
 use svgir_core::{Camera, Dataset, Image, Rng, Surfels};
 use svgir_pbr::{
-    negated, radiance_consistency_with_grad, shade_sides_backward, shade_sides_into, split_by_side, ColourProjector,
-    ConsistencyInputs, DirectionCache, EnvLight, Indirect, PbrError, PbrGrads, ShadeInputs, ShadeOutput, ShadeParams,
-    Side, SvgMaterials,
+    negated, radiance_consistency_with_grad, shade_sides_backward_into, shade_sides_into, split_by_side,
+    ColourProjector, ConsistencyInputs, DirectionCache, EnvLight, Indirect, PbrError, PbrGrads, ShadeInputs,
+    ShadeOutput, ShadeParams, Side, SvgMaterials,
 };
 use svgir_raster::{
     backward, render, Background, ColorSource, Features, ForwardState, OutputGrads, Projected, RasterConfig,

@@ -151,8 +151,8 @@ impl Stage2 {
             cache: shading.cache,
         };
         let back = back_side(&front, shading.back.as_ref(), &back_vis, back_normals.as_deref());
-        let (mut shaded, mut scratch) = (ShadeOutput::new(), ShadeOutput::new());
-        shade_sides_into(&front, back.as_ref(), &mut shaded, &mut scratch)?;
+        let mut shaded = ShadeOutput::new();
+        shade_sides_into(&front, back.as_ref(), &mut shaded)?;
         let extra = extra_features(&act, &self.facing(camera));
         let input = RenderInput {
             surfels: &self.surfels,

@@ -132,11 +132,11 @@ impl Stage2 {
         });
         let back_grad =
             render::back_side(&front_grad, back_grad_shading.as_ref(), &back_shade, back_normals.as_deref());
-        let (mut shaded, mut scratch) = (ShadeOutput::colour_only(), ShadeOutput::colour_only());
+        let mut shaded = ShadeOutput::colour_only();
         // The extra channels (materials, facing normals and the SH colour, `sh_channels`) do
         // not depend on the shading.
         let (shading, (facing, extra)) = rayon::join(
-            || shade_sides_into(&front, back.as_ref(), &mut shaded, &mut scratch),
+            || shade_sides_into(&front, back.as_ref(), &mut shaded),
             || {
                 let facing = self.facing(cam);
                 let extra = pass_features(&act, &facing, sh_proj.sh_colors());
@@ -228,15 +228,14 @@ impl Stage2 {
                 extra: Some(&v_pass),
             },
         );
-        let (pbr_grads, v_sh) = rayon::join(
-            || shade_sides_backward(&front_grad, back_grad.as_ref(), &g_pbr.v_color_features),
+        // The shading's gradients are added into L_rc's (the same quantities), or into zeros.
+        let mut pg = cons_grads.unwrap_or_else(|| PbrGrads::zeros(self.surfels.len(), m, env_rad.data.len()));
+        let (shading, v_sh) = rayon::join(
+            || shade_sides_backward_into(&front_grad, back_grad.as_ref(), &g_pbr.v_color_features, &mut pg),
             || svgir_raster::sh_colors_backward(&sh_input, &sh_proj, &sh_colour_grads(&g_pbr.v_extra, m)),
         );
         let v_sh = v_sh.map_err(|e| PbrError::InvalidParameter(e.to_string()))?;
-        let mut pg: PbrGrads = pbr_grads?;
-        if let Some(c) = &cons_grads {
-            pg.add_scaled(c, 1.0);
-        }
+        shading?;
         extra_features_backward(
             &g_pbr.v_extra,
             PASS_CHANNELS,
