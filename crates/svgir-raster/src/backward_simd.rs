@@ -20,7 +20,7 @@
 use crate::backward::{Ctx, OFF_C, OFF_COL, OFF_H, OFF_N, OFF_OP};
 use crate::forward::background_at;
 use crate::forward::FeatView;
-use crate::forward_simd::{eval_lanes, feat_weights, prefetch_rows, FeatLanes, PlaneLanes, FEAT_AHEAD};
+use crate::forward_simd::{eval_lanes, feat_weights_n, prefetch_rows, FeatLanes, PlaneLanes, FEAT_AHEAD};
 use crate::interp::{normalised_coord_lanes, weight_grads_lanes, weights_lanes, MAX_VERTICES};
 use crate::lane_groups::{Group, Groups};
 use crate::simd::{Lanes, Simd};
@@ -126,6 +126,21 @@ struct Entry<'a, S: Lanes> {
     /// The entry's 0-based index in the tile: a pixel composited it when its `n_contrib`
     /// exceeds it.
     local: S,
+    /// Both feature tables have four vertices (or the extra one no channel): the groups run
+    /// with the vertex count a constant, so their vertex loops unroll (stage 2's PBR pass).
+    v4: bool,
+}
+
+/// `fsum[k] = a * b` (an entry's first group) or `fsum[k] = fma(a, b, fsum[k])`, without a
+/// bounds check.
+///
+/// # Safety
+/// `k < fsum.len()`, and the lanes' CPU features are present.
+#[inline(always)]
+unsafe fn feat_acc<S: Lanes, const FIRST: bool>(fsum: &mut [S], k: usize, a: S, b: S) {
+    debug_assert!(k < fsum.len());
+    let f = fsum.get_unchecked_mut(k);
+    *f = if FIRST { a.mul(b) } else { a.mul_add(b, *f) };
 }
 
 impl<S: Lanes> Entry<'_, S> {
@@ -139,10 +154,11 @@ impl<S: Lanes> Entry<'_, S> {
         fsum: &mut [S],
         first: &mut bool,
     ) -> bool {
-        if std::mem::take(first) {
-            self.group::<DIST, FEAT, GEO, PACKED, true>(gr, sm, fsum)
-        } else {
-            self.group::<DIST, FEAT, GEO, PACKED, false>(gr, sm, fsum)
+        match (std::mem::take(first), FEAT && self.v4) {
+            (true, true) => self.group::<DIST, FEAT, GEO, PACKED, true, 4>(gr, sm, fsum),
+            (true, false) => self.group::<DIST, FEAT, GEO, PACKED, true, 0>(gr, sm, fsum),
+            (false, true) => self.group::<DIST, FEAT, GEO, PACKED, false, 4>(gr, sm, fsum),
+            (false, false) => self.group::<DIST, FEAT, GEO, PACKED, false, 0>(gr, sm, fsum),
         }
     }
 
@@ -151,9 +167,18 @@ impl<S: Lanes> Entry<'_, S> {
     /// (then it changed nothing: every update is masked, so the loop needs no branch).
     /// `FIRST`: the entry's first group, which stores its feature sums instead of adding them,
     /// so that `fsum` needs no zeroing per entry. `a * b` is `fma(a, b, 0)` but for the sign of
-    /// an exact zero, which the entry's slots (zeroed, then added to) do not keep.
+    /// an exact zero, which the entry's slots (zeroed, then added to) do not keep. `V`: the
+    /// feature tables' vertex count when it is a constant ([`Entry::v4`]), else 0 (read from
+    /// the tables); the operations are the same either way.
     #[inline(always)]
-    unsafe fn group<const DIST: bool, const FEAT: bool, const GEO: bool, const PACKED: bool, const FIRST: bool>(
+    unsafe fn group<
+        const DIST: bool,
+        const FEAT: bool,
+        const GEO: bool,
+        const PACKED: bool,
+        const FIRST: bool,
+        const V: usize,
+    >(
         &self,
         gr: &Group,
         sm: &mut Sums<S>,
@@ -165,6 +190,8 @@ impl<S: Lanes> Entry<'_, S> {
         let (cf, ef, colv, extv, col1, nrm) = (self.cf, self.ef, self.colv, self.extv, self.col1, self.nrm);
         let (ce, ci) = (ef.channels, cf.vertices > 1);
         let interp = ci || (ce > 0 && ef.vertices > 1);
+        // The tables' vertex counts, constants when `V` is set.
+        let (cvn, evn) = if V > 0 { (V, V) } else { (cf.vertices, ef.vertices) };
         let arr = |k: usize| self.base.add(k * self.np);
         let (h6, h7) = (sp(s.h[6]), sp(s.h[7]));
         let (o, c0v) = (sp(s.opacity), sp(s.center[0]));
@@ -202,24 +229,24 @@ impl<S: Lanes> Entry<'_, S> {
         let (mut gut, mut gvt) = (zero, zero);
         let wgt_m = S::select(m, wgt, zero);
         let col = if FEAT && ci {
-            let wc = weights_lanes(cf.vertices, ut, vt);
-            for vtx in 0..cf.vertices {
+            let wc = weights_lanes(cvn, ut, vt);
+            for vtx in 0..cvn {
                 let cw = wgt_m.mul(wc[vtx]);
                 for ch in 0..3 {
-                    let k = vtx * 3 + ch;
-                    fsum[k] = if FIRST { cw.mul(gc[ch]) } else { cw.mul_add(gc[ch], fsum[k]) };
+                    // SAFETY: `fsum` holds the colour table's `M x 3` sums first.
+                    feat_acc::<S, FIRST>(fsum, vtx * 3 + ch, cw, gc[ch]);
                 }
             }
             if GEO {
-                let (wcu, wcv) = weight_grads_lanes(cf.vertices, ut, vt);
-                for vtx in 0..cf.vertices {
+                let (wcu, wcv) = weight_grads_lanes(cvn, ut, vt);
+                for vtx in 0..cvn {
                     let r = [0, 1, 2].map(|ch| colv.at(vtx * 3 + ch));
                     let dot = gc[0].mul(r[0]).add(gc[1].mul(r[1])).add(gc[2].mul(r[2]));
                     gut = wcu[vtx].mul_add(dot, gut);
                     gvt = wcv[vtx].mul_add(dot, gvt);
                 }
             }
-            [colv.eval(cf, &wc, 0), colv.eval(cf, &wc, 1), colv.eval(cf, &wc, 2)]
+            [colv.eval_n(cf, &wc, 0, cvn), colv.eval_n(cf, &wc, 1, cvn), colv.eval_n(cf, &wc, 2, cvn)]
         } else {
             col1
         };
@@ -234,30 +261,30 @@ impl<S: Lanes> Entry<'_, S> {
             g_col.add(ld(GO))
         };
         if FEAT && ce > 0 {
-            let we = feat_weights(ef, ut, vt);
-            let (weu, wev) = if GEO && ef.vertices > 1 {
-                weight_grads_lanes(ef.vertices, ut, vt)
+            let we = feat_weights_n(evn, ut, vt);
+            let (weu, wev) = if GEO && evn > 1 {
+                weight_grads_lanes(evn, ut, vt)
             } else {
                 ([zero; MAX_VERTICES], [zero; MAX_VERTICES])
             };
             let mut g_ext = zero;
             for ch in 0..ce {
-                g_ext = ld(ARRAYS + ch).mul_add(extv.eval(ef, &we, ch), g_ext);
+                g_ext = ld(ARRAYS + ch).mul_add(extv.eval_n(ef, &we, ch, evn), g_ext);
             }
             gw = gw.add(g_ext);
             let l = ef.lerped;
-            for vtx in 0..ef.vertices {
+            for vtx in 0..evn {
                 let cw = wgt_m.mul(we[vtx]);
                 let mut dot = zero;
                 for ch in 0..l {
                     let ge = ld(ARRAYS + ch);
-                    let k = n_col + vtx * l + ch;
-                    fsum[k] = if FIRST { cw.mul(ge) } else { cw.mul_add(ge, fsum[k]) };
+                    // SAFETY: the extra table's `M x lerped` sums follow the colour's.
+                    feat_acc::<S, FIRST>(fsum, n_col + vtx * l + ch, cw, ge);
                     if GEO {
                         dot = ge.mul_add(extv.at(vtx * ce + ch), dot);
                     }
                 }
-                if GEO && ef.vertices > 1 {
+                if GEO && evn > 1 {
                     gut = weu[vtx].mul_add(dot, gut);
                     gvt = wev[vtx].mul_add(dot, gvt);
                 }
@@ -265,9 +292,8 @@ impl<S: Lanes> Entry<'_, S> {
             // Uniform channels (`FeatView::lerped`): one sum each, after the vertices' (see
             // `fsum`), no (u, v) term.
             for ch in l..ce {
-                let k = n_col + ef.vertices * l + ch - l;
-                let ge = ld(ARRAYS + ch);
-                fsum[k] = if FIRST { wgt_m.mul(ge) } else { wgt_m.mul_add(ge, fsum[k]) };
+                // SAFETY: one sum per uniform channel after the vertices' (see `fsum`).
+                feat_acc::<S, FIRST>(fsum, n_col + evn * l + ch - l, wgt_m, ld(ARRAYS + ch));
             }
         }
         let mut v_z = if GEO && geom { wgt.mul(gd) } else { zero };
@@ -422,6 +448,8 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
     let l = ef.lerped;
     let n_ext = ef.vertices * l + ce - l;
     let mut fsum = vec![zero; n_col + n_ext];
+    // The groups' vertex loops run with a constant count where both tables have four vertices.
+    let v4 = cf.vertices == 4 && (ce == 0 || ef.vertices == 4);
     let mut ext_sums = vec![0f32; if l < ce { n_ext } else { 0 }];
     by_ncon.sort_unstable_by_key(|a| std::cmp::Reverse(a.0));
     let mut next_act = 0;
@@ -476,6 +504,7 @@ unsafe fn tile_k<S: Lanes, const DIST: bool, const FEAT: bool, const GEO: bool>(
             geom,
             normals,
             local: sp(local as f32),
+            v4,
         };
         let mut sm = Sums::<S>::zero();
         // The first group stores the feature sums (see `Entry::group`); with no group at all

@@ -203,12 +203,20 @@ impl<'a, S: Lanes> FeatLanes<'a, S> {
     /// by FMA, in vertex order).
     #[inline(always)]
     pub(crate) unsafe fn eval(&self, f: &FeatView<f32>, w: &[S; MAX_VERTICES], c: usize) -> S {
+        self.eval_n(f, w, c, f.vertices)
+    }
+
+    /// [`Self::eval`] with the table's vertex count `nv` passed in (a constant in the callers
+    /// that know it, so the loop unrolls: the backward's groups on stage 2's PBR pass).
+    #[inline(always)]
+    pub(crate) unsafe fn eval_n(&self, f: &FeatView<f32>, w: &[S; MAX_VERTICES], c: usize, nv: usize) -> S {
+        debug_assert_eq!(nv, f.vertices);
         let ch = f.channels;
-        if f.vertices == 1 || c >= f.lerped {
+        if nv == 1 || c >= f.lerped {
             return self.at(c);
         }
         let mut out = w[0].mul(self.at(c));
-        for m in 1..f.vertices {
+        for m in 1..nv {
             out = w[m].mul_add(self.at(m * ch + c), out);
         }
         out
@@ -218,8 +226,14 @@ impl<'a, S: Lanes> FeatLanes<'a, S> {
 /// The vertex weights of a feature table at normalised hit coordinates (one vertex: unused).
 #[inline(always)]
 pub(crate) unsafe fn feat_weights<S: Lanes>(f: &FeatView<f32>, ut: S, vt: S) -> [S; MAX_VERTICES] {
-    if f.vertices > 1 {
-        weights_lanes(f.vertices, ut, vt)
+    feat_weights_n(f.vertices, ut, vt)
+}
+
+/// [`feat_weights`] for a table of `nv` vertices (a constant where the caller knows it).
+#[inline(always)]
+pub(crate) unsafe fn feat_weights_n<S: Lanes>(nv: usize, ut: S, vt: S) -> [S; MAX_VERTICES] {
+    if nv > 1 {
+        weights_lanes(nv, ut, vt)
     } else {
         [S::splat(1.0); MAX_VERTICES]
     }
