@@ -273,20 +273,26 @@ impl<S: Lanes> Entry<'_, S> {
             }
             gw = gw.add(g_ext);
             let l = ef.lerped;
+            // Channel by channel, each channel's gradient loaded once for the vertices (each
+            // sum still gets one FMA per group, and each vertex's dot its channels in order).
+            let (mut cw, mut dot) = ([zero; MAX_VERTICES], [zero; MAX_VERTICES]);
             for vtx in 0..evn {
-                let cw = wgt_m.mul(we[vtx]);
-                let mut dot = zero;
-                for ch in 0..l {
-                    let ge = ld(ARRAYS + ch);
+                cw[vtx] = wgt_m.mul(we[vtx]);
+            }
+            for ch in 0..l {
+                let ge = ld(ARRAYS + ch);
+                for vtx in 0..evn {
                     // SAFETY: the extra table's `M x lerped` sums follow the colour's.
-                    feat_acc::<S, FIRST>(fsum, n_col + vtx * l + ch, cw, ge);
+                    feat_acc::<S, FIRST>(fsum, n_col + vtx * l + ch, cw[vtx], ge);
                     if GEO {
-                        dot = ge.mul_add(extv.at(vtx * ce + ch), dot);
+                        dot[vtx] = ge.mul_add(extv.at(vtx * ce + ch), dot[vtx]);
                     }
                 }
-                if GEO && evn > 1 {
-                    gut = weu[vtx].mul_add(dot, gut);
-                    gvt = wev[vtx].mul_add(dot, gvt);
+            }
+            if GEO && evn > 1 {
+                for vtx in 0..evn {
+                    gut = weu[vtx].mul_add(dot[vtx], gut);
+                    gvt = wev[vtx].mul_add(dot[vtx], gvt);
                 }
             }
             // Uniform channels (`FeatView::lerped`): one sum each, after the vertices' (see
