@@ -174,6 +174,8 @@ pub(crate) fn shade_sides_backward_cached<F: Float>(
                 );
                 let (alb, rough, nrm) = (&mut own_alb[..m * 3], &mut own_rough[..m], &mut own_nrm[..m * 3]);
                 let table = &tables[side];
+                // Set where a lane kernel ran (x86-64 only).
+                #[cfg_attr(not(target_arch = "x86_64"), allow(unused_mut))]
                 let mut done = false;
                 #[cfg(target_arch = "x86_64")]
                 if lanes[side] != Simd::Scalar {
