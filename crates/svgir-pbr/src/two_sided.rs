@@ -18,7 +18,7 @@
 //! buffer and a pass to add it. Nothing is saved for backward.
 
 use crate::grads::PbrGrads;
-use crate::shade::{shade_into_cached, shade_sides_into_cached, ShadeInputs, ShadeOutput};
+use crate::shade::{shade_sides_into_cached, ShadeInputs, ShadeOutput, SideRef};
 use crate::shade_backward::shade_sides_backward_cached;
 use crate::PbrError;
 use glam::Vec3;
@@ -70,13 +70,7 @@ pub fn shade_sides_into<F: Float>(
     back: Option<&Side<F>>,
     out: &mut ShadeOutput<F>,
 ) -> Result<(), PbrError> {
-    match back {
-        None => shade_into_cached(&front.inputs, front.cache, out),
-        Some(back) => {
-            disjoint(front, back)?;
-            shade_sides_into_cached(&[(&front.inputs, front.cache), (&back.inputs, back.cache)], out)
-        }
-    }
+    shade_sides_into_cached(&sides(front, back)?, out)
 }
 
 /// Gradients of [`shade_sides_into`]'s colour for upstream `v_color`, with respect to the
@@ -101,22 +95,22 @@ pub fn shade_sides_backward_into<F: Float>(
     v_color: &[F],
     grads: &mut PbrGrads<F>,
 ) -> Result<(), PbrError> {
-    let mut sides = vec![(&front.inputs, front.cache)];
-    if let Some(back) = back {
-        disjoint(front, back)?;
-        sides.push((&back.inputs, back.cache));
-    }
-    shade_sides_backward_cached(&sides, v_color, grads)
+    shade_sides_backward_cached(&sides(front, back)?, v_color, grads)
 }
 
-/// No Gaussian is shaded on both sides.
-fn disjoint<F>(front: &Side<F>, back: &Side<F>) -> Result<(), PbrError> {
-    let (f, b) = (front.inputs.visible, back.inputs.visible);
-    if f.len() != b.len() {
-        return Err(PbrError::SizeMismatch { what: "back side's visible Gaussians", got: b.len(), want: f.len() });
+/// The sides the one-pass kernels take: the front, then the back if any. No Gaussian may be
+/// shaded on both.
+fn sides<'s, F>(front: &'s Side<'s, F>, back: Option<&'s Side<'s, F>>) -> Result<Vec<SideRef<'s, F>>, PbrError> {
+    let mut sides = vec![(&front.inputs, front.cache)];
+    if let Some(back) = back {
+        let (f, b) = (front.inputs.visible, back.inputs.visible);
+        if f.len() != b.len() {
+            return Err(PbrError::SizeMismatch { what: "back side's visible Gaussians", got: b.len(), want: f.len() });
+        }
+        if f.par_iter().zip(b).with_min_len(4096).any(|(x, y)| *x && *y) {
+            return Err(PbrError::InvalidParameter("a Gaussian is shaded on both sides".into()));
+        }
+        sides.push((&back.inputs, back.cache));
     }
-    if f.par_iter().zip(b).with_min_len(4096).any(|(x, y)| *x && *y) {
-        return Err(PbrError::InvalidParameter("a Gaussian is shaded on both sides".into()));
-    }
-    Ok(())
+    Ok(sides)
 }
