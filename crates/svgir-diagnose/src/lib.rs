@@ -8,9 +8,12 @@
 //! - `sun_probe`: where the learned light puts its sun against the true one.
 //! - `visibility_vs_mesh`: our surfel visibility against rays traced on the true mesh.
 //! - `shading_oracle`: SPEC 4's shading on the true mesh and materials, against the photos.
+//! - `nerf_normals`: a stage-1 run's normals on the NeRF-synthetic test views, where their
+//!   clipped normal pass still holds the true normal.
 //!
 //! Run one with `cargo run --release -p svgir-diagnose --bin NAME -- ARGS`.
 
 #![warn(missing_docs)]
 
+pub mod clipped_normals;
 pub mod mesh;
