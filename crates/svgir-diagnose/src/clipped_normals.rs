@@ -80,7 +80,7 @@ impl Tally {
     }
 
     /// Both tallies together.
-    pub fn add(self, o: Self) -> Self {
+    pub fn merge(self, o: Self) -> Self {
         Self { sum_deg: self.sum_deg + o.sum_deg, measured: self.measured + o.measured, object: self.object + o.object }
     }
 
@@ -122,7 +122,7 @@ mod tests {
         let t = Tally::of(&px);
         assert_eq!((t.measured, t.object), (3, 4));
         assert!((t.mean_deg().unwrap() - 60.0).abs() < 1e-3);
-        assert!((t.add(t).measured_share() - 0.75).abs() < 1e-12);
+        assert!((t.merge(t).measured_share() - 0.75).abs() < 1e-12);
         assert_eq!(Tally::of(&px[..2]).mean_deg(), None);
     }
 }

@@ -1,6 +1,7 @@
 //! The per-pixel objectives at 256 x 256 (the synthetic scenes' training size): stage 2's
 //! (Eqn 15: L1 + D-SSIM on the PBR and SH images, the material buffers' smoothness, Eqn 18) and
-//! the two kernels stage 1 shares with it (D-SSIM with its gradient, Eqn 18).
+//! the two kernels stage 1 shares with it (D-SSIM with its gradient, Eqn 18), and the PBR image's
+//! composite with its backward.
 //! `cargo bench -p svgir-train --bench objective` (add `-- --threads 1` for one thread).
 
 use glam::{Mat4, Vec3};
@@ -53,6 +54,16 @@ fn stage2(bencher: divan::Bencher) {
     let out = Stage2Outputs { color: &f.color, alpha: &f.alpha, depth: &f.depth, extra: &f.extra, sh_color: &f.sh };
     let target = Stage2Target { rgb: &f.rgb, cover: None, background: [0.0; 3] };
     bencher.bench(|| stage2_objective(&wts, &out, &target, &f.cam));
+}
+
+/// The PBR image's composite (SPEC 3) with its tone values kept, and its backward.
+#[divan::bench(sample_count = 50)]
+fn composite(bencher: divan::Bencher) {
+    let f = frame();
+    bencher.bench(|| {
+        let (image, kept) = svgir_train::composite::pbr_composite_keep(&f.color, &f.alpha, None, [0.0; 3]);
+        (kept.backward(&image), image)
+    });
 }
 
 #[divan::bench(sample_count = 20)]

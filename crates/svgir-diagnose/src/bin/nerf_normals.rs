@@ -89,7 +89,7 @@ fn main() -> Result<()> {
         let pixels = classify(&out.normal, &out.alpha, &stored.data, stored.channels as usize, &photo_alpha);
         let t = Tally::of(&pixels);
         println!("{:<10} {:>10.2} {:>11.1}%", v.name, t.mean_deg().unwrap_or(f64::NAN), 100.0 * t.measured_share());
-        total = total.add(t);
+        total = total.merge(t);
         if i < args.pictures {
             let file = args.out.join(format!("{}_normals.png", v.name));
             svgir_io::write_png(&file, &picture(&out.normal, &stored, &pixels, w, h), 8)?;
