@@ -253,6 +253,20 @@ pub fn load(path: &Path, dataset: &Dataset) -> Result<Stage1, CheckpointError> {
         accum_weight: a.next("stats.accum_weight")?,
     };
     let n = surfels.len();
+    // Densification indexes every statistic by Gaussian: a mismatched array would panic there,
+    // thousands of iterations into the resumed run, instead of failing here with the file's name.
+    let stat_lens = [
+        ("grad_accum", stats.grad_accum.len()),
+        ("denom", stats.denom.len()),
+        ("max_radius", stats.max_radius.len()),
+        ("accum_weight", stats.accum_weight.len()),
+    ];
+    if let Some((name, len)) = stat_lens.iter().find(|(_, len)| *len != n) {
+        return Err(corrupt(
+            &a.path,
+            &format!("densification statistics stats.{name} has {len} entries for {n} Gaussians"),
+        ));
+    }
     let groups = read_groups::<5>(&mut a, &header.groups, &[n; 5])?;
     let exposure = read_exposure(&mut a, &header.exposure_steps)?;
     let mut trainer = Stage1::new(header.config, surfels, dataset);

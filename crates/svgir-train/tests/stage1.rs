@@ -90,6 +90,37 @@ fn resume_continues_bit_identically() {
     assert_eq!(a.groups, b.groups);
 }
 
+/// A checkpoint whose densification statistics do not match its Gaussian count is refused on
+/// load, naming the file and the array, instead of panicking on an index when the resumed run
+/// next densifies.
+#[test]
+fn checkpoint_with_mismatched_densify_stats_is_an_error() {
+    let Some(ds) = scene() else { return };
+    let t = trainer(&ds, 60);
+    let n = t.surfels.len();
+    let path = std::env::temp_dir().join(format!("svgir_bad_stats_{}.bin", std::process::id()));
+    for (name, shorten) in [
+        ("grad_accum", (|s| _ = s.grad_accum.pop()) as fn(&mut svgir_train::densify::DensifyStats)),
+        ("denom", |s| _ = s.denom.pop()),
+        ("max_radius", |s| _ = s.max_radius.pop()),
+        ("accum_weight", |s| s.accum_weight.push(0.0)),
+    ] {
+        let mut bad = trainer(&ds, 60);
+        shorten(&mut bad.stats);
+        checkpoint::save(&bad, &path).unwrap();
+        let err = match checkpoint::load(&path, &ds) {
+            Ok(_) => panic!("stats.{name} of the wrong length was accepted"),
+            Err(e) => e.to_string(),
+        };
+        assert!(err.contains(&path.display().to_string()), "{err}");
+        assert!(err.contains(&format!("stats.{name}")) && err.contains(&format!("for {n} Gaussians")), "{err}");
+    }
+    // The same trainer with its statistics intact loads.
+    checkpoint::save(&t, &path).unwrap();
+    assert!(checkpoint::load(&path, &ds).is_ok());
+    std::fs::remove_file(&path).ok();
+}
+
 /// `half_res_until`: the first iterations are those of a run on the photos resized to half
 /// size (`View::resized`, as `--downscale 2` loads them), the later ones those of a run on the
 /// photos themselves, and a run resumed inside the half-size part continues bit-identically.
