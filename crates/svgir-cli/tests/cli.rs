@@ -126,6 +126,58 @@ fn svgir_io_png(path: &std::path::Path) -> u64 {
     std::fs::metadata(path).map_or(0, |m| m.len())
 }
 
+/// `--profile views` keeps the mask losses off on a masked dataset, `--resume` with
+/// `--iterations` extends the run and names the set-up flags it ignores, and stage 2 runs with
+/// periods of 0.
+#[test]
+fn views_profile_train_resume_and_inverse_periods_of_zero() {
+    let out = std::env::temp_dir().join(format!("svgir_resume_test_{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let data = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/bowl_fruit_128");
+    let train = |extra: &[&str]| {
+        let res = svgir()
+            .args(["--threads", "2", "train", data, "--resolution", "32", "--max-views", "4"])
+            .args(["--checkpoint-every", "0", "--out"])
+            .arg(&out)
+            .args(extra)
+            .output()
+            .expect("runs");
+        let log = String::from_utf8_lossy(&res.stderr).into_owned();
+        assert!(res.status.success(), "svgir train {extra:?} failed: {log}");
+        log
+    };
+    let json = |name: &str| -> serde_json::Value {
+        serde_json::from_str(&std::fs::read_to_string(out.join(name)).expect(name)).unwrap()
+    };
+    train(&["--iterations", "20", "--profile", "views", "--init-points", "500"]);
+    let cfg = json("config.json");
+    assert_eq!(cfg["stage1"]["use_mask"], false, "the views profile has no mask losses");
+    assert_eq!(json("timings.json")["iterations"], 20);
+
+    let log = train(&["--resume", "--iterations", "30", "--weight", "l1=0.5", "--seed", "3"]);
+    assert!(log.contains("ignored: --seed, --weight"), "{log}");
+    assert!(log.contains("iterations 20 -> 30"), "{log}");
+    assert_eq!(json("timings.json")["iterations"], 30, "the run was extended to --iterations");
+    // Resumed without --iterations, a finished run stays finished.
+    let log = train(&["--resume"]);
+    assert!(log.contains("continuing to the checkpoint's 30 iterations") && !log.contains("ignored"), "{log}");
+    assert_eq!(json("timings.json")["iterations"], 30);
+
+    // Stage 2 with --log-every 0 and --checkpoint-every 0 (never, as in stage 1; they divided
+    // by zero): no periodic rows, and only the end of the run writes the checkpoint.
+    let res = svgir()
+        .args(["--threads", "2", "inverse", "--run"])
+        .arg(&out)
+        .args(["--iterations", "3", "--log-every", "0", "--checkpoint-every", "0", "--turntable", "0"])
+        .output()
+        .expect("runs");
+    assert!(res.status.success(), "svgir inverse failed: {}", String::from_utf8_lossy(&res.stderr));
+    let rows = std::fs::read_to_string(out.join("stage2/metrics.jsonl")).expect("metrics.jsonl");
+    assert_eq!(rows.lines().count(), 0, "{rows}");
+    assert!(out.join("stage2/checkpoint.bin").exists() && out.join("stage2/eval.json").exists());
+    let _ = std::fs::remove_dir_all(&out);
+}
+
 #[test]
 fn missing_dataset_fails_with_the_path_in_the_message() {
     let out = svgir().args(["info", "/nonexistent/dataset_xyz"]).output().expect("runs");

@@ -333,6 +333,14 @@ impl Stage1Config {
         }
     }
 
+    /// Switch the mask and entropy losses off unless `masks` (the dataset has foreground masks
+    /// and the user did not turn them off). Never on: a profile without them (`views`,
+    /// `capture`) keeps them off on a masked dataset, or `config.json` would record them on and
+    /// the losses would be computed at weight 0.
+    pub fn mask_losses_only_with(&mut self, masks: bool) {
+        self.use_mask &= masks;
+    }
+
     /// Scale the schedule (densification window, resets, SH upgrades) to a shorter run, keeping
     /// the proportions of the 30k-iteration reference schedule.
     pub fn scaled_to(mut self, iterations: u64) -> Self {
@@ -403,6 +411,21 @@ mod tests {
             (obj.view_order, views.view_order, capture.view_order),
             (ViewOrder::Uniform, ViewOrder::Epochs, ViewOrder::Epochs)
         );
+    }
+
+    /// The dataset's masks switch the mask losses on only for a profile that has them; the
+    /// `views` and `capture` profiles keep them off on a masked dataset.
+    #[test]
+    fn masks_are_used_only_when_the_profile_wants_them() {
+        let with = |profile, masks| {
+            let mut c = Stage1Config::for_profile(profile, 5000, 100 * 400 * 400);
+            c.mask_losses_only_with(masks);
+            c.use_mask
+        };
+        assert!(with(Profile::Object, true));
+        assert!(!with(Profile::Object, false), "no masks in the dataset (or --no-mask)");
+        assert!(!with(Profile::Views, true), "views profile on a masked dataset");
+        assert!(!with(Profile::Capture, true), "capture profile on a masked dataset");
     }
 
     #[test]

@@ -92,14 +92,16 @@ pub struct InverseArgs {
     /// LPIPS network for the evaluation.
     #[arg(long, value_enum, default_value_t = LpipsNet::Vgg)]
     pub lpips: LpipsNet,
-    /// Append training statistics to OUT/metrics.jsonl every this many iterations.
+    /// Append training statistics to OUT/metrics.jsonl every this many iterations (0: only the
+    /// sun searches' rows).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 25)]
     pub log_every: u64,
     /// Continue the stage-2 run in the output folder from its checkpoint (up to --iterations,
     /// which may extend a finished run).
     #[arg(long)]
     pub resume: bool,
-    /// Write OUT/checkpoint.bin every this many iterations (atomically; Ctrl-C also saves).
+    /// Write OUT/checkpoint.bin every this many iterations (atomically; Ctrl-C and the end of
+    /// the run also save; 0: only those).
     #[arg(long, default_value_t = 500)]
     pub checkpoint_every: u64,
     /// Relit turntable frames per relighting light (0: none).
@@ -464,6 +466,12 @@ pub fn run(args: InverseArgs) -> Result<()> {
             args.run.display()
         );
     }
+    // Checked before the micro-buffers are traced and stage 2 trains, not after.
+    for (given, flag) in [(args.train_true_light, "--train-true-light"), (args.oracle_light, "--oracle-light")] {
+        if given {
+            true_light(&dataset, flag)?;
+        }
+    }
     let out = args.out.clone().unwrap_or_else(|| args.run.join("stage2"));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
 
@@ -568,7 +576,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         let mut s2 = Stage2::new(config, stage1.surfels.clone(), &dataset)?;
         eprintln!("micro-buffers traced in {:.1} s", s2.trace_seconds);
         if args.train_true_light {
-            set_true_light(&mut s2, &dataset)?;
+            set_true_light(&mut s2, &dataset, "--train-true-light")?;
         }
         s2
     };
@@ -598,13 +606,13 @@ pub fn run(args: InverseArgs) -> Result<()> {
             });
         }
         pb.set_message(format!("loss {:.4} PBR PSNR {:.2} dB, rho {:.3}", st.loss, st.psnr_pbr, st.rho));
-        if st.iteration % args.log_every == 0 || st.sun_search.is_some() {
+        if every(st.iteration, args.log_every) || st.sun_search.is_some() {
             let mut v = serde_json::to_value(&st)?;
             v["elapsed_s"] = json!(start.elapsed().as_secs_f64());
             writeln!(log, "{v}")?;
         }
         let interrupted = stop.load(std::sync::atomic::Ordering::SeqCst);
-        if st.iteration % args.checkpoint_every == 0 || interrupted {
+        if every(st.iteration, args.checkpoint_every) || interrupted {
             checkpoint::save_stage2(&s2, &ckpt)?;
         }
         if interrupted {
@@ -665,7 +673,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         }
     }
     if args.oracle_light {
-        set_true_light(&mut s2, &dataset)?;
+        set_true_light(&mut s2, &dataset, "--oracle-light")?;
     }
     let lpips = svgir_eval::load_lpips(args.lpips.net())?;
     let sampling = args.relight.sampling();
@@ -705,6 +713,12 @@ pub fn run(args: InverseArgs) -> Result<()> {
     println!("stage 2: {}", serde_json::to_string(&eval_out)?);
     println!("results: {}", out.display());
     Ok(())
+}
+
+/// Whether iteration `it` falls on a period of `n` iterations; 0 means never, as in stage 1
+/// (`svgir train --log-every 0`), instead of a division by zero.
+fn every(it: u64, n: u64) -> bool {
+    n > 0 && it.is_multiple_of(n)
 }
 
 /// Stage 1's mean time per iteration (all its phases) and thread count from `run`'s
@@ -747,10 +761,22 @@ fn stage1_final_ms(run: &Path) -> Option<Stage1Final> {
     (to >= from + 100).then(|| Stage1Final { ms: 1e3 * (end_s - start_s) / (to - from) as f64, from, to, gaussians })
 }
 
-/// Replace the learned light by the dataset's training light (diagnostics; reads ground truth).
-fn set_true_light(s2: &mut Stage2, dataset: &Dataset) -> Result<()> {
-    let light = dataset.train_light.as_ref().context("--oracle-light: the dataset names no training light")?;
-    let path = light.envmap_path.as_ref().context("--oracle-light: the training light's map is not in the dataset")?;
+/// The dataset's training light and its map, for the diagnostic `flag` that asked for them
+/// (`--oracle-light` or `--train-true-light`, named in the error).
+fn true_light<'a>(dataset: &'a Dataset, flag: &str) -> Result<(&'a LightInfo, &'a Path)> {
+    let root = dataset.root.display();
+    let light = dataset.train_light.as_ref().with_context(|| format!("{flag}: {root} names no training light"))?;
+    let path = light
+        .envmap_path
+        .as_deref()
+        .with_context(|| format!("{flag}: {root} does not ship the map of its training light {:?}", light.name))?;
+    Ok((light, path))
+}
+
+/// Replace the learned light by the dataset's training light (diagnostics; reads ground truth);
+/// `flag` is the option that asked for it.
+fn set_true_light(s2: &mut Stage2, dataset: &Dataset, flag: &str) -> Result<()> {
+    let (light, path) = true_light(dataset, flag)?;
     let map = svgir_io::read_envmap(path, light.strength, s2.config.env_height)?;
     s2.env = svgir_pbr::EnvLight::from_radiance(&map)?.with_activation(s2.config.env_activation)?;
     s2.set_lights(&svgir_trace::brightest_texels(&map, s2.config.lights))?;
@@ -774,6 +800,41 @@ fn write_env_previews(s2: &Stage2, ds: &Dataset, out: &Path) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A period of 0 iterations is never due (it divided by zero), others on their multiples.
+    #[test]
+    fn every_zero_is_never() {
+        assert!((1..=1000).all(|it| !every(it, 0)));
+        assert!(every(25, 25) && every(50, 25) && !every(26, 25) && every(7, 1));
+    }
+
+    /// The missing-light error names the flag that asked for the light, and the dataset.
+    #[test]
+    fn true_light_error_names_the_flag_given() {
+        let mut ds = Dataset {
+            name: "d".into(),
+            root: PathBuf::from("/data/scene_x"),
+            train: vec![],
+            test: vec![],
+            points: None,
+            train_light: None,
+            relight_lights: vec![],
+            camera_model: String::new(),
+            masks: Default::default(),
+            world_rotation: glam::Mat3::IDENTITY,
+        };
+        for flag in ["--train-true-light", "--oracle-light"] {
+            let other = if flag == "--oracle-light" { "--train-true-light" } else { "--oracle-light" };
+            let err = format!("{:#}", true_light(&ds, flag).unwrap_err());
+            assert!(err.starts_with(flag) && !err.contains(other) && err.contains("/data/scene_x"), "{err}");
+        }
+        ds.train_light = Some(LightInfo { name: "noon".into(), envmap_path: None, strength: 1.0 });
+        let err = format!("{:#}", true_light(&ds, "--train-true-light").unwrap_err());
+        assert!(err.starts_with("--train-true-light") && err.contains("\"noon\""), "{err}");
+        ds.train_light.as_mut().unwrap().envmap_path = Some(PathBuf::from("/data/noon.hdr"));
+        let (light, path) = true_light(&ds, "--oracle-light").unwrap();
+        assert_eq!((light.name.as_str(), path), ("noon", Path::new("/data/noon.hdr")));
+    }
 
     /// The stretch is the last one with the final count and a running clock: rows before a
     /// change of count or before a resume (the clock restarts) are left out.

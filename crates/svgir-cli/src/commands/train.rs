@@ -91,7 +91,9 @@ pub struct TrainArgs {
     /// Number of random initial points when the dataset has none.
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 100_000)]
     pub init_points: usize,
-    /// Continue the run in --out from its checkpoint (bit-identical continuation).
+    /// Continue the run in --out from its checkpoint (bit-identical continuation; the settings
+    /// are the checkpoint's, except an --iterations other than its default, which sets the run's
+    /// length).
     #[arg(long)]
     pub resume: bool,
     /// Write RUN/checkpoint.bin every this many iterations (atomically; Ctrl-C also saves).
@@ -146,8 +148,31 @@ pub fn run(args: TrainArgs) -> Result<()> {
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let ckpt_path = args.out.join("checkpoint.bin");
     let mut trainer = if args.resume {
-        let t = checkpoint::load(&ckpt_path, &dataset)?;
+        let mut t = checkpoint::load(&ckpt_path, &dataset)?;
         eprintln!("resumed {} at iteration {}", ckpt_path.display(), t.iteration);
+        let ignored = ignored_on_resume(&args)?;
+        if !ignored.is_empty() {
+            eprintln!(
+                "warning: --resume continues with the settings in {}; ignored: {}",
+                ckpt_path.display(),
+                ignored.join(", ")
+            );
+        }
+        // An --iterations other than its default sets the run's length, which may extend a
+        // finished run; without it the run ends where it was meant to.
+        if args.iterations != default_args()?.iterations && args.iterations != t.config.iterations {
+            eprintln!(
+                "stage 1: iterations {} -> {}: densification and SH upgrades keep the checkpoint's schedule; the \
+                 position learning rate's decay and the depth-normal ramp stretch to the new length",
+                t.config.iterations, args.iterations
+            );
+            t.config.iterations = args.iterations;
+        } else if t.config.iterations != args.iterations {
+            eprintln!(
+                "stage 1: continuing to the checkpoint's {} iterations (an --iterations other than {} changes it)",
+                t.config.iterations, args.iterations
+            );
+        }
         t
     } else {
         let (config, why) = make_config(&args, &dataset)?;
@@ -183,6 +208,44 @@ pub fn run(args: TrainArgs) -> Result<()> {
     };
     train_loop(&mut trainer, &dataset, &args)?;
     finish(&trainer, &dataset, &args.out)
+}
+
+/// `svgir train`'s arguments with every flag at its default (the dataset and --out are
+/// placeholders).
+fn default_args() -> Result<TrainArgs> {
+    super::args_of::<TrainArgs>("train", &["DATA".into(), "--out".into(), "OUT".into()])
+}
+
+/// The flags of `args` that set up a new run and were given (differ from their defaults): a
+/// resumed run takes those settings from its checkpoint.
+fn ignored_on_resume(args: &TrainArgs) -> Result<Vec<&'static str>> {
+    let d = default_args()?;
+    // Compared by their Debug form: the value enums do not all implement PartialEq.
+    macro_rules! given {
+        ($($flag:literal => $field:ident),* $(,)?) => {
+            [$(($flag, format!("{:?}", args.$field) != format!("{:?}", d.$field))),*]
+        };
+    }
+    let flags = given![
+        "--seed" => seed,
+        "--profile" => profile,
+        "--background" => background,
+        "--distortion-from" => distortion_from,
+        "--sh-degree" => sh_degree,
+        "--exposure" => exposure,
+        "--view-order" => view_order,
+        "--init-ply" => init_ply,
+        "--init-points" => init_points,
+        "--max-gaussians" => max_gaussians,
+        "--no-mask" => no_mask,
+        "--densify-every" => densify_every,
+        "--densify-until" => densify_until,
+        "--opacity-reset-every" => opacity_reset_every,
+        "--half-res-until" => half_res_until,
+        "--densify-grad" => densify_grad,
+        "--weight" => weights,
+    ];
+    Ok(flags.into_iter().filter_map(|(flag, given)| given.then_some(flag)).collect())
 }
 
 /// The profile for `args` and `dataset`, with why it was chosen.
@@ -243,7 +306,7 @@ fn make_config(args: &TrainArgs, dataset: &Dataset) -> Result<(Stage1Config, &'s
         ensure!(g.is_finite() && g > 0.0, "--densify-grad must be a positive number, got {g}");
         c.densify.grad_threshold = g;
     }
-    c.use_mask = !args.no_mask && dataset.has_masks();
+    c.mask_losses_only_with(!args.no_mask && dataset.has_masks());
     // Captures come in arbitrary units: their near plane follows the cameras, whatever the profile.
     if matches!(svgir_io::detect_layout(&dataset.root), Ok(svgir_io::Layout::Colmap | svgir_io::Layout::Transforms)) {
         c.near_fraction = Some(svgir_train::config::CAPTURE_NEAR_FRACTION);
@@ -506,4 +569,38 @@ fn finish(trainer: &Stage1, dataset: &Dataset, out: &Path) -> Result<()> {
     println!("test: {m}");
     println!("run folder: {}", out.display());
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// On resume, the given flags that set up a new run are named; those a resumed run honours
+    /// (--iterations, --log-every, ...) and the defaults are not.
+    #[test]
+    fn resume_names_the_given_setup_flags() {
+        let flags: Vec<String> = [
+            "DATA",
+            "--out",
+            "OUT",
+            "--resume",
+            "--iterations",
+            "900",
+            "--log-every",
+            "5",
+            "--weight",
+            "l1=0.5",
+            "--profile",
+            "views",
+            "--densify-every",
+            "7",
+            "--background",
+            "black",
+        ]
+        .map(String::from)
+        .to_vec();
+        let a = super::super::args_of::<TrainArgs>("train", &flags).unwrap();
+        assert_eq!(ignored_on_resume(&a).unwrap(), ["--profile", "--background", "--densify-every", "--weight"]);
+        assert!(ignored_on_resume(&default_args().unwrap()).unwrap().is_empty());
+    }
 }
