@@ -91,9 +91,7 @@ pub struct TrainArgs {
     /// Number of random initial points when the dataset has none.
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 100_000)]
     pub init_points: usize,
-    /// Continue the run in --out from its checkpoint (bit-identical continuation; the settings
-    /// are the checkpoint's, except an --iterations other than its default, which sets the run's
-    /// length).
+    /// Continue the run in --out from its checkpoint, with its settings (--iterations extends it).
     #[arg(long)]
     pub resume: bool,
     /// Write RUN/checkpoint.bin every this many iterations (atomically; Ctrl-C also saves).
