@@ -45,7 +45,7 @@ pub mod testing {
         let (kb, vb) = (upload(d, "keys", keys), upload(d, "vals", vals));
         let (k2, v2) = (upload(d, "keys2", keys), upload(d, "vals2", vals));
         let mut enc = d.create_command_encoder(&Default::default());
-        k.sort(d, &mut enc, &kb, &vb, &k2, &v2, keys.len() as u32, bits);
+        k.sort(d, &mut enc, &kb, &vb, &k2, &v2, keys.len() as u32, bits, None);
         gpu.queue.submit([enc.finish()]);
         let mut r = read_back::<u32>(d, &gpu.queue, &[(&kb, keys.len()), (&vb, vals.len())])?;
         let v = r.pop().unwrap_or_default();

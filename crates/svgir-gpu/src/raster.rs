@@ -3,17 +3,20 @@
 //!
 //! A render records, in order: projection (`project.wgsl`), a stable radix sort of the Gaussians
 //! by depth (ties keep id order), per Gaussian in depth order its tile count and a scan of them
-//! (`bin_count.wgsl`), one entry per touched tile (`bin_emit.wgsl`), a stable sort of the entries
-//! by tile, so that each tile's list is in (depth, id) order, the tiles' ranges
-//! (`bin_ranges.wgsl`), and the forward (`raster_fwd.wgsl`). The number of entries is read back
-//! once (eight bytes) between the scan and the emission, to size the entry buffers. The backward
-//! runs `raster_bwd.wgsl` (per-entry slots, no atomics) and `project_bwd.wgsl` (per Gaussian,
-//! summing its slots in entry order), so its gradients are the same at every run.
+//! (`bin_count.wgsl`), the entry count against the buffers' capacity (`bin_total.wgsl`), one
+//! entry per touched tile (`bin_emit.wgsl`), a stable sort of the entries by tile, so that each
+//! tile's list is in (depth, id) order, the tiles' ranges (`bin_ranges.wgsl`), and the forward
+//! (`raster_fwd.wgsl`). Nothing is read back: the entry count stays on the GPU, where the sort
+//! and the ranges read it, and the entry buffers ([`Frame`]) have a capacity that the trainer
+//! sizes from the counts it reads at its own cadence (a render past it is flagged, and its
+//! step skipped). The backward runs `raster_bwd.wgsl` (per-entry slots, no atomics) and
+//! `project_bwd.wgsl` (per Gaussian, summing its slots in entry order), so its gradients are
+//! the same at every run.
 //!
 //! Tiles are 16 px (one 256-thread workgroup each); the CPU's default is 32. Tiling changes no
 //! image bit on the CPU and only the order of gradient sums, so the two compare as the tests do.
 
-use crate::buffers::{bind, dispatch, dispatch_2d, read_back, storage, uniform, upload};
+use crate::buffers::{bind, dispatch, dispatch_2d, read_back, storage, upload};
 use crate::device::{Gpu, GpuError};
 use crate::sort::SortKernels;
 use bytemuck::{Pod, Zeroable};
@@ -23,15 +26,17 @@ use svgir_raster::{Grads, OutputGrads, RasterConfig, RenderOutput};
 /// Tile side in pixels (`TILE` in common.wgsl).
 pub const TILE: u32 = 16;
 /// Floats per splat record (`SPLAT` in common.wgsl).
-const SPLAT: u64 = 24;
+pub(crate) const SPLAT: u64 = 24;
 /// Floats per pixel of the forward's output (`PIX` in raster_fwd.wgsl).
-const PIX: usize = 13;
+pub(crate) const PIX: usize = 13;
 /// Floats per pixel of the output gradients (`VPIX` in raster_bwd.wgsl).
-const VPIX: usize = 9;
+pub(crate) const VPIX: usize = 9;
 /// Floats per entry slot of the backward (`DIM` in raster_bwd.wgsl).
 const DIM: u64 = 24;
 /// Floats per Gaussian of the parameter gradients besides SH (`VP` in project_bwd.wgsl).
-const VP: usize = 12;
+pub(crate) const VP: usize = 12;
+/// u32s of the binning counters (`count` in bin_total.wgsl; `C_*` in common.wgsl).
+pub(crate) const COUNTERS: usize = 8;
 
 /// The per-render uniform (`Params` in common.wgsl).
 #[repr(C)]
@@ -50,11 +55,20 @@ pub(crate) struct Params {
     tiles_x: u32,
     tiles_y: u32,
     flags: u32,
-    entries: u32,
+    capacity: u32,
 }
 
 impl Params {
-    fn new(surfels: &Surfels, camera: &Camera, bg: [f32; 3], cfg: &RasterConfig) -> Self {
+    /// The uniform of a render of `surfels` (their count and SH degree) into entry buffers of
+    /// `capacity` entries.
+    pub(crate) fn new(
+        n: u32,
+        sh_degree: u32,
+        camera: &Camera,
+        bg: [f32; 3],
+        cfg: &RasterConfig,
+        capacity: u32,
+    ) -> Self {
         let cam = svgir_raster::preprocess::Cam::<f32>::new(camera);
         let row = |i: usize| [cam.r[i][0], cam.r[i][1], cam.r[i][2], 0.0];
         let flags = u32::from(cfg.distortion) | (u32::from(cfg.geometry) << 1) | (u32::from(cfg.normals) << 2);
@@ -65,15 +79,20 @@ impl Params {
             k: [cam.fx, cam.fy, cam.cx, cam.cy],
             clip: [cfg.near, cfg.far, cfg.t_stop, 0.0],
             bg: [bg[0], bg[1], bg[2], 0.0],
-            n: surfels.len() as u32,
+            n,
             width: cam.width,
             height: cam.height,
-            sh_degree: surfels.sh_degree,
+            sh_degree,
             tiles_x: cam.width.div_ceil(TILE),
             tiles_y: cam.height.div_ceil(TILE),
             flags,
-            entries: 0,
+            capacity,
         }
+    }
+
+    /// Tiles of the image.
+    pub(crate) fn tiles(&self) -> u32 {
+        self.tiles_x * self.tiles_y
     }
 }
 
@@ -82,6 +101,7 @@ pub struct GpuRaster {
     sort: SortKernels,
     project: wgpu::ComputePipeline,
     bin_count: wgpu::ComputePipeline,
+    bin_total: wgpu::ComputePipeline,
     bin_emit: wgpu::ComputePipeline,
     bin_ranges: wgpu::ComputePipeline,
     forward: wgpu::ComputePipeline,
@@ -89,7 +109,7 @@ pub struct GpuRaster {
     project_bwd: wgpu::ComputePipeline,
 }
 
-fn module(device: &wgpu::Device, label: &str, body: &str) -> wgpu::ShaderModule {
+pub(crate) fn module(device: &wgpu::Device, label: &str, body: &str) -> wgpu::ShaderModule {
     let src = format!("{}\n{}", include_str!("shaders/common.wgsl"), body);
     device.create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some(label),
@@ -97,7 +117,7 @@ fn module(device: &wgpu::Device, label: &str, body: &str) -> wgpu::ShaderModule 
     })
 }
 
-fn kernel(device: &wgpu::Device, label: &str, body: &str) -> wgpu::ComputePipeline {
+pub(crate) fn kernel(device: &wgpu::Device, label: &str, body: &str) -> wgpu::ComputePipeline {
     let m = module(device, label, body);
     device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
         label: Some(label),
@@ -109,23 +129,171 @@ fn kernel(device: &wgpu::Device, label: &str, body: &str) -> wgpu::ComputePipeli
     })
 }
 
-/// What the backward of a render reads, resident on the GPU.
+/// Surfel parameters resident on the GPU, in [`Surfels`]' layouts (positions 3, rotations 4 as
+/// x y z w, log-scales 2, opacity logits 1, SH 48 floats per Gaussian).
+pub struct SurfelBuffers {
+    pub(crate) pos: wgpu::Buffer,
+    pub(crate) rot: wgpu::Buffer,
+    pub(crate) lsc: wgpu::Buffer,
+    pub(crate) opa: wgpu::Buffer,
+    pub(crate) sh: wgpu::Buffer,
+    /// Gaussians held.
+    pub n: u32,
+}
+
+impl SurfelBuffers {
+    /// Uploads the parameters of `surfels` (checked for consistent arrays and the binding limit).
+    pub fn upload(gpu: &Gpu, surfels: &Surfels) -> Result<Self, GpuError> {
+        surfels.check().map_err(|e| GpuError::Runtime(format!("surfel arrays are inconsistent: {e}")))?;
+        check_binding(gpu, "the SH coefficients", surfels.len() as u64 * 48 * 4)?;
+        let d = &gpu.device;
+        Ok(Self {
+            pos: upload(d, "positions", bytemuck::cast_slice::<_, f32>(&surfels.positions)),
+            rot: upload(d, "rotations", bytemuck::cast_slice::<_, f32>(&surfels.rotations)),
+            lsc: upload(d, "log scales", bytemuck::cast_slice::<_, f32>(&surfels.log_scales)),
+            opa: upload(d, "opacity logits", &surfels.opacity_logits),
+            sh: upload(d, "sh", bytemuck::cast_slice::<_, f32>(&surfels.sh)),
+            n: surfels.len() as u32,
+        })
+    }
+
+    /// The five parameter buffers in Adam-group order (position, rotation, log scale, opacity, SH).
+    pub(crate) fn groups(&self) -> [&wgpu::Buffer; 5] {
+        [&self.pos, &self.rot, &self.lsc, &self.opa, &self.sh]
+    }
+
+    /// Reads the parameters back into `surfels` (which must hold as many Gaussians).
+    pub fn download_into(&self, gpu: &Gpu, surfels: &mut Surfels) -> Result<(), GpuError> {
+        let n = self.n as usize;
+        if surfels.len() != n {
+            return Err(GpuError::Runtime(format!("download of {n} Gaussians into {}", surfels.len())));
+        }
+        let r = read_back::<f32>(
+            &gpu.device,
+            &gpu.queue,
+            &[(&self.pos, n * 3), (&self.rot, n * 4), (&self.lsc, n * 2), (&self.opa, n), (&self.sh, n * 48)],
+        )?;
+        bytemuck::cast_slice_mut::<_, f32>(&mut surfels.positions).copy_from_slice(&r[0]);
+        bytemuck::cast_slice_mut::<_, f32>(&mut surfels.rotations).copy_from_slice(&r[1]);
+        bytemuck::cast_slice_mut::<_, f32>(&mut surfels.log_scales).copy_from_slice(&r[2]);
+        surfels.opacity_logits.copy_from_slice(&r[3]);
+        bytemuck::cast_slice_mut::<_, f32>(&mut surfels.sh).copy_from_slice(&r[4]);
+        Ok(())
+    }
+}
+
+/// An error when one binding of `bytes` passes the adapter's storage-binding limit.
+pub(crate) fn check_binding(gpu: &Gpu, what: &'static str, bytes: u64) -> Result<(), GpuError> {
+    let limit = gpu.report.max_storage_binding;
+    if bytes > limit {
+        Err(GpuError::TooLarge { what, bytes, limit })
+    } else {
+        Ok(())
+    }
+}
+
+/// The buffers of one render and its backward, allocated once and reused: per Gaussian (splat
+/// records, boxes, sort keys, offsets, gradients), per entry (up to `capacity` tile entries and
+/// their gradient slots), per pixel (outputs and output gradients) and per tile (ranges).
+pub struct Frame {
+    pub(crate) params: wgpu::Buffer,
+    pub(crate) splat: wgpu::Buffer,
+    pub(crate) rect: wgpu::Buffer,
+    tiles_n: wgpu::Buffer,
+    key: wgpu::Buffer,
+    val: wgpu::Buffer,
+    tmp_k: wgpu::Buffer,
+    tmp_v: wgpu::Buffer,
+    cnt: wgpu::Buffer,
+    off: wgpu::Buffer,
+    rank: wgpu::Buffer,
+    /// The binning counters (`COUNTERS` u32s, see bin_total.wgsl).
+    pub(crate) count: wgpu::Buffer,
+    tkey: wgpu::Buffer,
+    tval: wgpu::Buffer,
+    tk2: wgpu::Buffer,
+    tv2: wgpu::Buffer,
+    egauss: wgpu::Buffer,
+    slots: wgpu::Buffer,
+    ranges: wgpu::Buffer,
+    /// Per pixel, the forward's outputs (`PIX` floats).
+    pub(crate) img: wgpu::Buffer,
+    ncon: wgpu::Buffer,
+    /// Per pixel, the loss's output gradients (`VPIX` floats), what the backward reads.
+    pub(crate) vout: wgpu::Buffer,
+    /// Per Gaussian, the gradients besides SH (`VP` floats) and the SH gradients (48).
+    pub(crate) vparam: wgpu::Buffer,
+    pub(crate) vsh: wgpu::Buffer,
+    n: u32,
+    npx: u64,
+    tiles: u32,
+    capacity: u32,
+}
+
+impl Frame {
+    /// Buffers for `n` Gaussians, images of up to `npx` pixels and `tiles` tiles, and
+    /// `capacity` tile entries.
+    pub fn new(gpu: &Gpu, n: u32, npx: u64, tiles: u32, capacity: u32) -> Result<Self, GpuError> {
+        check_binding(gpu, "the forward's per-pixel outputs", npx * PIX as u64 * 4)?;
+        check_binding(gpu, "the tile entries' gradient slots", capacity as u64 * DIM * 4)?;
+        check_binding(gpu, "the SH gradients", n as u64 * 48 * 4)?;
+        let d = &gpu.device;
+        let nb = n as u64 * 4;
+        let eb = capacity as u64 * 4;
+        let params = d.create_buffer(&wgpu::BufferDescriptor {
+            label: Some("render params"),
+            size: std::mem::size_of::<Params>() as u64,
+            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        Ok(Self {
+            params,
+            splat: storage(d, "splats", nb * SPLAT),
+            rect: storage(d, "rects", nb * 4),
+            tiles_n: storage(d, "tile counts", nb),
+            key: storage(d, "depth keys", nb),
+            val: storage(d, "depth order", nb),
+            tmp_k: storage(d, "sort scratch keys", nb),
+            tmp_v: storage(d, "sort scratch values", nb),
+            cnt: storage(d, "counts", nb),
+            off: storage(d, "offsets", nb),
+            rank: storage(d, "ranks", nb),
+            count: storage(d, "binning counters", COUNTERS as u64 * 4),
+            tkey: storage(d, "tile keys", eb),
+            tval: storage(d, "tile values", eb),
+            tk2: storage(d, "tile sort scratch keys", eb),
+            tv2: storage(d, "tile sort scratch values", eb),
+            egauss: storage(d, "entry gaussians", eb),
+            slots: storage(d, "entry gradient slots", eb * DIM),
+            ranges: storage(d, "tile ranges", tiles as u64 * 8),
+            img: storage(d, "forward outputs", npx * PIX as u64 * 4),
+            ncon: storage(d, "n_contrib", npx * 4),
+            vout: storage(d, "output gradients", npx * VPIX as u64 * 4),
+            vparam: storage(d, "parameter gradients", nb * VP as u64),
+            vsh: storage(d, "sh gradients", nb * 48),
+            n,
+            npx,
+            tiles,
+            capacity,
+        })
+    }
+
+    /// Whether a render of `n` Gaussians on `npx` pixels and `tiles` tiles fits these buffers.
+    pub fn fits(&self, n: u32, npx: u64, tiles: u32) -> bool {
+        n == self.n && npx <= self.npx && tiles <= self.tiles
+    }
+
+    /// Tile entries the buffers hold.
+    pub fn capacity(&self) -> u32 {
+        self.capacity
+    }
+}
+
+/// A render's state on the GPU: its surfels, buffers and uniform (what its backward reads).
 pub struct GpuForward {
     params: Params,
-    params_buf: wgpu::Buffer,
-    pos: wgpu::Buffer,
-    rot: wgpu::Buffer,
-    sh: wgpu::Buffer,
-    splat: wgpu::Buffer,
-    rect: wgpu::Buffer,
-    rank: wgpu::Buffer,
-    off: wgpu::Buffer,
-    cnt: wgpu::Buffer,
-    ranges: wgpu::Buffer,
-    tval: wgpu::Buffer,
-    egauss: wgpu::Buffer,
-    img: wgpu::Buffer,
-    ncon: wgpu::Buffer,
+    surf: SurfelBuffers,
+    frame: Frame,
     /// Number of (tile, Gaussian) entries binned.
     pub entries: u32,
 }
@@ -148,6 +316,7 @@ impl GpuRaster {
             sort: SortKernels::new(d),
             project: kernel(d, "project", include_str!("shaders/project.wgsl")),
             bin_count: kernel(d, "bin_count", include_str!("shaders/bin_count.wgsl")),
+            bin_total: kernel(d, "bin_total", include_str!("shaders/bin_total.wgsl")),
             bin_emit: kernel(d, "bin_emit", include_str!("shaders/bin_emit.wgsl")),
             bin_ranges: kernel(d, "bin_ranges", include_str!("shaders/bin_ranges.wgsl")),
             forward: kernel(d, "raster_fwd", include_str!("shaders/raster_fwd.wgsl")),
@@ -156,9 +325,91 @@ impl GpuRaster {
         }
     }
 
+    /// Records a render of `surf` with `params` into `frame` (the uniform is written through the
+    /// queue, so one render per frame per submission). The counters keep their running maximum
+    /// and overflow count until the caller clears them.
+    pub(crate) fn encode_forward(
+        &self,
+        gpu: &Gpu,
+        enc: &mut wgpu::CommandEncoder,
+        surf: &SurfelBuffers,
+        frame: &Frame,
+        params: &Params,
+    ) {
+        let d = &gpu.device;
+        let f = frame;
+        gpu.queue.write_buffer(&f.params, 0, bytemuck::bytes_of(params));
+        let n = params.n;
+        let groups = n.div_ceil(256);
+        let p = &f.params;
+        let bg0 = bind(
+            d,
+            &self.project,
+            &[p, &surf.pos, &surf.rot, &surf.lsc, &surf.opa, &surf.sh, &f.splat, &f.rect, &f.tiles_n, &f.key, &f.val],
+        );
+        dispatch(enc, &self.project, &bg0, groups);
+        self.sort.sort(d, enc, &f.key, &f.val, &f.tmp_k, &f.tmp_v, n, 32, None);
+        let bg1 = bind(d, &self.bin_count, &[p, &f.val, &f.tiles_n, &f.cnt, &f.off, &f.rank]);
+        dispatch(enc, &self.bin_count, &bg1, groups);
+        self.sort.scan(d, enc, &f.off, n);
+        let bgt = bind(d, &self.bin_total, &[p, &f.off, &f.cnt, &f.count]);
+        dispatch(enc, &self.bin_total, &bgt, 1);
+        enc.clear_buffer(&f.ranges, 0, None);
+        let cap = params.capacity;
+        if cap > 0 && n > 0 {
+            let bg2 = bind(d, &self.bin_emit, &[p, &f.val, &f.off, &f.cnt, &f.rect, &f.tkey, &f.tval, &f.egauss]);
+            dispatch(enc, &self.bin_emit, &bg2, groups);
+            let tile_bits = 32 - (params.tiles().max(2) - 1).leading_zeros();
+            self.sort.sort(d, enc, &f.tkey, &f.tval, &f.tk2, &f.tv2, cap, tile_bits, Some(&f.count));
+            let bg3 = bind(d, &self.bin_ranges, &[p, &f.tkey, &f.ranges, &f.count]);
+            dispatch(enc, &self.bin_ranges, &bg3, cap.div_ceil(256));
+        }
+        let bg4 = bind(d, &self.forward, &[p, &f.splat, &f.rect, &f.ranges, &f.tval, &f.egauss, &f.img, &f.ncon]);
+        dispatch_2d(enc, &self.forward, &bg4, params.tiles_x, params.tiles_y);
+    }
+
+    /// Records the backward of the render last recorded into `frame`, from the output
+    /// gradients in `frame.vout`, into `frame.vparam` and `frame.vsh`.
+    pub(crate) fn encode_backward(
+        &self,
+        gpu: &Gpu,
+        enc: &mut wgpu::CommandEncoder,
+        surf: &SurfelBuffers,
+        frame: &Frame,
+        params: &Params,
+    ) {
+        let d = &gpu.device;
+        let f = frame;
+        let p = &f.params;
+        enc.clear_buffer(&f.slots, 0, None);
+        let b = bind(
+            d,
+            &self.backward,
+            &[p, &f.splat, &f.rect, &f.ranges, &f.tval, &f.egauss, &f.img, &f.ncon, &f.vout, &f.slots],
+        );
+        dispatch_2d(enc, &self.backward, &b, params.tiles_x, params.tiles_y);
+        let b = bind(
+            d,
+            &self.project_bwd,
+            &[p, &surf.pos, &surf.rot, &surf.sh, &f.splat, &f.rank, &f.off, &f.cnt, &f.slots, &f.vparam, &f.vsh],
+        );
+        dispatch(enc, &self.project_bwd, &b, params.n.div_ceil(256));
+    }
+
+    /// The entries a render of `surf` with `params` bins (one read-back; for sizing).
+    pub(crate) fn count_entries(&self, gpu: &Gpu, surf: &SurfelBuffers, params: &Params) -> Result<u32, GpuError> {
+        let p = Params { capacity: 0, ..*params };
+        let frame = Frame::new(gpu, p.n, p.width as u64 * p.height as u64, p.tiles(), 0)?;
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        self.encode_forward(gpu, &mut enc, surf, &frame, &p);
+        gpu.queue.submit([enc.finish()]);
+        Ok(read_back::<u32>(&gpu.device, &gpu.queue, &[(&frame.count, COUNTERS)])?[0][1])
+    }
+
     /// Renders the SH colours of `surfels` from `camera` over the colour `bg`: the outputs of
     /// svgir-raster's `render` with `ColorSource::Sh` and no extra features (`accum_weight` is
-    /// left empty: the backward returns it), and the state its backward reads.
+    /// left empty: the backward returns it), and the state its backward reads. The entry
+    /// buffers are sized exactly, from a first pass that only counts.
     pub fn render(
         &self,
         gpu: &Gpu,
@@ -167,164 +418,23 @@ impl GpuRaster {
         bg: [f32; 3],
         cfg: &RasterConfig,
     ) -> Result<(RenderOutput, GpuForward), GpuError> {
-        let fwd = self.render_resident(gpu, surfels, camera, bg, cfg)?;
-        let out = self.read_output(gpu, &fwd)?;
+        let surf = SurfelBuffers::upload(gpu, surfels)?;
+        let params = Params::new(surf.n, surfels.sh_degree, camera, bg, cfg, 0);
+        let entries = self.count_entries(gpu, &surf, &params)?;
+        let params = Params { capacity: entries, ..params };
+        let npx = camera.width() as u64 * camera.height() as u64;
+        let frame = Frame::new(gpu, surf.n, npx, params.tiles(), entries)?;
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        self.encode_forward(gpu, &mut enc, &surf, &frame, &params);
+        gpu.queue.submit([enc.finish()]);
+        let fwd = GpuForward { params, surf, frame, entries };
+        let out = read_output(gpu, &fwd.params, &fwd.frame)?;
         Ok((out, fwd))
     }
 
-    /// [`GpuRaster::render`] without reading the images back.
-    pub fn render_resident(
-        &self,
-        gpu: &Gpu,
-        surfels: &Surfels,
-        camera: &Camera,
-        bg: [f32; 3],
-        cfg: &RasterConfig,
-    ) -> Result<GpuForward, GpuError> {
-        surfels.check().map_err(|e| GpuError::Runtime(format!("surfel arrays are inconsistent: {e}")))?;
-        let (d, q) = (&gpu.device, &gpu.queue);
-        let mut params = Params::new(surfels, camera, bg, cfg);
-        let n = params.n;
-        let npx = camera.width() as u64 * camera.height() as u64;
-        let limit = gpu.report.max_storage_binding;
-        let check = |what: &'static str, bytes: u64| {
-            if bytes > limit {
-                Err(GpuError::TooLarge { what, bytes, limit })
-            } else {
-                Ok(())
-            }
-        };
-        check("the SH coefficients", n as u64 * 48 * 4)?;
-        check("the forward's per-pixel outputs", npx * PIX as u64 * 4)?;
-        let nb = n as u64 * 4;
-        let pos = upload(d, "positions", bytemuck::cast_slice::<_, f32>(&surfels.positions));
-        let rot = upload(d, "rotations", bytemuck::cast_slice::<_, f32>(&surfels.rotations));
-        let lsc = upload(d, "log scales", bytemuck::cast_slice::<_, f32>(&surfels.log_scales));
-        let opa = upload(d, "opacity logits", &surfels.opacity_logits);
-        let sh = upload(d, "sh", bytemuck::cast_slice::<_, f32>(&surfels.sh));
-        let splat = storage(d, "splats", nb * SPLAT);
-        let rect = storage(d, "rects", nb * 4);
-        let tiles_n = storage(d, "tile counts", nb);
-        let key = storage(d, "depth keys", nb);
-        let val = storage(d, "depth order", nb);
-        let tmp_k = storage(d, "sort scratch keys", nb);
-        let tmp_v = storage(d, "sort scratch values", nb);
-        let cnt = storage(d, "counts", nb);
-        let off = storage(d, "offsets", nb);
-        let rank = storage(d, "ranks", nb);
-        let pbuf = uniform(d, "params", &params);
-        let groups = n.div_ceil(256);
-
-        let mut enc = d.create_command_encoder(&Default::default());
-        let bg0 = bind(d, &self.project, &[&pbuf, &pos, &rot, &lsc, &opa, &sh, &splat, &rect, &tiles_n, &key, &val]);
-        dispatch(&mut enc, &self.project, &bg0, groups);
-        self.sort.sort(d, &mut enc, &key, &val, &tmp_k, &tmp_v, n, 32);
-        let bg1 = bind(d, &self.bin_count, &[&pbuf, &val, &tiles_n, &cnt, &off, &rank]);
-        dispatch(&mut enc, &self.bin_count, &bg1, groups);
-        self.sort.scan(d, &mut enc, &off, n);
-        q.submit([enc.finish()]);
-        // The entry count sizes the entry buffers: the one read-back of a render.
-        let entries = if n == 0 {
-            0u64
-        } else {
-            let last = (n - 1) as usize;
-            let tail = read_back::<u32>(d, q, &[(&off, n as usize), (&cnt, n as usize)])?;
-            tail[0][last] as u64 + tail[1][last] as u64
-        };
-        check("the tile entries' gradient slots", entries * DIM * 4)?;
-        params.entries = entries as u32;
-        let pbuf = uniform(d, "params", &params);
-        let ntiles = params.tiles_x as u64 * params.tiles_y as u64;
-        let tkey = storage(d, "tile keys", entries * 4);
-        let tval = storage(d, "tile values", entries * 4);
-        let tk2 = storage(d, "tile sort scratch keys", entries * 4);
-        let tv2 = storage(d, "tile sort scratch values", entries * 4);
-        let egauss = storage(d, "entry gaussians", entries * 4);
-        let ranges = storage(d, "tile ranges", ntiles * 8);
-        let img = storage(d, "forward outputs", npx * PIX as u64 * 4);
-        let ncon = storage(d, "n_contrib", npx * 4);
-        let mut enc = d.create_command_encoder(&Default::default());
-        enc.clear_buffer(&ranges, 0, None);
-        if entries > 0 {
-            let bg2 = bind(d, &self.bin_emit, &[&pbuf, &val, &off, &cnt, &rect, &tkey, &tval, &egauss]);
-            dispatch(&mut enc, &self.bin_emit, &bg2, groups);
-            let tile_bits = 32 - (ntiles.max(2) as u32 - 1).leading_zeros();
-            self.sort.sort(d, &mut enc, &tkey, &tval, &tk2, &tv2, entries as u32, tile_bits);
-            let bg3 = bind(d, &self.bin_ranges, &[&pbuf, &tkey, &ranges]);
-            dispatch(&mut enc, &self.bin_ranges, &bg3, (entries as u32).div_ceil(256));
-        }
-        let bg4 = bind(d, &self.forward, &[&pbuf, &splat, &rect, &ranges, &tval, &egauss, &img, &ncon]);
-        dispatch_2d(&mut enc, &self.forward, &bg4, params.tiles_x, params.tiles_y);
-        q.submit([enc.finish()]);
-        Ok(GpuForward {
-            params,
-            params_buf: pbuf,
-            pos,
-            rot,
-            sh,
-            splat,
-            rect,
-            rank,
-            off,
-            cnt,
-            ranges,
-            tval,
-            egauss,
-            img,
-            ncon,
-            entries: entries as u32,
-        })
-    }
-
-    /// Reads a render's images back into svgir-raster's output type.
-    pub fn read_output(&self, gpu: &Gpu, fwd: &GpuForward) -> Result<RenderOutput, GpuError> {
-        let p = &fwd.params;
-        let npx = p.width as usize * p.height as usize;
-        let n = p.n as usize;
-        let r = read_back::<f32>(&gpu.device, &gpu.queue, &[(&fwd.img, npx * PIX), (&fwd.splat, n * SPLAT as usize)])?;
-        let rects = read_back::<u32>(&gpu.device, &gpu.queue, &[(&fwd.rect, n * 4)])?;
-        let (img, splat) = (&r[0], &r[1]);
-        let mut out = RenderOutput {
-            width: p.width,
-            height: p.height,
-            color: vec![0.0; npx * 3],
-            alpha: vec![0.0; npx],
-            depth: vec![0.0; npx],
-            median_depth: vec![0.0; npx],
-            normal: vec![0.0; npx * 3],
-            distortion: vec![0.0; npx],
-            extra: Vec::new(),
-            extra_channels: 0,
-            accum_weight: Vec::new(),
-            max_radius: vec![0.0; n],
-        };
-        for i in 0..npx {
-            let o = &img[i * PIX..(i + 1) * PIX];
-            out.color[i * 3..i * 3 + 3].copy_from_slice(&o[0..3]);
-            out.alpha[i] = o[3];
-            out.depth[i] = o[4];
-            out.median_depth[i] = o[5];
-            out.normal[i * 3..i * 3 + 3].copy_from_slice(&o[6..9]);
-            out.distortion[i] = o[9];
-        }
-        for g in 0..n {
-            let rc = &rects[0][g * 4..g * 4 + 4];
-            if rc[0] < rc[1] && rc[2] < rc[3] {
-                out.max_radius[g] = splat[g * SPLAT as usize + 23];
-            }
-        }
-        Ok(out)
-    }
-
     /// Gradients of a loss with output gradients `grads` (colour, alpha, depth, normal,
-    /// distortion; `extra` must be `None`) for the render `fwd` of `surfels`.
-    pub fn backward(
-        &self,
-        gpu: &Gpu,
-        surfels: &Surfels,
-        fwd: &GpuForward,
-        grads: &OutputGrads,
-    ) -> Result<GpuGrads, GpuError> {
+    /// distortion; `extra` must be `None`) for the render `fwd`.
+    pub fn backward(&self, gpu: &Gpu, fwd: &GpuForward, grads: &OutputGrads) -> Result<GpuGrads, GpuError> {
         let (d, q) = (&gpu.device, &gpu.queue);
         let p = &fwd.params;
         let npx = p.width as usize * p.height as usize;
@@ -354,49 +464,12 @@ impl GpuRaster {
         put(&mut vout, grads.depth, 1, 4, "depth")?;
         put(&mut vout, grads.normal, 3, 5, "normal")?;
         put(&mut vout, grads.distortion, 1, 8, "distortion")?;
-        let vbuf = upload(d, "output gradients", &vout);
-        let slots = storage(d, "entry gradient slots", fwd.entries as u64 * DIM * 4);
-        let vparam = storage(d, "parameter gradients", n as u64 * VP as u64 * 4);
-        let vsh = storage(d, "sh gradients", n as u64 * 48 * 4);
+        q.write_buffer(&fwd.frame.vout, 0, bytemuck::cast_slice(&vout));
         let mut enc = d.create_command_encoder(&Default::default());
-        enc.clear_buffer(&slots, 0, None);
-        let b = bind(
-            d,
-            &self.backward,
-            &[
-                &fwd.params_buf,
-                &fwd.splat,
-                &fwd.rect,
-                &fwd.ranges,
-                &fwd.tval,
-                &fwd.egauss,
-                &fwd.img,
-                &fwd.ncon,
-                &vbuf,
-                &slots,
-            ],
-        );
-        dispatch_2d(&mut enc, &self.backward, &b, p.tiles_x, p.tiles_y);
-        let b = bind(
-            d,
-            &self.project_bwd,
-            &[
-                &fwd.params_buf,
-                &fwd.pos,
-                &fwd.rot,
-                &fwd.sh,
-                &fwd.splat,
-                &fwd.rank,
-                &fwd.off,
-                &fwd.cnt,
-                &slots,
-                &vparam,
-                &vsh,
-            ],
-        );
-        dispatch(&mut enc, &self.project_bwd, &b, (n as u32).div_ceil(256));
+        self.encode_backward(gpu, &mut enc, &fwd.surf, &fwd.frame, p);
         q.submit([enc.finish()]);
-        let r = read_back::<f32>(d, q, &[(&vparam, n * VP), (&vsh, n * 48), (&fwd.img, npx * PIX)])?;
+        let f = &fwd.frame;
+        let r = read_back::<f32>(d, q, &[(&f.vparam, n * VP), (&f.vsh, n * 48), (&f.img, npx * PIX)])?;
         let (vp, vs, img) = (&r[0], &r[1], &r[2]);
         let mut g = Grads {
             v_positions: vec![glam::Vec3::ZERO; n],
@@ -438,7 +511,45 @@ impl GpuRaster {
             }
             g.v_background = vb.iter().map(|&v| v as f32).collect();
         }
-        let _ = surfels;
         Ok(GpuGrads { grads: g, accum_weight })
     }
+}
+
+/// Reads the images of the render last recorded into `frame` into svgir-raster's output type.
+pub(crate) fn read_output(gpu: &Gpu, p: &Params, frame: &Frame) -> Result<RenderOutput, GpuError> {
+    let npx = p.width as usize * p.height as usize;
+    let n = p.n as usize;
+    let r = read_back::<f32>(&gpu.device, &gpu.queue, &[(&frame.img, npx * PIX), (&frame.splat, n * SPLAT as usize)])?;
+    let rects = read_back::<u32>(&gpu.device, &gpu.queue, &[(&frame.rect, n * 4)])?;
+    let (img, splat) = (&r[0], &r[1]);
+    let mut out = RenderOutput {
+        width: p.width,
+        height: p.height,
+        color: vec![0.0; npx * 3],
+        alpha: vec![0.0; npx],
+        depth: vec![0.0; npx],
+        median_depth: vec![0.0; npx],
+        normal: vec![0.0; npx * 3],
+        distortion: vec![0.0; npx],
+        extra: Vec::new(),
+        extra_channels: 0,
+        accum_weight: Vec::new(),
+        max_radius: vec![0.0; n],
+    };
+    for i in 0..npx {
+        let o = &img[i * PIX..(i + 1) * PIX];
+        out.color[i * 3..i * 3 + 3].copy_from_slice(&o[0..3]);
+        out.alpha[i] = o[3];
+        out.depth[i] = o[4];
+        out.median_depth[i] = o[5];
+        out.normal[i * 3..i * 3 + 3].copy_from_slice(&o[6..9]);
+        out.distortion[i] = o[9];
+    }
+    for g in 0..n {
+        let rc = &rects[0][g * 4..g * 4 + 4];
+        if rc[0] < rc[1] && rc[2] < rc[3] {
+            out.max_radius[g] = splat[g * SPLAT as usize + 23];
+        }
+    }
+    Ok(out)
 }

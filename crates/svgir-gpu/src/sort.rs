@@ -22,7 +22,7 @@ struct SortParams {
     n: u32,
     shift: u32,
     blocks: u32,
-    pad: u32,
+    counted: u32,
 }
 
 /// The scan and sort pipelines.
@@ -31,6 +31,8 @@ pub(crate) struct SortKernels {
     scan_add: wgpu::ComputePipeline,
     histogram: wgpu::ComputePipeline,
     scatter: wgpu::ComputePipeline,
+    /// Bound as the pair count of a sort whose length the host knows.
+    no_count: wgpu::Buffer,
 }
 
 fn pipeline(device: &wgpu::Device, module: &wgpu::ShaderModule, entry: &str) -> wgpu::ComputePipeline {
@@ -59,6 +61,7 @@ impl SortKernels {
             scan_add: pipeline(device, &scan, "add"),
             histogram: pipeline(device, &radix, "histogram"),
             scatter: pipeline(device, &radix, "scatter"),
+            no_count: storage(device, "no pair count", 16),
         }
     }
 
@@ -81,7 +84,8 @@ impl SortKernels {
 
     /// Records a stable sort of `n` pairs on the low `bits` bits of the keys (rounded up to
     /// whole 4-bit passes). The sorted pairs end in `keys`/`vals` (the `tmp_*` buffers, of the
-    /// same size, are scratch).
+    /// same size, are scratch). With `count`, only its first u32's worth of pairs (at most `n`)
+    /// are sorted: a length known on the GPU alone, with the dispatch sized for `n`.
     pub(crate) fn sort(
         &self,
         device: &wgpu::Device,
@@ -92,6 +96,7 @@ impl SortKernels {
         tmp_vals: &wgpu::Buffer,
         n: u32,
         bits: u32,
+        count: Option<&wgpu::Buffer>,
     ) {
         if n <= 1 {
             return;
@@ -103,11 +108,13 @@ impl SortKernels {
         for pass in 0..passes {
             let (ki, vi, ko, vo) =
                 if pass % 2 == 0 { (keys, vals, tmp_keys, tmp_vals) } else { (tmp_keys, tmp_vals, keys, vals) };
-            let params = uniform(device, "sort params", &SortParams { n, shift: 4 * pass, blocks, pad: 0 });
-            let h = bind(device, &self.histogram, &[&params, ki, vi, &counts, ko, vo]);
+            let counted = u32::from(count.is_some());
+            let params = uniform(device, "sort params", &SortParams { n, shift: 4 * pass, blocks, counted });
+            let nbuf = count.unwrap_or(&self.no_count);
+            let h = bind(device, &self.histogram, &[&params, ki, vi, &counts, ko, vo, nbuf]);
             dispatch(enc, &self.histogram, &h, blocks);
             self.scan(device, enc, &counts, 16 * blocks);
-            let s = bind(device, &self.scatter, &[&params, ki, vi, &counts, ko, vo]);
+            let s = bind(device, &self.scatter, &[&params, ki, vi, &counts, ko, vo, nbuf]);
             dispatch(enc, &self.scatter, &s, blocks);
         }
     }

@@ -344,7 +344,7 @@ fn backward_matches_the_scalar_kernels() {
         let exact = svgir_raster::backward_generic::<f64, Surfels>(&input64, &cfg, &state64, &out64, &og64);
         let flat = |v: &[f64]| v.to_vec();
         let (_, fwd) = r.render(&g, &s, &cam, bg, &cfg).unwrap();
-        let got = r.backward(&g, &s, &fwd, &og).unwrap();
+        let got = r.backward(&g, &fwd, &og).unwrap();
         let gg = &got.grads;
         // Composited on one device only, and then faintly: a splat on a cut-off at some pixel.
         let (wg, wc) = (&got.accum_weight, &cpu_out.accum_weight);

@@ -26,9 +26,11 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     var o = off[k];
     for (var ty = ty0; ty < ty1; ty++) {
         for (var tx = tx0; tx < tx1; tx++) {
-            tkey[o] = ty * P.tiles_x + tx;
-            tval[o] = o;
-            egauss[o] = g;
+            if o < P.capacity {
+                tkey[o] = ty * P.tiles_x + tx;
+                tval[o] = o;
+                egauss[o] = g;
+            }
             o++;
         }
     }

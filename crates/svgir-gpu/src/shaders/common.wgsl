@@ -23,9 +23,19 @@ struct Params {
     tiles_y: u32,
     // Bit 0: distortion, bit 1: geometry (depth, median depth), bit 2: normals.
     flags: u32,
-    // Entries binned this render (tile-list length).
-    entries: u32,
+    // Length of the entry buffers: a render that bins more entries keeps the first `capacity`
+    // and flags the overflow in `count` (bin_total.wgsl).
+    capacity: u32,
 }
+
+// The binning counters (`count` buffer, u32s): entries kept, entries binned, whether this
+// render overflowed, the most entries binned and the overflowed renders since the host last
+// cleared them.
+const C_KEPT: u32 = 0u;
+const C_TOTAL: u32 = 1u;
+const C_OVERFLOW: u32 = 2u;
+const C_MAX: u32 = 3u;
+const C_OVERFLOWS: u32 = 4u;
 
 // The splat record, SPLAT floats per Gaussian (see project.wgsl).
 const SPLAT: u32 = 24u;

@@ -62,8 +62,10 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     for (var c = 0u; c < DIM; c++) {
         sum[c] = 0.0;
     }
-    let e0 = off[k];
-    for (var e = e0; e < e0 + nent; e++) {
+    // Entries past the capacity were dropped (an overflowed render, whose step the optimiser skips).
+    let e0 = min(off[k], P.capacity);
+    let e1 = min(off[k] + nent, P.capacity);
+    for (var e = e0; e < e1; e++) {
         for (var c = 0u; c < DIM; c++) {
             sum[c] += grads[e * DIM + c];
         }

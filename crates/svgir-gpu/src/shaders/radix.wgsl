@@ -10,10 +10,12 @@
 // the depth and then the tile.
 
 struct SortParams {
+    // Pairs the buffers hold (the dispatch covers them).
     n: u32,
     shift: u32,
     blocks: u32,
-    _p: u32,
+    // 1: sort only the first `nbuf[0]` pairs (the entries a render kept, counted on the GPU).
+    counted: u32,
 }
 
 @group(0) @binding(0) var<uniform> R: SortParams;
@@ -22,6 +24,11 @@ struct SortParams {
 @group(0) @binding(3) var<storage, read_write> counts: array<u32>;
 @group(0) @binding(4) var<storage, read_write> keys_out: array<u32>;
 @group(0) @binding(5) var<storage, read_write> vals_out: array<u32>;
+@group(0) @binding(6) var<storage, read> nbuf: array<u32>;
+
+fn pairs() -> u32 {
+    return select(R.n, min(R.n, nbuf[0]), R.counted != 0u);
+}
 
 var<workgroup> hist: array<atomic<u32>, 16>;
 var<workgroup> packed: array<vec4<u32>, 256>;
@@ -36,13 +43,14 @@ fn block_of(wid: vec3<u32>, nwg: vec3<u32>) -> u32 {
 @compute @workgroup_size(256)
 fn histogram(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>, @builtin(local_invocation_index) tid: u32) {
     let block = block_of(wid, nwg);
+    let n = pairs();
     if tid < 16u {
         atomicStore(&hist[tid], 0u);
     }
     workgroupBarrier();
     for (var c = 0u; c < 4u; c++) {
         let i = block * 1024u + c * 256u + tid;
-        if i < R.n {
+        if i < n {
             atomicAdd(&hist[(keys_in[i] >> R.shift) & 15u], 1u);
         }
     }
@@ -73,12 +81,13 @@ fn byte_of(v: vec4<u32>, d: u32) -> u32 {
 @compute @workgroup_size(256)
 fn scatter(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>, @builtin(local_invocation_index) tid: u32) {
     let block = block_of(wid, nwg);
+    let n = pairs();
     if tid < 16u && block < R.blocks {
         running[tid] = counts[tid * R.blocks + block];
     }
     for (var c = 0u; c < 4u; c++) {
         let i = block * 1024u + c * 256u + tid;
-        let valid = i < R.n;
+        let valid = i < n;
         var k = 0u;
         var v = 0u;
         if valid {
