@@ -17,11 +17,14 @@
 
 pub mod buffers;
 pub mod device;
+pub mod loss;
 pub mod raster;
 mod sort;
+pub mod stage1;
 
 pub use device::{open, open_named, AdapterReport, DeviceChoice, Gpu, GpuError, ADAPTER_ENV};
-pub use raster::{GpuForward, GpuGrads, GpuRaster, TILE};
+pub use raster::{Frame, GpuForward, GpuGrads, GpuRaster, SurfelBuffers, TILE};
+pub use stage1::GpuStage1;
 
 /// Test hooks: the scan and the sort alone, on host data.
 pub mod testing {
@@ -50,5 +53,86 @@ pub mod testing {
         let mut r = read_back::<u32>(d, &gpu.queue, &[(&kb, keys.len()), (&vb, vals.len())])?;
         let v = r.pop().unwrap_or_default();
         Ok((r.pop().unwrap_or_default(), v))
+    }
+
+    /// The render outputs a loss reads, as the CPU rasterizer returns them.
+    pub struct LossInput<'a> {
+        /// RGB, `H*W*3`.
+        pub color: &'a [f32],
+        /// Opacity per pixel.
+        pub alpha: &'a [f32],
+        /// Un-normalised depth per pixel.
+        pub depth: &'a [f32],
+        /// Composited normal, `H*W*3`.
+        pub normal: &'a [f32],
+        /// Distortion per pixel.
+        pub distortion: &'a [f32],
+    }
+
+    /// Stage 1's loss kernels on one view: the loss record (L1, SSIM, mask, entropy,
+    /// depth-normal, distortion, MSE, total) and the output gradients, `VPIX` = 9 floats a
+    /// pixel (colour 3, alpha, depth, normal 3, distortion).
+    #[allow(clippy::too_many_arguments)]
+    pub fn stage1_loss(
+        gpu: &Gpu,
+        out: &LossInput,
+        photo: &svgir_core::Image,
+        camera: &svgir_core::Camera,
+        bg: [f32; 3],
+        weights: &svgir_train::config::LossWeights,
+        w_dn: f32,
+        use_mask: bool,
+    ) -> Result<(Vec<f32>, Vec<f32>), GpuError> {
+        use crate::raster::{Frame, PIX, VPIX};
+        let npx = camera.width() as usize * camera.height() as usize;
+        let mut img = vec![0.0f32; npx * PIX];
+        for i in 0..npx {
+            let o = &mut img[i * PIX..(i + 1) * PIX];
+            o[0..3].copy_from_slice(&out.color[i * 3..i * 3 + 3]);
+            o[3] = out.alpha[i];
+            o[4] = out.depth[i];
+            o[6..9].copy_from_slice(&out.normal[i * 3..i * 3 + 3]);
+            o[9] = out.distortion[i];
+        }
+        let frame = Frame::new(gpu, 1, npx as u64, 1, 0)?;
+        gpu.queue.write_buffer(&frame.img, 0, bytemuck::cast_slice(&img));
+        let target = upload(&gpu.device, "photo", &crate::loss::photo_record(photo));
+        let bufs = crate::loss::LossBuffers::new(gpu, npx as u64, 1);
+        let k = crate::loss::LossKernels::new(gpu);
+        let p = crate::loss::LossParams::new(camera, bg, weights, w_dn, use_mask, 0);
+        let mut enc = gpu.device.create_command_encoder(&Default::default());
+        k.encode(gpu, &mut enc, &frame, &target, &bufs, &p);
+        gpu.queue.submit([enc.finish()]);
+        let mut r =
+            read_back::<f32>(&gpu.device, &gpu.queue, &[(&bufs.ring, crate::loss::RECORD), (&frame.vout, npx * VPIX)])?;
+        let vout = r.pop().unwrap_or_default();
+        Ok((r.pop().unwrap_or_default(), vout))
+    }
+
+    /// One Adam step of `group` on `params` with gradient `grad`, by the GPU kernel.
+    pub fn adam_step(
+        gpu: &Gpu,
+        group: &mut svgir_train::adam::AdamGroup,
+        params: &mut [f32],
+        grad: &[f32],
+    ) -> Result<(), GpuError> {
+        let d = &gpu.device;
+        let rows = (params.len() / group.stride) as u32;
+        let ap = crate::stage1::AdamParams::step(group, rows, group.stride as u32, 0)?;
+        let k = crate::raster::kernel(d, "adam", include_str!("shaders/adam.wgsl"));
+        let u = crate::buffers::uniform(d, "adam params", &ap);
+        let (p, g) = (upload(d, "params", params), upload(d, "grad", grad));
+        let (m, v) = (upload(d, "m", &group.m), upload(d, "v", &group.v));
+        let count = crate::buffers::storage(d, "counters", 32);
+        let mut enc = d.create_command_encoder(&Default::default());
+        let b = crate::buffers::bind(d, &k, &[&u, &p, &g, &m, &v, &count]);
+        crate::buffers::dispatch(&mut enc, &k, &b, (params.len() as u32).div_ceil(256));
+        gpu.queue.submit([enc.finish()]);
+        let n = params.len();
+        let r = read_back::<f32>(d, &gpu.queue, &[(&p, n), (&m, n), (&v, n)])?;
+        params.copy_from_slice(&r[0]);
+        group.m.copy_from_slice(&r[1]);
+        group.v.copy_from_slice(&r[2]);
+        Ok(())
     }
 }

@@ -419,17 +419,32 @@ impl GpuRaster {
         cfg: &RasterConfig,
     ) -> Result<(RenderOutput, GpuForward), GpuError> {
         let surf = SurfelBuffers::upload(gpu, surfels)?;
-        let params = Params::new(surf.n, surfels.sh_degree, camera, bg, cfg, 0);
-        let entries = self.count_entries(gpu, &surf, &params)?;
+        let (out, params, frame) = self.render_with(gpu, &surf, surfels.sh_degree, camera, bg, cfg)?;
+        let entries = params.capacity;
+        Ok((out, GpuForward { params, surf, frame, entries }))
+    }
+
+    /// [`GpuRaster::render`] of resident surfels of SH degree `sh_degree`, with the render's
+    /// uniform and buffers.
+    pub(crate) fn render_with(
+        &self,
+        gpu: &Gpu,
+        surf: &SurfelBuffers,
+        sh_degree: u32,
+        camera: &Camera,
+        bg: [f32; 3],
+        cfg: &RasterConfig,
+    ) -> Result<(RenderOutput, Params, Frame), GpuError> {
+        let params = Params::new(surf.n, sh_degree, camera, bg, cfg, 0);
+        let entries = self.count_entries(gpu, surf, &params)?;
         let params = Params { capacity: entries, ..params };
         let npx = camera.width() as u64 * camera.height() as u64;
         let frame = Frame::new(gpu, surf.n, npx, params.tiles(), entries)?;
         let mut enc = gpu.device.create_command_encoder(&Default::default());
-        self.encode_forward(gpu, &mut enc, &surf, &frame, &params);
+        self.encode_forward(gpu, &mut enc, surf, &frame, &params);
         gpu.queue.submit([enc.finish()]);
-        let fwd = GpuForward { params, surf, frame, entries };
-        let out = read_output(gpu, &fwd.params, &fwd.frame)?;
-        Ok((out, fwd))
+        let out = read_output(gpu, &params, &frame)?;
+        Ok((out, params, frame))
     }
 
     /// Gradients of a loss with output gradients `grads` (colour, alpha, depth, normal,

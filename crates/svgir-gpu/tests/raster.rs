@@ -6,25 +6,11 @@
 use glam::{Quat, Vec2, Vec3};
 use svgir_core::{Camera, Rng, ShCoeffs, Surfels};
 use svgir_gpu::{Gpu, GpuRaster};
+
+mod common;
+use common::gpu;
 use svgir_raster::bench::{look_at_camera, random_scene};
 use svgir_raster::{Background, ColorSource, OutputGrads, RasterConfig, RenderInput, Simd};
-
-fn gpu() -> Option<Gpu> {
-    let name = std::env::var(svgir_gpu::ADAPTER_ENV).unwrap_or_else(|_| "llvmpipe".into());
-    match svgir_gpu::open_named(Some(&name)) {
-        Ok(g) => {
-            eprintln!("GPU tests on {}", g.report);
-            Some(g)
-        }
-        Err(e) => {
-            if std::env::var("SVGIR_REQUIRE_GPU").is_ok_and(|v| v == "1") {
-                panic!("SVGIR_REQUIRE_GPU=1 and no GPU adapter: {e}");
-            }
-            eprintln!("SKIPPED: no GPU adapter ({e})");
-            None
-        }
-    }
-}
 
 /// Random Gaussians on a unit sphere (svgir-raster's bench scene, larger splats) and a few
 /// special ones: edge-on to the camera, behind the near plane, huge and faint.

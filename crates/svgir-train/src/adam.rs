@@ -112,6 +112,12 @@ impl AdamGroup {
     fn begin_step(&mut self, params: &[f32], grad: &[f32]) -> AdamConsts {
         assert_eq!(params.len(), self.m.len(), "Adam group '{}' size mismatch", self.name);
         assert_eq!(grad.len(), params.len());
+        self.count_step()
+    }
+
+    /// Counts one step and returns its constants, for an update whose moments live elsewhere
+    /// (a GPU's buffers: `m` and `v` here are then stale until read back).
+    pub fn count_step(&mut self) -> AdamConsts {
         self.step += 1;
         let bc1 = 1.0 - (self.beta1 as f64).powi(self.step as i32);
         let bc2 = 1.0 - (self.beta2 as f64).powi(self.step as i32);
@@ -178,14 +184,19 @@ struct Slices<'a> {
     v: &'a mut [f32],
 }
 
-/// The constants of one Adam step.
-#[derive(Clone, Copy)]
-struct AdamConsts {
-    b1: f32,
-    b2: f32,
-    eps: f32,
-    step_size: f32,
-    bc2_sqrt: f32,
+/// The constants of one Adam step: `p -= step_size lr_scale[c] m / (sqrt(v) / bc2_sqrt + eps)`.
+#[derive(Clone, Copy, Debug)]
+pub struct AdamConsts {
+    /// First-moment decay.
+    pub b1: f32,
+    /// Second-moment decay.
+    pub b2: f32,
+    /// Denominator epsilon.
+    pub eps: f32,
+    /// The learning rate over the first moment's bias correction.
+    pub step_size: f32,
+    /// Square root of the second moment's bias correction.
+    pub bc2_sqrt: f32,
 }
 
 impl AdamConsts {

@@ -6,7 +6,7 @@
 //! whose state is part of the checkpoint, so a resumed run continues bit-identically.
 
 use crate::adam::{exp_lr, AdamGroup};
-use crate::config::{Stage1Config, ViewOrder};
+use crate::config::{LossWeights, Stage1Config, ViewOrder};
 use crate::densify::{densify_and_prune, reset_opacity, DensifyReport, DensifyStats, Groups};
 use crate::exposure::{self, ExposureCorrection};
 use crate::losses::mask;
@@ -106,7 +106,13 @@ struct HalfRes {
 
 impl HalfRes {
     fn of(dataset: &Dataset) -> Self {
-        let views: Vec<View> = dataset
+        let views = Self::views_of(dataset);
+        let targets = views.iter().map(|v| Target::of(&v.image)).collect();
+        Self { views, targets }
+    }
+
+    fn views_of(dataset: &Dataset) -> Vec<View> {
+        dataset
             .train
             .iter()
             .map(|v| {
@@ -122,9 +128,7 @@ impl HalfRes {
                 let (w, h) = downscaled_size(v.image.width, v.image.height, 2.0);
                 photo.resized(w, h)
             })
-            .collect();
-        let targets = views.iter().map(|v| Target::of(&v.image)).collect();
-        Self { views, targets }
+            .collect()
     }
 }
 
@@ -180,6 +184,43 @@ pub fn view_of_iteration(seed: u64, it: u64, n: usize) -> usize {
     let mut order: Vec<usize> = (0..n).collect();
     Rng::new(seed).fork(STREAM).fork(epoch).shuffle(&mut order);
     order[pos]
+}
+
+/// What one iteration uses, drawn by [`Stage1::plan`].
+#[derive(Clone, Debug)]
+pub struct IterationPlan {
+    /// The iteration (1-based).
+    pub iteration: u64,
+    /// Index of its training view.
+    pub view: usize,
+    /// Whether it trains on the half-size photos ([`half_size_views`]).
+    pub half: bool,
+    /// The background colour the render and the photo are composited over.
+    pub bg: [f32; 3],
+    /// Training progress in [0, 1] (the depth-normal ramp).
+    pub t_frac: f32,
+    /// Its loss weights.
+    pub weights: LossWeights,
+    /// Its rasterizer settings.
+    pub raster: RasterConfig,
+}
+
+/// The factor from a pixel-space position gradient to 3DGS's NDC one on a `w` x `h` view
+/// (SPEC 2's densification threshold is on the latter).
+pub fn ndc_scale(w: usize, h: usize) -> f32 {
+    0.5 * ((w * h) as f32).sqrt()
+}
+
+/// The training views at half size, as the iterations up to [`Stage1Config::half_res_until`]
+/// see them (the same views and intrinsics a `--downscale 2` load gives).
+pub fn half_size_views(dataset: &Dataset) -> Vec<View> {
+    HalfRes::views_of(dataset)
+}
+
+/// A photo's alpha and its dilated mask, as the loss reads them (SPEC 2's mask loss).
+pub fn photo_target(image: &Image) -> (Vec<f32>, Vec<bool>) {
+    let t = Target::of(image);
+    (t.alpha, t.dilated)
 }
 
 /// RGB of a view's photo composited over `bg` (sRGB values, as compared in the loss).
@@ -242,28 +283,57 @@ impl Stage1 {
         self.iteration >= self.config.iterations
     }
 
-    /// One training iteration on a random training view.
-    pub fn step(&mut self, dataset: &Dataset) -> StepStats {
-        let cfg = self.config.clone();
+    /// Draws what iteration `self.iteration + 1` uses and counts it: its view, its background,
+    /// its loss weights and rasterizer settings. Every device runs the iteration it plans, so
+    /// a run draws the same views and backgrounds on the CPU and on a GPU.
+    pub fn plan(&mut self, dataset: &Dataset) -> IterationPlan {
+        let cfg = &self.config;
         self.iteration += 1;
         let it = self.iteration;
-        let view_idx = match cfg.view_order {
+        let view = match cfg.view_order {
             ViewOrder::Uniform => self.rng.below(dataset.train.len()),
             ViewOrder::Epochs => view_of_iteration(cfg.seed, it, dataset.train.len()),
-        };
-        // Coarse to fine: the half-size photo until `half_res_until`, then the photo itself. The
-        // half-size views are made when first needed (a run resumed past them never makes them).
-        if it <= cfg.half_res_until && self.half.is_none() {
-            self.half = Some(HalfRes::of(dataset));
-        }
-        let half = self.half.as_ref().filter(|_| it <= cfg.half_res_until);
-        let (view, target) = match half {
-            Some(h) => (&h.views[view_idx], &h.targets[view_idx]),
-            None => (&dataset.train[view_idx], &self.targets[view_idx]),
         };
         let bg = match cfg.background.fixed_color() {
             Some(c) => c,
             None => [self.rng.uniform(), self.rng.uniform(), self.rng.uniform()],
+        };
+        let t_frac = (it as f32 / cfg.iterations as f32).min(1.0);
+        let weights = cfg.weights_at(it);
+        // Depth and normal feed only the depth-normal loss: without it (3DGS's loss) the
+        // rasterizer skips them.
+        let raster = RasterConfig { geometry: depth_normal_weight(&weights, t_frac) != 0.0, ..self.raster };
+        IterationPlan { iteration: it, view, half: it <= cfg.half_res_until, bg, t_frac, weights, raster }
+    }
+
+    /// The position learning rate of iteration `it` set on its Adam group (SPEC 2's decay).
+    pub fn set_position_lr(&mut self, it: u64) {
+        let (cfg, e) = (&self.config, self.extent);
+        self.groups[0].lr = exp_lr(it - 1, cfg.lr.position_init * e, cfg.lr.position_final * e, cfg.iterations);
+    }
+
+    /// Whether iteration `it` ends with work on the surfels themselves (densification or an
+    /// opacity reset), which [`Stage1::finish`] does on the host.
+    pub fn changes_surfels_at(&self, it: u64) -> bool {
+        let d = &self.config.densify;
+        it <= d.until_iter
+            && ((it >= d.from_iter && it.is_multiple_of(d.interval)) || self.config.resets_opacity_at(it))
+    }
+
+    /// One training iteration on a random training view.
+    pub fn step(&mut self, dataset: &Dataset) -> StepStats {
+        let plan = self.plan(dataset);
+        let cfg = self.config.clone();
+        let (it, view_idx, bg) = (plan.iteration, plan.view, plan.bg);
+        // Coarse to fine: the half-size photo until `half_res_until`, then the photo itself. The
+        // half-size views are made when first needed (a run resumed past them never makes them).
+        if plan.half && self.half.is_none() {
+            self.half = Some(HalfRes::of(dataset));
+        }
+        let half = self.half.as_ref().filter(|_| plan.half);
+        let (view, target) = match half {
+            Some(h) => (&h.views[view_idx], &h.targets[view_idx]),
+            None => (&dataset.train[view_idx], &self.targets[view_idx]),
         };
         let gt = target_rgb(&view.image, bg);
 
@@ -275,12 +345,8 @@ impl Stage1 {
             extra: None,
             background: Background::Color(bg),
         };
-        let t_frac = (it as f32 / cfg.iterations as f32).min(1.0);
-        let weights = cfg.weights_at(it);
-        // Depth and normal feed only the depth-normal loss: without it (3DGS's loss) the
-        // rasterizer skips them.
-        let raster = RasterConfig { geometry: depth_normal_weight(&weights, t_frac) != 0.0, ..self.raster };
-        let (out, state) = render(&input, &raster);
+        let (weights, raster) = (&plan.weights, &plan.raster);
+        let (out, state) = render(&input, raster);
         let t1 = Instant::now();
 
         let (w, h) = (view.camera.width() as usize, view.camera.height() as usize);
@@ -288,8 +354,8 @@ impl Stage1 {
         let corrected = self.exposure.as_ref().map(|e| exposure::apply(&e.params[view_idx], &out.color));
         let color = corrected.as_deref().unwrap_or(&out.color);
         let mut obj = stage1_objective(
-            &weights,
-            t_frac,
+            weights,
+            plan.t_frac,
             cfg.use_mask,
             &ObjectiveInput {
                 color,
@@ -311,7 +377,7 @@ impl Stage1 {
 
         let grads = backward(
             &input,
-            &raster,
+            raster,
             &state,
             &out,
             &OutputGrads {
@@ -328,12 +394,11 @@ impl Stage1 {
         if it <= cfg.densify.until_iter {
             // 3DGS's threshold (SPEC 2: 2.5e-4) is on the gradient w.r.t. NDC coordinates, i.e. the
             // per-pixel gradient times W/2 (H/2 vertically; equal for square images).
-            let to_ndc = 0.5 * ((w * h) as f32).sqrt();
+            let to_ndc = ndc_scale(w, h);
             let g: Vec<f32> = grads.v_mean2d_norm.iter().map(|g| g * to_ndc).collect();
             self.stats.add(&g, &out.max_radius, &out.accum_weight);
         }
-        self.groups[0].lr =
-            exp_lr(it - 1, cfg.lr.position_init * self.extent, cfg.lr.position_final * self.extent, cfg.iterations);
+        self.set_position_lr(it);
         let s = &mut self.surfels;
         self.groups[0].step(bytemuck::cast_slice_mut(&mut s.positions), bytemuck::cast_slice(&grads.v_positions));
         self.groups[1].step(bytemuck::cast_slice_mut(&mut s.rotations), bytemuck::cast_slice(&grads.v_rotations));
@@ -342,6 +407,32 @@ impl Stage1 {
         self.groups[4].step(bytemuck::cast_slice_mut(&mut s.sh), bytemuck::cast_slice(&grads.v_sh));
         let t4 = Instant::now();
 
+        let densify = self.finish(it);
+        let t5 = Instant::now();
+        let secs = |a: Instant, b: Instant| (b - a).as_secs_f64();
+        self.times.forward += secs(t0, t1);
+        self.times.loss += secs(t1, t2);
+        self.times.backward += secs(t2, t3);
+        self.times.optimizer += secs(t3, t4);
+        self.times.densify += secs(t4, t5);
+
+        StepStats {
+            iteration: it,
+            view: view_idx,
+            loss: obj.loss,
+            l1: obj.l1,
+            ssim: obj.ssim,
+            psnr: psnr_of_mse(mse),
+            num_gaussians: self.surfels.len(),
+            densify,
+        }
+    }
+
+    /// The end of iteration `it`, after its Adam step: densification, pruning and the opacity
+    /// reset at their cadence (on the surfels, moments and statistics held here), the SH
+    /// degree's upgrade, and dropping the half-size views once past them.
+    pub fn finish(&mut self, it: u64) -> Option<DensifyReport> {
+        let cfg = &self.config;
         let mut densify = None;
         let d = &cfg.densify;
         if it <= d.until_iter {
@@ -376,24 +467,7 @@ impl Stage1 {
         if it >= cfg.half_res_until {
             self.half = None;
         }
-        let t5 = Instant::now();
-        let secs = |a: Instant, b: Instant| (b - a).as_secs_f64();
-        self.times.forward += secs(t0, t1);
-        self.times.loss += secs(t1, t2);
-        self.times.backward += secs(t2, t3);
-        self.times.optimizer += secs(t3, t4);
-        self.times.densify += secs(t4, t5);
-
-        StepStats {
-            iteration: it,
-            view: view_idx,
-            loss: obj.loss,
-            l1: obj.l1,
-            ssim: obj.ssim,
-            psnr: psnr_of_mse(mse),
-            num_gaussians: self.surfels.len(),
-            densify,
-        }
+        densify
     }
 
     /// Render a camera with the current model over a fixed background.

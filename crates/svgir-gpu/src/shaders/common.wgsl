@@ -56,6 +56,10 @@ const FLAG_NORMALS: u32 = 4u;
 
 const TILE: u32 = 16u;
 
+// Floats per Gaussian of the parameter gradients besides SH (project_bwd.wgsl): position 3,
+// rotation 4, log-scale 2, opacity logit, screen-position gradient norm, composited weight.
+const VP: u32 = 12u;
+
 const SH_C0: f32 = 0.2820948;
 const SH_C1: f32 = 0.48860252;
 

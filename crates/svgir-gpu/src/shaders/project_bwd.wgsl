@@ -19,7 +19,6 @@
 @group(0) @binding(10) var<storage, read_write> vsh: array<f32>;
 
 const DIM: u32 = 24u;
-const VP: u32 = 12u;
 
 // d(loss)/d(raw quaternion) from d(loss)/dR (vr[i] = row i), for R = R(q / |q|).
 fn quat_backward(q: vec4<f32>, vr: mat3x3<f32>) -> vec4<f32> {

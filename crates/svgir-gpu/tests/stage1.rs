@@ -1,0 +1,262 @@
+//! Stage 1's loss and optimiser kernels against the CPU's (svgir_train's `stage1_objective`
+//! and `AdamGroup`), and a whole short stage-1 run on the shipped scene on both devices.
+
+mod common;
+use common::gpu;
+
+use glam::Vec3;
+use svgir_core::{Image, Rng};
+use svgir_gpu::testing::{adam_step, stage1_loss, LossInput};
+use svgir_raster::bench::{look_at_camera, random_scene};
+use svgir_raster::{Background, ColorSource, RasterConfig, RenderInput};
+use svgir_train::adam::AdamGroup;
+use svgir_train::losses::objective::{stage1_objective, ObjectiveInput, ObjectiveTarget};
+use svgir_train::stage1::photo_target;
+use svgir_train::Stage1Config;
+
+/// Largest |gpu - cpu| over a gradient, as a fraction of the CPU gradient's largest magnitude.
+fn rel_err(what: &str, gpu: &[f32], cpu: &[f32]) -> f32 {
+    assert_eq!(gpu.len(), cpu.len(), "{what}");
+    let scale = cpu.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+    let worst = gpu.iter().zip(cpu).fold(0.0f32, |m, (g, c)| m.max((g - c).abs()));
+    eprintln!("{what}: worst {worst:.3e} of max {scale:.3e}");
+    assert!(scale > 0.0, "{what}: the CPU gradient is all zero, the check would be empty");
+    worst / scale
+}
+
+#[test]
+fn loss_matches_the_cpu_objective() {
+    let Some(g) = gpu() else { return };
+    for (seed, w, h) in [(1u64, 48u32, 40u32), (2, 67, 53)] {
+        let cam = look_at_camera(Vec3::new(2.2, -1.6, 1.1).normalize() * 3.0, 0.9, w, h);
+        let mut s = random_scene(300, seed);
+        s.sh_degree = 1;
+        let input = RenderInput {
+            surfels: &s,
+            camera: &cam,
+            colors: ColorSource::Sh,
+            extra: None,
+            background: Background::Color([0.2, 0.3, 0.4]),
+        };
+        let cfg = RasterConfig { distortion: true, ..RasterConfig::default() };
+        let (out, _) = svgir_raster::render(&input, &cfg);
+        // A photo with a mask that cuts through the render: opaque, transparent and soft.
+        let mut rng = Rng::new(seed);
+        let npx = (w * h) as usize;
+        let data: Vec<f32> = (0..npx)
+            .flat_map(|i| {
+                let (x, y) = ((i % w as usize) as f32 / w as f32, (i / w as usize) as f32 / h as f32);
+                let a = ((0.35 - ((x - 0.5).powi(2) + (y - 0.5).powi(2)).sqrt()) * 8.0).clamp(0.0, 1.0);
+                [rng.uniform(), rng.uniform(), rng.uniform(), a]
+            })
+            .collect();
+        let photo = Image::from_data(w, h, 4, data);
+        let bg = [0.2, 0.3, 0.4];
+        let mut weights = Stage1Config::default().loss;
+        weights.mask = 0.1;
+        weights.entropy = 0.05;
+        weights.normal_start = 0.05;
+        weights.normal_ramp = 0.0;
+        weights.distortion = 100.0;
+        let (alpha, dilated) = photo_target(&photo);
+        let gt = photo.composite_over(bg).data;
+        let obj = stage1_objective(
+            &weights,
+            0.5,
+            true,
+            &ObjectiveInput {
+                color: &out.color,
+                alpha: &out.alpha,
+                depth: &out.depth,
+                normal: &out.normal,
+                distortion: &out.distortion,
+            },
+            &ObjectiveTarget { rgb: &gt, alpha: &alpha, dilated: &dilated },
+            &cam,
+        );
+        let li = LossInput {
+            color: &out.color,
+            alpha: &out.alpha,
+            depth: &out.depth,
+            normal: &out.normal,
+            distortion: &out.distortion,
+        };
+        let (rec, vout) = stage1_loss(&g, &li, &photo, &cam, bg, &weights, 0.05, true).unwrap();
+        let pick = |at: usize, ch: usize| -> Vec<f32> {
+            (0..npx).flat_map(|i| vout[i * 9 + at..i * 9 + at + ch].to_vec()).collect()
+        };
+        eprintln!("loss gpu {:?}, cpu total {} l1 {} ssim {}", rec, obj.loss, obj.l1, obj.ssim);
+        assert!((rec[0] - obj.l1).abs() <= 1e-5 * obj.l1, "L1 {} vs {}", rec[0], obj.l1);
+        assert!((rec[1] - obj.ssim).abs() <= 1e-5, "SSIM {} vs {}", rec[1], obj.ssim);
+        assert!((rec[7] - obj.loss).abs() <= 1e-5 * obj.loss.abs(), "total {} vs {}", rec[7], obj.loss);
+        assert!(rel_err("colour", &pick(0, 3), &obj.v_color) < 1e-5);
+        assert!(rel_err("alpha", &pick(3, 1), &obj.v_alpha) < 1e-6);
+        assert!(rel_err("depth", &pick(4, 1), &obj.v_depth) < 2e-5);
+        assert!(rel_err("normal", &pick(5, 3), &obj.v_normal) < 2e-5);
+        assert!(rel_err("distortion", &pick(8, 1), obj.v_distortion.as_deref().unwrap()) < 1e-6);
+    }
+}
+
+#[test]
+fn adam_matches_the_cpu_step() {
+    let Some(g) = gpu() else { return };
+    let mut rng = Rng::new(7);
+    let rows = 1000;
+    let mut scale = vec![0.05f32; 48];
+    scale[..3].fill(1.0);
+    for (stride, lr_scale) in [(3usize, None), (48, Some(scale))] {
+        let mut cpu = AdamGroup::new("g", 1e-3, stride, rows);
+        if let Some(s) = lr_scale {
+            cpu = cpu.with_lr_scale(s);
+        }
+        let mut gpu_group = cpu.clone();
+        let mut p_cpu: Vec<f32> = (0..rows * stride).map(|_| rng.uniform() - 0.5).collect();
+        let mut p_gpu = p_cpu.clone();
+        for _ in 0..5 {
+            let grad: Vec<f32> = (0..rows * stride).map(|_| (rng.uniform() - 0.5) * 1e-2).collect();
+            cpu.step_reference(&mut p_cpu, &grad);
+            adam_step(&g, &mut gpu_group, &mut p_gpu, &grad).unwrap();
+        }
+        assert_eq!(cpu.step, gpu_group.step);
+        // sqrt and division are within a few ulps on a GPU (WGSL allows 2.5 ulp for division).
+        for (what, a, b) in [("params", &p_gpu, &p_cpu), ("m", &gpu_group.m, &cpu.m), ("v", &gpu_group.v, &cpu.v)] {
+            let worst = a.iter().zip(b.iter()).map(|(x, y)| (x - y).abs() / y.abs().max(1e-6)).fold(0.0f32, f32::max);
+            eprintln!("adam stride {stride} {what}: worst relative {worst:.2e}");
+            assert!(worst < 1e-5, "{what}: {worst}");
+        }
+    }
+}
+
+/// Mean PSNR of the surfels' renders of the first `k` test views, rendered on the CPU.
+fn test_psnr(t: &svgir_train::Stage1, ds: &svgir_core::Dataset, k: usize) -> f32 {
+    let bg = t.config.background.fixed_color().unwrap_or([1.0; 3]);
+    let k = k.min(ds.test.len());
+    let mut sum = 0.0;
+    for i in 0..k {
+        let v = &ds.test[i * ds.test.len() / k];
+        let out = svgir_train::stage1::render_surfels(&t.surfels, &v.camera, bg, &t.raster);
+        let pred: Vec<f32> = out.color.iter().map(|c| c.clamp(0.0, 1.0)).collect();
+        let gt = svgir_train::stage1::target_rgb(&v.image, bg);
+        sum += svgir_metrics::psnr(&pred, &gt, 3, None).unwrap();
+    }
+    sum as f32 / k as f32
+}
+
+/// A fresh stage-1 run of `iterations` on the shipped scene, as `svgir train` sets it up, but
+/// from 3000 random points and with densification every 40 iterations from the 40th to the
+/// 160th (lavapipe runs a GPU's kernels on two CPU cores, so the test keeps the work small).
+fn fresh_run(ds: &svgir_core::Dataset, iterations: u64) -> svgir_train::Stage1 {
+    let pixels = ds.train.iter().map(|v| v.image.pixel_count()).sum();
+    let mut cfg = Stage1Config::for_profile(svgir_train::Profile::Object, iterations, pixels);
+    cfg.mask_losses_only_with(ds.has_masks());
+    cfg.init_points = 3000;
+    cfg.densify.from_iter = 40;
+    cfg.densify.interval = 40;
+    cfg.densify.until_iter = 160;
+    cfg.densify.opacity_reset_interval = 120;
+    let mut rng = Rng::new(cfg.seed);
+    let points = svgir_train::init::random_box_points(cfg.init_points, cfg.init_half_extent, &mut rng);
+    let surfels = svgir_train::init::surfels_from_points(&points, cfg.max_sh_degree, &mut rng);
+    svgir_train::Stage1::new(cfg, surfels, ds)
+}
+
+fn run_cpu(t: &mut svgir_train::Stage1, ds: &svgir_core::Dataset, until: u64) {
+    while t.iteration < until {
+        t.step(ds);
+    }
+}
+
+fn run_gpu(t: svgir_train::Stage1, ds: &svgir_core::Dataset, until: u64) -> svgir_train::Stage1 {
+    let g = gpu().expect("adapter");
+    let mut r = svgir_gpu::GpuStage1::new(t, g, ds).unwrap();
+    while r.host.iteration < until {
+        r.step(ds, false).unwrap();
+    }
+    assert_eq!(r.overflows, 0, "renders overflowed the entry buffers");
+    r.into_parts().unwrap().0
+}
+
+/// Through a checkpoint file, as `--resume` reads it.
+fn through_checkpoint(t: &svgir_train::Stage1, ds: &svgir_core::Dataset, name: &str) -> svgir_train::Stage1 {
+    let path = std::env::temp_dir().join(format!("svgir-gpu-{name}-{}.bin", std::process::id()));
+    svgir_train::checkpoint::save(t, &path).unwrap();
+    let back = svgir_train::checkpoint::load(&path, ds).unwrap();
+    let _ = std::fs::remove_file(&path);
+    back
+}
+
+#[test]
+fn a_short_run_on_the_shipped_scene_lands_where_the_cpu_run_does_and_resumes_across_devices() {
+    if gpu().is_none() {
+        return;
+    }
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/bowl_fruit_128");
+    let opts = svgir_io::LoadOptions { load_test: true, ..Default::default() };
+    let ds = svgir_io::load_dataset(root, &opts).unwrap();
+    let iters = 200;
+    let t0 = std::time::Instant::now();
+    let mut cpu = fresh_run(&ds, iters);
+    run_cpu(&mut cpu, &ds, iters);
+    let t1 = std::time::Instant::now();
+    let gpu_run = run_gpu(fresh_run(&ds, iters), &ds, iters);
+    let t2 = std::time::Instant::now();
+    // Half on each device, each way, through a checkpoint.
+    let half = iters / 2;
+    let first = run_gpu(fresh_run(&ds, iters), &ds, half);
+    let mut gpu_then_cpu = through_checkpoint(&first, &ds, "g2c");
+    run_cpu(&mut gpu_then_cpu, &ds, iters);
+    let mut first = fresh_run(&ds, iters);
+    run_cpu(&mut first, &ds, half);
+    let cpu_then_gpu = run_gpu(through_checkpoint(&first, &ds, "c2g"), &ds, iters);
+    let k = 8;
+    let p_cpu = test_psnr(&cpu, &ds, k);
+    let results = [("gpu", &gpu_run), ("gpu then cpu", &gpu_then_cpu), ("cpu then gpu", &cpu_then_gpu)];
+    eprintln!(
+        "cpu {p_cpu:.2} dB ({} Gaussians, {:.1} s); gpu {:.1} s",
+        cpu.surfels.len(),
+        (t1 - t0).as_secs_f64(),
+        (t2 - t1).as_secs_f64()
+    );
+    for (what, t) in results {
+        let p = test_psnr(t, &ds, k);
+        eprintln!("{what}: {p:.2} dB, {} Gaussians", t.surfels.len());
+        assert_eq!(t.iteration, iters, "{what}");
+        assert!((p - p_cpu).abs() <= 0.3, "{what}: {p:.2} dB against the CPU's {p_cpu:.2}");
+    }
+    // The run learns: far above the initial random box.
+    let p0 = test_psnr(&fresh_run(&ds, iters), &ds, k);
+    assert!(p_cpu > p0 + 5.0, "the CPU run did not learn: {p0:.2} -> {p_cpu:.2} dB");
+}
+
+#[test]
+fn one_iteration_gathers_the_cpu_statistics_and_takes_its_step() {
+    let Some(g) = gpu() else { return };
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/bowl_fruit_128");
+    let ds = svgir_io::load_dataset(root, &svgir_io::LoadOptions::default()).unwrap();
+    let mut cpu = fresh_run(&ds, 200);
+    cpu.step(&ds);
+    let mut gpu_run = svgir_gpu::GpuStage1::new(fresh_run(&ds, 200), g, &ds).unwrap();
+    gpu_run.step(&ds, true).unwrap();
+    gpu_run.sync().unwrap();
+    let (a, b) = (&gpu_run.host.stats, &cpu.stats);
+    // A Gaussian whose box ends within rounding of a pixel edge is seen on one device only.
+    let both: Vec<usize> = (0..b.denom.len()).filter(|&i| a.denom[i] == b.denom[i]).collect();
+    let seen = b.denom.iter().filter(|&&d| d > 0).count();
+    let differ = b.denom.len() - both.len();
+    eprintln!("seen by the view: {seen}; seen on one device only: {differ}");
+    assert!(seen > 1000 && differ * 200 <= seen, "{differ} of {seen}");
+    let at = |v: &[f32]| both.iter().map(|&i| v[i]).collect::<Vec<f32>>();
+    assert!(rel_err("max radius", &at(&a.max_radius), &at(&b.max_radius)) < 1e-5);
+    assert!(rel_err("accumulated weight", &at(&a.accum_weight), &at(&b.accum_weight)) < 1e-4);
+    // Sums over a splat's pixels in another order, with cancellation: tests/raster.rs checks
+    // these gradients against f64; here the whole iteration's path to them.
+    assert!(rel_err("screen gradient", &at(&a.grad_accum), &at(&b.grad_accum)) < 2e-3);
+    let pos = |t: &svgir_train::Stage1| -> Vec<f32> { bytemuck::cast_slice(&t.surfels.positions).to_vec() };
+    let moved: Vec<f32> = pos(&cpu).iter().zip(&pos(&fresh_run(&ds, 200))).map(|(x, y)| x - y).collect();
+    let moved_gpu: Vec<f32> = pos(&gpu_run.host).iter().zip(&pos(&fresh_run(&ds, 200))).map(|(x, y)| x - y).collect();
+    // Adam's first step is lr sign(g) where g is not tiny: the steps agree but for the signs of
+    // gradients at the rounding level.
+    let agree = moved.iter().zip(&moved_gpu).filter(|(a, b)| (*a - *b).abs() <= 1e-3 * a.abs().max(1e-9)).count();
+    eprintln!("position steps that agree: {agree} of {}", moved.len());
+    assert!(agree as f64 >= 0.99 * moved.len() as f64, "{agree} of {}", moved.len());
+}
