@@ -25,6 +25,9 @@ pub struct DemoArgs {
     pub data: Option<PathBuf>,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Where stage 1 trains: a hardware GPU if there is one (auto), the CPU, or a GPU or an error.
+    #[arg(long, default_value_t = svgir_gpu::DeviceChoice::Auto)]
+    pub device: svgir_gpu::DeviceChoice,
 }
 
 pub fn run(args: DemoArgs) -> Result<()> {
@@ -49,6 +52,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         init_ply: None,
         init_points: if args.quick { 5_000 } else { 20_000 },
         max_gaussians: Some(if args.quick { 5_000 } else { 15_000 }),
+        device: args.device,
         resume: false,
         checkpoint_every: 1000,
         eval_every: if args.quick { 100 } else { 200 },

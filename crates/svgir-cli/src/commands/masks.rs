@@ -134,6 +134,7 @@ fn train_reconstruction(args: &MasksArgs) -> Result<PathBuf> {
         init_ply: None,
         init_points: 100_000,
         max_gaussians: None,
+        device: svgir_gpu::DeviceChoice::Auto,
         resume: false,
         checkpoint_every: 1000,
         eval_every: 0,

@@ -8,6 +8,7 @@ pub mod bench;
 pub mod bench_stages;
 pub mod bench_train;
 pub mod demo;
+pub mod engine;
 pub mod eval;
 pub mod export;
 pub mod info;

@@ -5,6 +5,7 @@
 //! `--checkpoint-every` iterations and on Ctrl-C), `point_cloud.ply` (3DGS layout),
 //! `test/` renders (RGB, depth, normal PNGs), `eval.json`, `timings.json`.
 
+use super::engine::{open_device, Engine};
 use super::DataArgs;
 use crate::progress;
 use anyhow::{bail, ensure, Context, Result};
@@ -17,6 +18,7 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use std::time::Instant;
 use svgir_core::{Dataset, Image, Rng};
+use svgir_gpu::DeviceChoice;
 use svgir_train::{checkpoint, init, BackgroundMode, Profile, Stage1, Stage1Config, ViewOrder};
 
 /// `--profile`: which defaults to start from.
@@ -91,6 +93,9 @@ pub struct TrainArgs {
     /// Number of random initial points when the dataset has none.
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 100_000)]
     pub init_points: usize,
+    /// Where to train: a hardware GPU if there is one (auto), the CPU, or a GPU or an error.
+    #[arg(long, default_value_t = DeviceChoice::Auto)]
+    pub device: DeviceChoice,
     /// Continue the run in --out from its checkpoint, with its settings (--iterations extends it).
     #[arg(long)]
     pub resume: bool,
@@ -145,7 +150,9 @@ pub fn run(args: TrainArgs) -> Result<()> {
     }
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let ckpt_path = args.out.join("checkpoint.bin");
-    let mut trainer = if args.resume {
+    let gpu = open_device(args.device)?;
+    let adapter = gpu.as_ref().map(|g| g.report.clone());
+    let trainer = if args.resume {
         let mut t = checkpoint::load(&ckpt_path, &dataset)?;
         eprintln!("resumed {} at iteration {}", ckpt_path.display(), t.iteration);
         let ignored = ignored_on_resume(&args)?;
@@ -198,14 +205,16 @@ pub fn run(args: TrainArgs) -> Result<()> {
                 "load": { "resolution": load.resolution, "downscale": load.downscale, "max_views": load.max_views, "masks": load.masks },
                 "init": if args.init_ply.is_some() { "ply" } else if dataset.points.as_ref().is_some_and(|p| !p.positions.is_empty()) { "dataset points" } else { "random box" },
                 "initial_gaussians": surfels.len(),
+                "device": { "choice": args.device, "adapter": adapter },
                 "command": std::env::args().collect::<Vec<_>>(),
             }),
         )?;
         let _ = std::fs::remove_file(args.out.join("metrics.jsonl"));
         Stage1::new(config, surfels, &dataset)
     };
-    train_loop(&mut trainer, &dataset, &args)?;
-    finish(&trainer, &dataset, &args.out)
+    let mut engine = Engine::new(trainer, gpu, args.device, &dataset)?;
+    train_loop(&mut engine, &dataset, &args)?;
+    finish(&engine, &dataset, &args.out)
 }
 
 /// `svgir train`'s arguments with every flag at its default (the dataset and --out are
@@ -336,7 +345,7 @@ pub fn interrupt_flag() -> Arc<AtomicBool> {
     .clone()
 }
 
-fn train_loop(trainer: &mut Stage1, dataset: &Dataset, args: &TrainArgs) -> Result<()> {
+fn train_loop(trainer: &mut Engine, dataset: &Dataset, args: &TrainArgs) -> Result<()> {
     let stop = interrupt_flag();
     let ckpt_path = args.out.join("checkpoint.bin");
     let mut log = std::fs::OpenOptions::new()
@@ -344,47 +353,49 @@ fn train_loop(trainer: &mut Stage1, dataset: &Dataset, args: &TrainArgs) -> Resu
         .append(true)
         .open(args.out.join("metrics.jsonl"))
         .context("opening metrics.jsonl")?;
-    let total = trainer.config.iterations;
+    let total = trainer.host().config.iterations;
     let pb = progress::bar(total, "stage 1");
-    pb.set_position(trainer.iteration);
+    pb.set_position(trainer.host().iteration);
     let start = Instant::now();
     // Wall time spent in the periodic evaluations, left out of `train_s` (training time alone).
     let mut eval_s = 0.0f64;
     let mut ema_loss = None::<f32>;
     let mut ema_psnr = None::<f32>;
     let eval_due = |it: u64| args.eval_every > 0 && it.is_multiple_of(args.eval_every);
-    while !trainer.is_done() {
+    while !trainer.host().is_done() {
         // An evaluation that falls on an opacity reset would score the model with every
         // opacity just knocked down (a dip of ~20 dB in the curve): score it before the step.
-        let next = trainer.iteration + 1;
-        let eval_before = eval_due(next) && trainer.config.resets_opacity_at(next) && trainer.iteration > 0;
+        let next = trainer.host().iteration + 1;
+        let eval_before = eval_due(next) && trainer.host().config.resets_opacity_at(next) && next > 1;
         if eval_before {
             periodic_eval(trainer, dataset, args.eval_views, start, &mut eval_s, &mut log, &pb)?;
         }
-        let s = trainer.step(dataset);
-        let ema = |e: Option<f32>, v: f32| Some(e.map_or(v, |e| 0.9 * e + 0.1 * v));
-        ema_loss = ema(ema_loss, s.loss);
-        ema_psnr = ema(ema_psnr, s.psnr);
+        // A GPU run reads its loss back only for the iterations that are logged (and the
+        // progress bar's moving average takes those).
+        let s = trainer.step(dataset, next.is_multiple_of(args.log_every) || next <= 10)?;
+        if s.loss.is_finite() {
+            let ema = |e: Option<f32>, v: f32| Some(e.map_or(v, |e| 0.9 * e + 0.1 * v));
+            ema_loss = ema(ema_loss, s.loss);
+            ema_psnr = ema(ema_psnr, s.psnr);
+        }
         pb.set_position(s.iteration);
-        pb.set_message(format!(
-            "loss {:.4} PSNR {:.2} dB, {} Gaussians",
-            ema_loss.unwrap(),
-            ema_psnr.unwrap(),
-            s.num_gaussians
-        ));
+        if let (Some(l), Some(p)) = (ema_loss, ema_psnr) {
+            pb.set_message(format!("loss {l:.4} PSNR {p:.2} dB, {} Gaussians", s.num_gaussians));
+        }
         if s.iteration.is_multiple_of(args.log_every) || s.densify.is_some() {
             let mut v = serde_json::to_value(&s)?;
             v["elapsed_s"] = json!(start.elapsed().as_secs_f64());
             v["train_s"] = json!(start.elapsed().as_secs_f64() - eval_s);
             writeln!(log, "{v}")?;
         }
-        if eval_due(s.iteration) && !eval_before && !trainer.is_done() {
+        if eval_due(s.iteration) && !eval_before && !trainer.host().is_done() {
             periodic_eval(trainer, dataset, args.eval_views, start, &mut eval_s, &mut log, &pb)?;
         }
         let interrupted = stop.load(Ordering::SeqCst);
         // The last iteration's checkpoint is written once, after the loop.
-        if (s.iteration.is_multiple_of(args.checkpoint_every) && !trainer.is_done()) || interrupted {
-            checkpoint::save(trainer, &ckpt_path)?;
+        if (s.iteration.is_multiple_of(args.checkpoint_every) && !trainer.host().is_done()) || interrupted {
+            trainer.sync()?;
+            checkpoint::save(trainer.host(), &ckpt_path)?;
         }
         if interrupted {
             pb.abandon_with_message("interrupted");
@@ -393,7 +404,8 @@ fn train_loop(trainer: &mut Stage1, dataset: &Dataset, args: &TrainArgs) -> Resu
         }
     }
     pb.finish();
-    checkpoint::save(trainer, &ckpt_path)?;
+    trainer.sync()?;
+    checkpoint::save(trainer.host(), &ckpt_path)?;
     Ok(())
 }
 
@@ -401,7 +413,7 @@ fn train_loop(trainer: &mut Stage1, dataset: &Dataset, args: &TrainArgs) -> Resu
 /// `metrics.jsonl` with the training time so far (`eval_s`, the time spent evaluating, is left
 /// out and grows by this evaluation).
 fn periodic_eval(
-    trainer: &Stage1,
+    trainer: &mut Engine,
     dataset: &Dataset,
     views: usize,
     start: Instant,
@@ -411,9 +423,10 @@ fn periodic_eval(
 ) -> Result<()> {
     let train_s = start.elapsed().as_secs_f64() - *eval_s;
     let t_eval = Instant::now();
+    trainer.sync()?;
     let m = evaluate(trainer, dataset, views, None)?;
     *eval_s += t_eval.elapsed().as_secs_f64();
-    let it = trainer.iteration;
+    let it = trainer.host().iteration;
     writeln!(
         log,
         "{}",
@@ -426,12 +439,12 @@ fn periodic_eval(
 /// Render test views, return mean PSNR/SSIM (and normal MAE where ground truth exists); with
 /// `out_dir`, also write the renders.
 fn evaluate(
-    trainer: &Stage1,
+    trainer: &Engine,
     dataset: &Dataset,
     max_views: usize,
     out_dir: Option<&Path>,
 ) -> Result<serde_json::Value> {
-    let bg = trainer.config.background.fixed_color().unwrap_or([1.0; 3]);
+    let bg = trainer.host().config.background.fixed_color().unwrap_or([1.0; 3]);
     // At most `max_views` views, spread over the test set (its first views are often neighbours).
     let k = max_views.min(dataset.test.len());
     let views: Vec<_> = (0..k).map(|i| &dataset.test[i * dataset.test.len() / k]).collect();
@@ -440,11 +453,11 @@ fn evaluate(
     let mut normal_mae = svgir_metrics::NormalMae::new();
     // Captures, in the final evaluation: which test pixels a training photo saw.
     let train_depths: Vec<Vec<f32>> = if out_dir.is_some() && !dataset.has_masks() {
-        let depth = |c| {
-            let o = trainer.render_view(c, bg);
-            svgir_train::coverage::expected_depth(&o.depth, &o.alpha)
+        let depth = |c| -> Result<Vec<f32>> {
+            let o = trainer.render_view(c, bg)?;
+            Ok(svgir_train::coverage::expected_depth(&o.depth, &o.alpha))
         };
-        dataset.train.iter().map(|v| depth(&v.camera)).collect()
+        dataset.train.iter().map(|v| depth(&v.camera)).collect::<Result<_>>()?
     } else {
         Vec::new()
     };
@@ -459,7 +472,7 @@ fn evaluate(
     // 200 lego_400 test views took 22 s instead of 26 written one by one).
     let mut pending: Vec<(PathBuf, Image, u8)> = Vec::new();
     for v in &views {
-        let out = trainer.render_view(&v.camera, bg);
+        let out = trainer.render_view(&v.camera, bg)?;
         let gt = svgir_train::stage1::target_rgb(&v.image, bg);
         let (w, h) = (out.width, out.height);
         let pred: Vec<f32> = out.color.iter().map(|c| c.clamp(0.0, 1.0)).collect();
@@ -546,21 +559,18 @@ fn depth_image(sum_z: &[f32], alpha: &[f32], w: u32, h: u32) -> Image {
     Image::from_data(w, h, 1, data)
 }
 
-fn finish(trainer: &Stage1, dataset: &Dataset, out: &Path) -> Result<()> {
+fn finish(engine: &Engine, dataset: &Dataset, out: &Path) -> Result<()> {
+    let trainer = engine.host();
     svgir_io::ply::write_gaussians_ply(out.join("point_cloud.ply"), &trainer.surfels, &[])?;
-    let t = &trainer.times;
-    let its = trainer.iteration.max(1) as f64;
     let timings = json!({
         "iterations": trainer.iteration,
-        "ms_per_iteration": {
-            "forward": 1e3 * t.forward / its, "loss": 1e3 * t.loss / its, "backward": 1e3 * t.backward / its,
-            "optimizer": 1e3 * t.optimizer / its, "densify": 1e3 * t.densify / its,
-        },
+        "ms_per_iteration": engine.ms_per_iteration(),
         "threads": rayon::current_num_threads(),
+        "device": engine.adapter().map_or_else(|| "cpu".to_string(), |a| a.name.clone()),
     });
     write_json(&out.join("timings.json"), &timings)?;
     eprintln!("evaluating on {} test views...", dataset.test.len());
-    let m = evaluate(trainer, dataset, usize::MAX, Some(&out.join("test")))?;
+    let m = evaluate(engine, dataset, usize::MAX, Some(&out.join("test")))?;
     write_json(&out.join("eval.json"), &m)?;
     println!("time per iteration (ms): {}", timings["ms_per_iteration"]);
     println!("Gaussians: {}", trainer.surfels.len());

@@ -1,0 +1,118 @@
+//! Where a stage-1 run's iterations run (`--device auto|cpu|gpu`): the CPU trainer itself, or
+//! the same run resident on a GPU. Both keep the run's [`Stage1`], so checkpoints, evaluation
+//! and outputs are device-blind, and a run resumes on either device.
+
+use anyhow::{bail, Result};
+use std::time::Instant;
+use svgir_core::{Camera, Dataset};
+use svgir_gpu::{AdapterReport, DeviceChoice, GpuStage1};
+use svgir_raster::RenderOutput;
+use svgir_train::{Stage1, StepStats};
+
+/// A stage-1 run on its device.
+pub enum Engine {
+    /// The CPU kernels (the oracle).
+    Cpu(Box<Stage1>),
+    /// The run resident on a GPU, the wall time its steps took (seconds) and the overflowed
+    /// renders already reported.
+    Gpu(Box<GpuStage1>, f64, u64),
+}
+
+/// Opens the device `choice` asks for: `None` for the CPU. Prints what it chose.
+pub fn open_device(choice: DeviceChoice) -> Result<Option<svgir_gpu::Gpu>> {
+    let gpu = svgir_gpu::open(choice)?;
+    match &gpu {
+        Some(g) => eprintln!("device: GPU {}", g.report),
+        None => eprintln!("device: CPU ({} threads)", rayon::current_num_threads()),
+    }
+    Ok(gpu)
+}
+
+impl Engine {
+    /// Puts `trainer` on `gpu`, or keeps it on the CPU. A run the GPU kernels cannot take
+    /// (the per-photo exposure correction) stays on the CPU under `auto` and is an error under
+    /// `gpu`.
+    pub fn new(trainer: Stage1, gpu: Option<svgir_gpu::Gpu>, choice: DeviceChoice, dataset: &Dataset) -> Result<Self> {
+        let Some(gpu) = gpu else { return Ok(Self::Cpu(Box::new(trainer))) };
+        if trainer.exposure.is_some() {
+            if choice == DeviceChoice::Gpu {
+                bail!("--device gpu: the per-photo exposure correction (--exposure) has no GPU kernels yet");
+            }
+            eprintln!("device: the exposure correction runs on the CPU only; this run stays on the CPU");
+            return Ok(Self::Cpu(Box::new(trainer)));
+        }
+        Ok(Self::Gpu(Box::new(GpuStage1::new(trainer, gpu, dataset)?), 0.0, 0))
+    }
+
+    /// The run's state (surfels, moments and statistics current after [`Engine::sync`]).
+    pub fn host(&self) -> &Stage1 {
+        match self {
+            Self::Cpu(t) => t,
+            Self::Gpu(g, ..) => &g.host,
+        }
+    }
+
+    /// The adapter, on a GPU.
+    pub fn adapter(&self) -> Option<&AdapterReport> {
+        match self {
+            Self::Cpu(_) => None,
+            Self::Gpu(g, ..) => Some(&g.gpu().report),
+        }
+    }
+
+    /// One iteration. On a GPU the loss comes back only when `read` (or at the trainer's own
+    /// cadence); otherwise its fields are NaN.
+    pub fn step(&mut self, dataset: &Dataset, read: bool) -> Result<StepStats> {
+        match self {
+            Self::Cpu(t) => Ok(t.step(dataset)),
+            Self::Gpu(g, secs, told) => {
+                let t0 = Instant::now();
+                let s = g.step(dataset, read)?;
+                *secs += t0.elapsed().as_secs_f64();
+                if g.overflows > *told {
+                    eprintln!(
+                        "warning: {} GPU renders by iteration {} binned more tile entries than their buffers held; \
+                         their steps were skipped and the buffers grown",
+                        g.overflows - *told,
+                        s.iteration
+                    );
+                    *told = g.overflows;
+                }
+                Ok(s)
+            }
+        }
+    }
+
+    /// Brings the run's state up to date (before a checkpoint, an evaluation, the outputs).
+    pub fn sync(&mut self) -> Result<()> {
+        if let Self::Gpu(g, ..) = self {
+            g.sync()?;
+        }
+        Ok(())
+    }
+
+    /// Renders `camera` with the current surfels over `bg` on the run's device.
+    pub fn render_view(&self, camera: &Camera, bg: [f32; 3]) -> Result<RenderOutput> {
+        match self {
+            Self::Cpu(t) => Ok(t.render_view(camera, bg)),
+            Self::Gpu(g, ..) => Ok(g.render_view(camera, bg)?),
+        }
+    }
+
+    /// Milliseconds per iteration by phase, as `timings.json` records them: the CPU's phases,
+    /// or on a GPU the whole step (its kernels are not timed one by one).
+    pub fn ms_per_iteration(&self) -> serde_json::Value {
+        let t = self.host();
+        let its = t.iteration.max(1) as f64;
+        match self {
+            Self::Cpu(_) => {
+                let p = &t.times;
+                serde_json::json!({
+                    "forward": 1e3 * p.forward / its, "loss": 1e3 * p.loss / its, "backward": 1e3 * p.backward / its,
+                    "optimizer": 1e3 * p.optimizer / its, "densify": 1e3 * p.densify / its,
+                })
+            }
+            Self::Gpu(_, secs, _) => serde_json::json!({ "gpu_step": 1e3 * secs / its }),
+        }
+    }
+}
