@@ -15,6 +15,7 @@
 //! The one host read-back of a render is the entry count (eight bytes) that sizes the entry
 //! buffers.
 
+pub mod bench;
 pub mod buffers;
 pub mod device;
 pub mod loss;

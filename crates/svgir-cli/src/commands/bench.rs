@@ -55,6 +55,10 @@ pub struct BenchArgs {
     /// raster: timed calls per path and case.
     #[arg(long, default_value_t = 5)]
     pub reps: usize,
+    /// raster, train: the devices to time, side by side in one run (e.g. `cpu,gpu`; `gpu` takes
+    /// the adapter `--device` of `svgir train` takes).
+    #[arg(long, value_delimiter = ',', default_value = "cpu")]
+    pub device: Vec<svgir_gpu::DeviceChoice>,
     #[command(flatten)]
     pub train: super::bench_train::TrainBenchArgs,
     #[command(flatten)]
@@ -99,6 +103,18 @@ pub fn run(args: BenchArgs) -> Result<()> {
         println!("machine: {}", svgir_raster::bench::machine_line());
     }
     let threads = rayon::current_num_threads();
+    let on_cpu = args.device.contains(&svgir_gpu::DeviceChoice::Cpu);
+    if matches!(args.kernel, Kernel::Raster) && args.ply.is_none() {
+        for &d in args.device.iter().filter(|&&d| d != svgir_gpu::DeviceChoice::Cpu) {
+            let Some(gpu) = super::engine::open_device(d)? else { continue };
+            let sizes = if args.size.is_empty() { vec![256, 400, 800] } else { args.size.clone() };
+            let ns = if args.gaussians.is_empty() { vec![10_000, 100_000, 300_000] } else { args.gaussians.clone() };
+            println!("{}", svgir_gpu::bench::raster_table(&gpu, &sizes, &ns, args.reps.max(1))?);
+        }
+        if !on_cpu {
+            return Ok(());
+        }
+    }
     let table = match args.kernel {
         Kernel::Raster => match (&args.ply, &args.data) {
             (Some(ply), Some(data)) => raster_scene(&args, ply, data, threads)?,
@@ -134,7 +150,9 @@ pub fn run(args: BenchArgs) -> Result<()> {
                 .context("LPIPS Alex weights not found")?;
             svgir_metrics::lpips::bench_table(&std::fs::read(vgg)?, &std::fs::read(alex)?, threads)?
         }
-        Kernel::Train => super::bench_train::run(&args.train, &svgir_raster::bench::machine_line(), threads)?,
+        Kernel::Train => {
+            super::bench_train::run(&args.train, &args.device, &svgir_raster::bench::machine_line(), threads)?
+        }
         Kernel::Stages => super::bench_stages::run(&args.stages, &svgir_raster::bench::machine_line(), threads)?,
     };
     println!("{table}");

@@ -9,6 +9,7 @@ use clap::Args;
 use serde_json::{json, Value};
 use std::path::{Path, PathBuf};
 use svgir_eval::plot::{line_plot, Series};
+use svgir_gpu::DeviceChoice;
 
 /// `svgir bench train` settings.
 #[derive(Args, Clone, Debug)]
@@ -99,18 +100,29 @@ fn today() -> String {
         .unwrap_or_default()
 }
 
+/// The device a run trained on (`timings.json`): `cpu` or the adapter's name.
+fn device_of(run: &Path) -> String {
+    std::fs::read_to_string(run.join("timings.json"))
+        .ok()
+        .and_then(|t| serde_json::from_str::<Value>(&t).ok())
+        .and_then(|v| v["device"].as_str().map(str::to_string))
+        .unwrap_or_else(|| "cpu".into())
+}
+
 /// Runs the benchmark and returns its table.
-pub fn run(args: &TrainBenchArgs, machine: &str, threads: usize) -> Result<String> {
+pub fn run(args: &TrainBenchArgs, devices: &[DeviceChoice], machine: &str, threads: usize) -> Result<String> {
     let scenes = if args.scenes.is_empty() { default_scenes() } else { args.scenes.clone() };
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let name_of = |p: &Path| p.file_name().map_or("scene".into(), |n| n.to_string_lossy().into_owned());
     let mut series = Vec::new();
     let mut table = String::from(
-        "| scene | iterations | training min | final test PSNR | min to 30 dB | min to 32 dB |\n|---|---|---|---|---|---|\n",
+        "| scene | device | iterations | training min | final test PSNR | min to 30 dB | min to 32 dB |\n\
+         |---|---|---|---|---|---|---|\n",
     );
     let mut record = Vec::new();
-    for scene in &scenes {
-        let run = args.out.join(name_of(scene));
+    for (scene, &device) in scenes.iter().flat_map(|s| devices.iter().map(move |d| (s, d))) {
+        let label = if devices.len() > 1 { format!("{}-{device}", name_of(scene)) } else { name_of(scene) };
+        let run = args.out.join(&label);
         if !args.plot_only {
             if run.exists() {
                 std::fs::remove_dir_all(&run).with_context(|| format!("clearing {}", run.display()))?;
@@ -125,6 +137,8 @@ pub fn run(args: &TrainBenchArgs, machine: &str, threads: usize) -> Result<Strin
                 args.eval_every.to_string(),
                 "--eval-views".into(),
                 args.eval_views.to_string(),
+                "--device".into(),
+                device.to_string(),
             ]
             .into();
             eprintln!("svgir bench train: {} ({} iterations)", scene.display(), args.iterations);
@@ -134,15 +148,15 @@ pub fn run(args: &TrainBenchArgs, machine: &str, threads: usize) -> Result<Strin
         let fmt = |m: Option<f64>| m.map_or("-".to_string(), |m| format!("{m:.1}"));
         let total = points.last().map_or(0.0, |p| p.0);
         table += &format!(
-            "| {} | {iterations} | {total:.1} | {final_psnr:.2} | {} | {} |\n",
+            "| {} | {} | {iterations} | {total:.1} | {final_psnr:.2} | {} | {} |\n",
             name_of(scene),
+            device_of(&run),
             fmt(minutes_to(&points, 30.0)),
             fmt(minutes_to(&points, 32.0)),
         );
-        record.push(
-            json!({"scene": scene, "iterations": iterations, "points_min_psnr": points, "final_psnr": final_psnr}),
-        );
-        series.push(Series { name: name_of(scene), points });
+        record.push(json!({"scene": scene, "device": device_of(&run), "iterations": iterations,
+            "points_min_psnr": points, "final_psnr": final_psnr}));
+        series.push(Series { name: label, points });
     }
     let stamp = format!("{}, commit {}, {machine}, {threads} threads", today(), commit());
     let xlabel = format!("training minutes, evaluations excluded ({}, {}, {threads} threads)", today(), commit());

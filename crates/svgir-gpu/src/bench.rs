@@ -1,0 +1,64 @@
+//! `svgir bench raster --device gpu`: the rasterizer's forward and forward + backward on the
+//! GPU for svgir-raster's benchmark scenes (random surfels, its bench camera), the buffers
+//! resident and reused as in training, each timing the wall clock over `reps` renders submitted
+//! back to back and waited for once (so a render's host work overlaps the GPU's).
+
+use crate::buffers::read_back;
+use crate::device::{Gpu, GpuError};
+use crate::raster::{Frame, GpuRaster, Params, SurfelBuffers, COUNTERS, VPIX};
+use std::time::Instant;
+use svgir_raster::bench::{bench_camera, random_scene};
+use svgir_raster::RasterConfig;
+
+fn wait(gpu: &Gpu) -> Result<(), GpuError> {
+    gpu.device.poll(wgpu::PollType::wait_indefinitely()).map(|_| ()).map_err(|e| GpuError::Runtime(e.to_string()))
+}
+
+/// The table: one row per (size, Gaussians), milliseconds per render.
+pub fn raster_table(gpu: &Gpu, sizes: &[u32], gaussians: &[usize], reps: usize) -> Result<String, GpuError> {
+    let raster = GpuRaster::new(gpu);
+    let mut s = format!(
+        "svgir-gpu raster bench on {}\n| size | Gaussians | entries | forward ms | forward+backward ms |\n|---|---|---|---|---|\n",
+        gpu.report
+    );
+    let cfg = RasterConfig { distortion: true, ..RasterConfig::default() };
+    for &size in sizes {
+        for &n in gaussians {
+            let mut surfels = random_scene(n, 7);
+            surfels.sh_degree = 3;
+            let cam = bench_camera(size, size);
+            let surf = SurfelBuffers::upload(gpu, &surfels)?;
+            let p0 = Params::new(surf.n, 3, &cam, [1.0; 3], &cfg, 0);
+            let entries = raster.count_entries(gpu, &surf, &p0)?;
+            let params = Params::new(surf.n, 3, &cam, [1.0; 3], &cfg, entries);
+            let npx = size as u64 * size as u64;
+            let frame = Frame::new(gpu, surf.n, npx, params.tiles(), entries)?;
+            gpu.queue.write_buffer(&frame.vout, 0, bytemuck::cast_slice(&vec![1e-3f32; npx as usize * VPIX]));
+            let time = |backward: bool| -> Result<f64, GpuError> {
+                let run = |k: usize| {
+                    for _ in 0..k {
+                        let mut enc = gpu.device.create_command_encoder(&Default::default());
+                        raster.encode_forward(gpu, &mut enc, &surf, &frame, &params);
+                        if backward {
+                            raster.encode_backward(gpu, &mut enc, &surf, &frame, &params);
+                        }
+                        gpu.queue.submit([enc.finish()]);
+                    }
+                };
+                run(1);
+                wait(gpu)?;
+                let t0 = Instant::now();
+                run(reps.max(1));
+                wait(gpu)?;
+                Ok(t0.elapsed().as_secs_f64() * 1e3 / reps.max(1) as f64)
+            };
+            let (f, fb) = (time(false)?, time(true)?);
+            let c = read_back::<u32>(&gpu.device, &gpu.queue, &[(&frame.count, COUNTERS)])?.remove(0);
+            if c[4] > 0 {
+                return Err(GpuError::Runtime("the bench's renders overflowed their entry buffers".into()));
+            }
+            s += &format!("| {size} x {size} | {n} | {entries} | {f:.3} | {fb:.3} |\n");
+        }
+    }
+    Ok(s)
+}
