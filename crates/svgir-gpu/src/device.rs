@@ -136,6 +136,22 @@ pub struct Gpu {
     pub queue: wgpu::Queue,
     /// The adapter, for printing and `config.json`.
     pub report: AdapterReport,
+    /// The first error wgpu reported outside a call that returns one (validation, out of
+    /// memory), kept for [`Gpu::check`] instead of wgpu's default panic.
+    errors: std::sync::Arc<std::sync::Mutex<Option<String>>>,
+}
+
+impl Gpu {
+    /// An error if wgpu has reported one since the device was opened (a kernel or buffer the
+    /// driver refused, memory exhausted): the run stops with it instead of going on with
+    /// results that were never computed.
+    pub fn check(&self) -> Result<(), GpuError> {
+        match self.errors.lock().map(|e| e.clone()) {
+            Ok(None) => Ok(()),
+            Ok(Some(e)) => Err(GpuError::Runtime(format!("{}: {e}", self.report.name))),
+            Err(_) => Err(GpuError::Runtime("the GPU error handler panicked".into())),
+        }
+    }
 }
 
 impl fmt::Debug for Gpu {
@@ -231,5 +247,12 @@ pub fn open_named(name: Option<&str>) -> Result<Gpu, GpuError> {
         float_atomics,
         max_storage_binding: limits.max_storage_buffer_binding_size,
     };
-    Ok(Gpu { device, queue, report })
+    let errors = std::sync::Arc::new(std::sync::Mutex::new(None::<String>));
+    let slot = errors.clone();
+    device.on_uncaptured_error(std::sync::Arc::new(move |e: wgpu::Error| {
+        if let Ok(mut s) = slot.lock() {
+            s.get_or_insert_with(|| e.to_string());
+        }
+    }));
+    Ok(Gpu { device, queue, report, errors })
 }

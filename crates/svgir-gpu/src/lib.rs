@@ -2,18 +2,18 @@
 //! Metal and DX12; no CUDA toolkit). wgpu loads the system's driver at run time, so a binary
 //! with this crate runs on a machine without a GPU and then stays on the CPU.
 //!
-//! What runs here: stage 1's rasterizer -- projection, binning (counts, scan, a stable radix
-//! sort of the entries, tile ranges), the forward with every stage-1 output, its backward and the
-//! projection backward -- with the same rules as svgir-raster, against whose scalar kernels the
-//! tests check it (`tests/raster.rs`, on Mesa's lavapipe in CI).
+//! What runs here: all of a stage-1 iteration ([`GpuStage1`]) with its data resident --
+//! projection, binning (counts, scan, a stable radix sort of the entries, tile ranges), the
+//! forward with every stage-1 output (`raster`), the loss and its output gradients (`loss`), the
+//! raster and projection backward, the densification statistics and Adam -- with the same rules
+//! as the CPU kernels, against which the tests check each (on Mesa's lavapipe in CI).
 //!
 //! No kernel uses atomics to add gradients: the raster backward adds each (tile, Gaussian)
 //! entry's gradient within the tile's workgroup (subgroup sums, then the subgroups' partials in
 //! order) and writes it to that entry's own slot; the projection backward sums each Gaussian's
 //! slots in entry order. So there is no float-atomic path and no compare-and-swap fallback to
 //! keep apart, and a run's gradients are the same at every run, as on the CPU (SPEC 9.4).
-//! The one host read-back of a render is the entry count (eight bytes) that sizes the entry
-//! buffers.
+//! Nothing is read back per iteration: the entry count stays on the GPU (see `raster`).
 
 pub mod bench;
 pub mod buffers;

@@ -444,6 +444,7 @@ impl GpuRaster {
         self.encode_forward(gpu, &mut enc, surf, &frame, &params);
         gpu.queue.submit([enc.finish()]);
         let out = read_output(gpu, &params, &frame)?;
+        gpu.check()?;
         Ok((out, params, frame))
     }
 
@@ -485,6 +486,7 @@ impl GpuRaster {
         q.submit([enc.finish()]);
         let f = &fwd.frame;
         let r = read_back::<f32>(d, q, &[(&f.vparam, n * VP), (&f.vsh, n * 48), (&f.img, npx * PIX)])?;
+        gpu.check()?;
         let (vp, vs, img) = (&r[0], &r[1], &r[2]);
         let mut g = Grads {
             v_positions: vec![glam::Vec3::ZERO; n],

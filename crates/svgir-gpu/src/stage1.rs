@@ -349,6 +349,7 @@ impl GpuStage1 {
         if self.host.iteration >= self.host.config.half_res_until {
             self.half = None;
         }
+        self.gpu.check()?;
         Ok(stats)
     }
 
@@ -388,6 +389,7 @@ impl GpuStage1 {
     /// Brings the host's surfels, moments and statistics up to date (for a checkpoint, an
     /// evaluation or the run's outputs).
     pub fn sync(&mut self) -> Result<(), GpuError> {
+        self.gpu.check()?;
         if !self.synced {
             self.res.download_into(&self.gpu, &mut self.host)?;
             self.synced = true;

@@ -373,3 +373,19 @@ fn backward_matches_the_scalar_kernels() {
         check_grads("accumulated weight", &got.accum_weight, &cpu_out.accum_weight, &out64.accum_weight, &flipped);
     }
 }
+
+#[test]
+fn a_driver_error_is_an_error_not_a_panic() {
+    let Some(g) = gpu() else { return };
+    g.check().expect("a fresh device has no error");
+    // A buffer mapped at creation must have a size that is a multiple of 4: wgpu reports it
+    // through the device's error handler, which keeps it for `check`.
+    let _ = g.device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("odd"),
+        size: 3,
+        usage: wgpu::BufferUsages::STORAGE,
+        mapped_at_creation: true,
+    });
+    let e = g.check().expect_err("the validation error is kept");
+    assert!(e.to_string().contains("llvmpipe") || e.to_string().contains(&g.report.name), "{e}");
+}
