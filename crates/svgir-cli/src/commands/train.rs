@@ -93,14 +93,14 @@ pub struct TrainArgs {
     /// Number of random initial points when the dataset has none.
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 100_000)]
     pub init_points: usize,
-    /// Where to train: a hardware GPU if there is one (auto), the CPU, or a GPU or an error.
+    /// Where to train: auto (a hardware GPU if any), cpu or gpu.
     #[arg(long, default_value_t = DeviceChoice::Auto)]
     pub device: DeviceChoice,
     /// Continue the run in --out from its checkpoint, with its settings (--iterations extends it).
     #[arg(long)]
     pub resume: bool,
     /// Write RUN/checkpoint.bin every this many iterations (atomically; Ctrl-C also saves).
-    #[arg(long, default_value_t = 1000)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 1000)]
     pub checkpoint_every: u64,
     /// Evaluate on test views every this many iterations (0: only at the end).
     #[arg(long, default_value_t = 0)]
