@@ -298,6 +298,29 @@ pub struct GpuForward {
     pub entries: u32,
 }
 
+/// A render's binning, read back: per Gaussian its screen box `[x0, x1, y0, y1]` and camera
+/// depth, and per tile its list of Gaussians in compositing order.
+pub type TileLists = (Vec<[u32; 4]>, Vec<f32>, Vec<Vec<u32>>);
+
+impl GpuForward {
+    /// The render's binning, read back (for tests).
+    pub fn tile_lists(&self, gpu: &Gpu) -> Result<TileLists, GpuError> {
+        let (n, e, t) = (self.params.n as usize, self.entries as usize, self.params.tiles() as usize);
+        let f = &self.frame;
+        let u = read_back::<u32>(
+            &gpu.device,
+            &gpu.queue,
+            &[(&f.rect, n * 4), (&f.ranges, t * 2), (&f.tval, e), (&f.egauss, e)],
+        )?;
+        let splat = read_back::<f32>(&gpu.device, &gpu.queue, &[(&f.splat, n * SPLAT as usize)])?.remove(0);
+        let rects = u[0].chunks_exact(4).map(|r| [r[0], r[1], r[2], r[3]]).collect();
+        let depth = (0..n).map(|g| splat[g * SPLAT as usize + 12]).collect();
+        let lists =
+            (0..t).map(|k| (u[1][2 * k]..u[1][2 * k + 1]).map(|s| u[3][u[2][s as usize] as usize]).collect()).collect();
+        Ok((rects, depth, lists))
+    }
+}
+
 /// The backward's results beyond [`Grads`]: per Gaussian, the weight it composited over the
 /// view's pixels (what [`RenderOutput::accum_weight`] holds on the CPU, for pruning).
 pub struct GpuGrads {

@@ -389,3 +389,149 @@ fn a_driver_error_is_an_error_not_a_panic() {
     let e = g.check().expect_err("the validation error is kept");
     assert!(e.to_string().contains("llvmpipe") || e.to_string().contains(&g.report.name), "{e}");
 }
+
+/// A linear functional of every output, `sum w . out`, in f64 from the f32 images.
+fn functional(out: &svgir_raster::RenderOutput, w: &[Vec<f32>; 5]) -> f64 {
+    let dot = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| *x as f64 * *y as f64).sum::<f64>();
+    dot(&out.color, &w[0])
+        + dot(&out.alpha, &w[1])
+        + dot(&out.depth, &w[2])
+        + dot(&out.normal, &w[3])
+        + dot(&out.distortion, &w[4])
+}
+
+#[test]
+fn gradients_match_finite_differences_of_the_gpu_render() {
+    let Some(g) = gpu() else { return };
+    let r = GpuRaster::new(&g);
+    let (w, h) = (32u32, 24u32);
+    let cam = camera(w, h);
+    let toward = -cam.forward();
+    let mut rng = Rng::new(5);
+    // Six surfels large enough that their cut-off ellipses and boxes lie outside the image, so
+    // the render is smooth in every parameter (no pixel enters or leaves a splat).
+    let mut s = Surfels::with_capacity(6, 1);
+    for _ in 0..6 {
+        let p = Vec3::new(rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5) * 0.6;
+        let n = (toward + Vec3::new(rng.uniform() - 0.5, rng.uniform() - 0.5, rng.uniform() - 0.5) * 0.6).normalize();
+        let q = Quat::from_rotation_arc(Vec3::Z, n) * Quat::from_rotation_z(rng.uniform() * 3.0);
+        let ls = Vec2::new(0.9 + 0.3 * rng.uniform(), 0.7 + 0.3 * rng.uniform());
+        let mut sh = ShCoeffs::from_rgb([rng.uniform(), rng.uniform(), rng.uniform()]);
+        for k in 1..4 {
+            sh.0[k] = [0.1 * (rng.uniform() - 0.5), 0.1 * (rng.uniform() - 0.5), 0.1 * (rng.uniform() - 0.5)];
+        }
+        s.push(p, q, ls, -0.5 + rng.uniform(), sh);
+    }
+    let cfg = RasterConfig { distortion: true, ..RasterConfig::default() };
+    let npx = (w * h) as usize;
+    let mut wrng = Rng::new(9);
+    let mut weights = |k: usize| (0..k).map(|_| wrng.uniform() - 0.5).collect::<Vec<f32>>();
+    let wts = [weights(npx * 3), weights(npx), weights(npx), weights(npx * 3), weights(npx)];
+    let (out, fwd) = r.render(&g, &s, &cam, [0.1, 0.2, 0.3], &cfg).unwrap();
+    assert!(out.alpha.iter().all(|&a| a > 0.05), "every pixel is covered, so no splat edge is in the image");
+    let og = OutputGrads {
+        color: Some(&wts[0]),
+        alpha: Some(&wts[1]),
+        depth: Some(&wts[2]),
+        normal: Some(&wts[3]),
+        distortion: Some(&wts[4]),
+        extra: None,
+    };
+    let grads = r.backward(&g, &fwd, &og).unwrap().grads;
+    let loss = |s: &Surfels| functional(&r.render(&g, s, &cam, [0.1, 0.2, 0.3], &cfg).unwrap().0, &wts);
+    let mut pairs: Vec<(String, f64, f64)> = Vec::new();
+    for i in 0..s.len() {
+        // (name, analytic, perturb by e)
+        let mut checks: Vec<(String, f32, Box<dyn Fn(&mut Surfels, f32)>)> = Vec::new();
+        for a in 0..3 {
+            checks.push((
+                format!("position {i}.{a}"),
+                grads.v_positions[i][a],
+                Box::new(move |s, e| s.positions[i][a] += e),
+            ));
+        }
+        for a in 0..2 {
+            checks.push((
+                format!("log-scale {i}.{a}"),
+                grads.v_log_scales[i][a],
+                Box::new(move |s, e| s.log_scales[i][a] += e),
+            ));
+        }
+        let vq = grads.v_rotations[i];
+        for (a, v) in [vq.x, vq.y, vq.z, vq.w].into_iter().enumerate() {
+            checks.push((
+                format!("rotation {i}.{a}"),
+                v,
+                Box::new(move |s, e| {
+                    let q = s.rotations[i];
+                    let mut c = [q.x, q.y, q.z, q.w];
+                    c[a] += e;
+                    s.rotations[i] = Quat::from_xyzw(c[0], c[1], c[2], c[3]);
+                }),
+            ));
+        }
+        checks.push((
+            format!("opacity {i}"),
+            grads.v_opacity_logits[i],
+            Box::new(move |s, e| s.opacity_logits[i] += e),
+        ));
+        for (k, c) in [(0usize, 0usize), (0, 2), (2, 1)] {
+            checks.push((format!("sh {i}.{k}.{c}"), grads.v_sh[i].0[k][c], Box::new(move |s, e| s.sh[i].0[k][c] += e)));
+        }
+        for (name, analytic, perturb) in checks {
+            let e = 1e-2f32;
+            let (mut sp, mut sm) = (s.clone(), s.clone());
+            perturb(&mut sp, e);
+            perturb(&mut sm, -e);
+            let fd = (loss(&sp) - loss(&sm)) / (2.0 * e as f64);
+            pairs.push((name, fd, analytic as f64));
+        }
+    }
+    // Relative, with a floor of a hundredth of the largest partial. The step is large because
+    // the f32 renders' rounding of the functional, divided by the step, dominates below it
+    // (2e-3: 9e-3 worst; 5e-4: 2e-2); at 1e-2 the worst is 2.3e-3, at 2e-2 the step's own
+    // curvature shows (8e-3).
+    let scale = pairs.iter().fold(0.0f64, |m, p| m.max(p.2.abs()));
+    let mut worst = 0.0f64;
+    for (name, fd, analytic) in &pairs {
+        let err = (fd - analytic).abs() / analytic.abs().max(0.01 * scale);
+        worst = worst.max(err);
+        assert!(err < 5e-3, "{name}: finite difference {fd:.6} vs gradient {analytic:.6}");
+    }
+    eprintln!("finite differences: {} partials, largest {scale:.3}, worst error {worst:.2e}", pairs.len());
+}
+
+#[test]
+fn tile_lists_are_the_boxes_binned_in_depth_then_id_order() {
+    let Some(g) = gpu() else { return };
+    let r = GpuRaster::new(&g);
+    for (seed, n, w, h) in [(3u64, 700usize, 83u32, 71u32), (4, 2000, 50, 37)] {
+        let cam = camera(w, h);
+        let mut s = scene(seed, n, &cam);
+        // Ties in depth, which the order breaks by id.
+        for k in (0..s.len()).step_by(7).skip(1) {
+            s.positions[k] = s.positions[k - 1];
+        }
+        let (_, fwd) = r.render(&g, &s, &cam, [0.0; 3], &cpu_cfg()).unwrap();
+        let (rects, depth, lists) = fwd.tile_lists(&g).unwrap();
+        let tiles_x = w.div_ceil(svgir_gpu::TILE);
+        let mut want = vec![Vec::new(); lists.len()];
+        let mut order: Vec<usize> =
+            (0..s.len()).filter(|&i| rects[i][0] < rects[i][1] && rects[i][2] < rects[i][3]).collect();
+        order.sort_by(|&a, &b| depth[a].total_cmp(&depth[b]).then(a.cmp(&b)));
+        for &i in &order {
+            let rc = rects[i];
+            for ty in rc[2] / svgir_gpu::TILE..(rc[3] - 1) / svgir_gpu::TILE + 1 {
+                for tx in rc[0] / svgir_gpu::TILE..(rc[1] - 1) / svgir_gpu::TILE + 1 {
+                    want[(ty * tiles_x + tx) as usize].push(i as u32);
+                }
+            }
+        }
+        let entries: usize = want.iter().map(Vec::len).sum();
+        assert_eq!(entries, fwd.entries as usize, "entry count");
+        assert!(entries > 5 * lists.len(), "a test with few entries checks little: {entries}");
+        for (t, (got, want)) in lists.iter().zip(&want).enumerate() {
+            assert_eq!(got, want, "tile {t}");
+        }
+    }
+}
