@@ -390,6 +390,9 @@ fn a_driver_error_is_an_error_not_a_panic() {
     assert!(e.to_string().contains("llvmpipe") || e.to_string().contains(&g.report.name), "{e}");
 }
 
+/// A change of one parameter by a step.
+type Perturb = Box<dyn Fn(&mut Surfels, f32)>;
+
 /// A linear functional of every output, `sum w . out`, in f64 from the f32 images.
 fn functional(out: &svgir_raster::RenderOutput, w: &[Vec<f32>; 5]) -> f64 {
     let dot = |a: &[f32], b: &[f32]| a.iter().zip(b).map(|(x, y)| *x as f64 * *y as f64).sum::<f64>();
@@ -442,7 +445,7 @@ fn gradients_match_finite_differences_of_the_gpu_render() {
     let mut pairs: Vec<(String, f64, f64)> = Vec::new();
     for i in 0..s.len() {
         // (name, analytic, perturb by e)
-        let mut checks: Vec<(String, f32, Box<dyn Fn(&mut Surfels, f32)>)> = Vec::new();
+        let mut checks: Vec<(String, f32, Perturb)> = Vec::new();
         for a in 0..3 {
             checks.push((
                 format!("position {i}.{a}"),
