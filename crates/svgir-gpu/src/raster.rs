@@ -18,7 +18,7 @@
 
 use crate::buffers::{bind, dispatch, dispatch_2d, read_back, storage, upload};
 use crate::device::{Gpu, GpuError};
-use crate::sort::SortKernels;
+use crate::sort::{scan_plan, sort_plan, ScanPlan, SortKernels, SortPlan};
 use bytemuck::{Pod, Zeroable};
 use svgir_core::{Camera, Surfels};
 use svgir_raster::{Grads, OutputGrads, RasterConfig, RenderOutput};
@@ -182,6 +182,11 @@ impl SurfelBuffers {
     }
 }
 
+/// Bits of a tile index for `tiles` tiles (the tile sort's key length).
+fn tile_bits(tiles: u32) -> u32 {
+    32 - (tiles.max(2) - 1).leading_zeros()
+}
+
 /// An error when one binding of `bytes` passes the adapter's storage-binding limit.
 pub(crate) fn check_binding(gpu: &Gpu, what: &'static str, bytes: u64) -> Result<(), GpuError> {
     let limit = gpu.report.max_storage_binding;
@@ -224,6 +229,10 @@ pub struct Frame {
     /// Per Gaussian, the gradients besides SH (`VP` floats) and the SH gradients (48).
     pub(crate) vparam: wgpu::Buffer,
     pub(crate) vsh: wgpu::Buffer,
+    /// The depth sort's, the offsets' scan's and the tile sort's buffers.
+    depth_sort: SortPlan,
+    offsets_scan: ScanPlan,
+    tile_sort: SortPlan,
     n: u32,
     npx: u64,
     tiles: u32,
@@ -271,6 +280,9 @@ impl Frame {
             vout: storage(d, "output gradients", npx * VPIX as u64 * 4),
             vparam: storage(d, "parameter gradients", nb * VP as u64),
             vsh: storage(d, "sh gradients", nb * 48),
+            depth_sort: sort_plan(d, n, 32, false),
+            offsets_scan: scan_plan(d, n),
+            tile_sort: sort_plan(d, capacity, tile_bits(tiles), true),
             n,
             npx,
             tiles,
@@ -371,10 +383,10 @@ impl GpuRaster {
             &[p, &surf.pos, &surf.rot, &surf.lsc, &surf.opa, &surf.sh, &f.splat, &f.rect, &f.tiles_n, &f.key, &f.val],
         );
         dispatch(enc, &self.project, &bg0, groups);
-        self.sort.sort(d, enc, &f.key, &f.val, &f.tmp_k, &f.tmp_v, n, 32, None);
+        self.sort.sort_with(d, enc, [&f.key, &f.val, &f.tmp_k, &f.tmp_v], &f.depth_sort, None);
         let bg1 = bind(d, &self.bin_count, &[p, &f.val, &f.tiles_n, &f.cnt, &f.off, &f.rank]);
         dispatch(enc, &self.bin_count, &bg1, groups);
-        self.sort.scan(d, enc, &f.off, n);
+        self.sort.scan_with(d, enc, &f.off, &f.offsets_scan);
         let bgt = bind(d, &self.bin_total, &[p, &f.off, &f.cnt, &f.count]);
         dispatch(enc, &self.bin_total, &bgt, 1);
         enc.clear_buffer(&f.ranges, 0, None);
@@ -382,8 +394,7 @@ impl GpuRaster {
         if cap > 0 && n > 0 {
             let bg2 = bind(d, &self.bin_emit, &[p, &f.val, &f.off, &f.cnt, &f.rect, &f.tkey, &f.tval, &f.egauss]);
             dispatch(enc, &self.bin_emit, &bg2, groups);
-            let tile_bits = 32 - (params.tiles().max(2) - 1).leading_zeros();
-            self.sort.sort(d, enc, &f.tkey, &f.tval, &f.tk2, &f.tv2, cap, tile_bits, Some(&f.count));
+            self.sort.sort_with(d, enc, [&f.tkey, &f.tval, &f.tk2, &f.tv2], &f.tile_sort, Some(&f.count));
             let bg3 = bind(d, &self.bin_ranges, &[p, &f.tkey, &f.ranges, &f.count]);
             dispatch(enc, &self.bin_ranges, &bg3, cap.div_ceil(256));
         }

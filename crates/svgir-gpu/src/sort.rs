@@ -65,27 +65,38 @@ impl SortKernels {
         }
     }
 
-    /// Records an exclusive scan of the first `n` u32s of `data`, in place.
+    /// Records an exclusive scan of the first `n` u32s of `data`, in place (buffers made here).
     pub(crate) fn scan(&self, device: &wgpu::Device, enc: &mut wgpu::CommandEncoder, data: &wgpu::Buffer, n: u32) {
-        if n == 0 {
-            return;
+        let plan = scan_plan(device, n);
+        self.scan_with(device, enc, data, &plan);
+    }
+
+    /// Records the exclusive scan `plan` was made for of `data`, in place: each level's blocks
+    /// scanned and their sums written to the next level, then each level's offsets added back,
+    /// from the top.
+    pub(crate) fn scan_with(
+        &self,
+        device: &wgpu::Device,
+        enc: &mut wgpu::CommandEncoder,
+        data: &wgpu::Buffer,
+        plan: &ScanPlan,
+    ) {
+        let l = &plan.levels;
+        for i in 0..l.len() {
+            let src = if i == 0 { data } else { &l[i - 1].1 };
+            let bg = bind(device, &self.scan_block, &[&l[i].0, src, &l[i].1]);
+            dispatch(enc, &self.scan_block, &bg, l[i].2.div_ceil(SCAN_BLOCK));
         }
-        let blocks = n.div_ceil(SCAN_BLOCK);
-        let sums = storage(device, "scan sums", blocks as u64 * 4);
-        let params = uniform(device, "scan params", &ScanParams { n, pad: [0; 3] });
-        let bg = bind(device, &self.scan_block, &[&params, data, &sums]);
-        dispatch(enc, &self.scan_block, &bg, blocks);
-        if blocks > 1 {
-            self.scan(device, enc, &sums, blocks);
-            let bg = bind(device, &self.scan_add, &[&params, data, &sums]);
-            dispatch(enc, &self.scan_add, &bg, blocks);
+        for i in (0..l.len().saturating_sub(1)).rev() {
+            let src = if i == 0 { data } else { &l[i - 1].1 };
+            let bg = bind(device, &self.scan_add, &[&l[i].0, src, &l[i].1]);
+            dispatch(enc, &self.scan_add, &bg, l[i].2.div_ceil(SCAN_BLOCK));
         }
     }
 
     /// Records a stable sort of `n` pairs on the low `bits` bits of the keys (rounded up to
-    /// whole 4-bit passes). The sorted pairs end in `keys`/`vals` (the `tmp_*` buffers, of the
-    /// same size, are scratch). With `count`, only its first u32's worth of pairs (at most `n`)
-    /// are sorted: a length known on the GPU alone, with the dispatch sized for `n`.
+    /// whole 4-bit passes), buffers made here. See [`SortKernels::sort_with`].
+    #[allow(clippy::too_many_arguments)]
     pub(crate) fn sort(
         &self,
         device: &wgpu::Device,
@@ -98,24 +109,83 @@ impl SortKernels {
         bits: u32,
         count: Option<&wgpu::Buffer>,
     ) {
-        if n <= 1 {
+        let plan = sort_plan(device, n, bits, count.is_some());
+        self.sort_with(device, enc, [keys, vals, tmp_keys, tmp_vals], &plan, count);
+    }
+
+    /// Records the sort `plan` was made for: the sorted pairs end in `keys`/`vals` (the first two
+    /// of `bufs`; the other two, of the same size, are scratch). With `count` (a plan made
+    /// `counted`), only its first u32's worth of pairs (at most the plan's) are sorted: a length
+    /// known on the GPU alone, with the dispatch sized for the plan.
+    pub(crate) fn sort_with(
+        &self,
+        device: &wgpu::Device,
+        enc: &mut wgpu::CommandEncoder,
+        bufs: [&wgpu::Buffer; 4],
+        plan: &SortPlan,
+        count: Option<&wgpu::Buffer>,
+    ) {
+        if plan.n <= 1 {
             return;
         }
-        let blocks = n.div_ceil(SORT_BLOCK);
-        let counts = storage(device, "sort counts", 16 * blocks as u64 * 4);
-        // An even number of passes leaves the result in `keys`.
-        let passes = bits.div_ceil(4).next_multiple_of(2);
-        for pass in 0..passes {
+        let [keys, vals, tmp_keys, tmp_vals] = bufs;
+        let nbuf = count.unwrap_or(&self.no_count);
+        for (pass, params) in plan.passes.iter().enumerate() {
             let (ki, vi, ko, vo) =
                 if pass % 2 == 0 { (keys, vals, tmp_keys, tmp_vals) } else { (tmp_keys, tmp_vals, keys, vals) };
-            let counted = u32::from(count.is_some());
-            let params = uniform(device, "sort params", &SortParams { n, shift: 4 * pass, blocks, counted });
-            let nbuf = count.unwrap_or(&self.no_count);
-            let h = bind(device, &self.histogram, &[&params, ki, vi, &counts, ko, vo, nbuf]);
-            dispatch(enc, &self.histogram, &h, blocks);
-            self.scan(device, enc, &counts, 16 * blocks);
-            let s = bind(device, &self.scatter, &[&params, ki, vi, &counts, ko, vo, nbuf]);
-            dispatch(enc, &self.scatter, &s, blocks);
+            let h = bind(device, &self.histogram, &[params, ki, vi, &plan.counts, ko, vo, nbuf]);
+            dispatch(enc, &self.histogram, &h, plan.blocks);
+            self.scan_with(device, enc, &plan.counts, &plan.scan);
+            let s = bind(device, &self.scatter, &[params, ki, vi, &plan.counts, ko, vo, nbuf]);
+            dispatch(enc, &self.scatter, &s, plan.blocks);
         }
     }
+}
+
+/// The buffers of a scan of `n` values: per level of the recursion its uniform and the
+/// block sums (made once, reused by every scan of that length).
+pub(crate) fn scan_plan(device: &wgpu::Device, n: u32) -> ScanPlan {
+    let mut levels = Vec::new();
+    let mut m = n;
+    while m > 0 {
+        let blocks = m.div_ceil(SCAN_BLOCK);
+        let params = uniform(device, "scan params", &ScanParams { n: m, pad: [0; 3] });
+        levels.push((params, storage(device, "scan sums", blocks as u64 * 4), m));
+        if blocks <= 1 {
+            break;
+        }
+        m = blocks;
+    }
+    ScanPlan { levels }
+}
+
+/// The buffers of one scan length (see [`scan_plan`]).
+pub(crate) struct ScanPlan {
+    levels: Vec<(wgpu::Buffer, wgpu::Buffer, u32)>,
+}
+
+/// The buffers of a sort of `n` pairs on `bits` bits, its length `counted` on the GPU or not.
+pub(crate) fn sort_plan(device: &wgpu::Device, n: u32, bits: u32, counted: bool) -> SortPlan {
+    let blocks = n.div_ceil(SORT_BLOCK).max(1);
+    // An even number of passes leaves the result in the input buffers.
+    let passes = bits.div_ceil(4).next_multiple_of(2);
+    let counted = u32::from(counted);
+    SortPlan {
+        n,
+        blocks,
+        counts: storage(device, "sort counts", 16 * blocks as u64 * 4),
+        passes: (0..passes)
+            .map(|p| uniform(device, "sort params", &SortParams { n, shift: 4 * p, blocks, counted }))
+            .collect(),
+        scan: scan_plan(device, 16 * blocks),
+    }
+}
+
+/// The buffers of one sort (see [`sort_plan`]).
+pub(crate) struct SortPlan {
+    n: u32,
+    blocks: u32,
+    counts: wgpu::Buffer,
+    passes: Vec<wgpu::Buffer>,
+    scan: ScanPlan,
 }
