@@ -45,6 +45,23 @@ pub(crate) fn uniform<T: bytemuck::Pod>(device: &wgpu::Device, label: &str, valu
     })
 }
 
+/// A compute pipeline, entry point `main`, from the WGSL `parts` joined in order (shared
+/// declarations first; the layout is the one the entry point's bindings imply).
+pub(crate) fn kernel_of(device: &wgpu::Device, label: &str, parts: &[&str]) -> wgpu::ComputePipeline {
+    let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
+        label: Some(label),
+        source: wgpu::ShaderSource::Wgsl(parts.join("\n").into()),
+    });
+    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+        label: Some(label),
+        layout: None,
+        module: &module,
+        entry_point: Some("main"),
+        compilation_options: Default::default(),
+        cache: None,
+    })
+}
+
 /// A bind group for group 0 of `pipeline` with `buffers` at bindings 0, 1, ...
 pub(crate) fn bind(
     device: &wgpu::Device,

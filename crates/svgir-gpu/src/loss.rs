@@ -5,7 +5,7 @@
 //! passes folded into them) and one sum into a ring of per-iteration records that the host
 //! reads every few iterations.
 
-use crate::buffers::{bind, dispatch, storage};
+use crate::buffers::{bind, dispatch, kernel_of, storage};
 use crate::device::Gpu;
 use crate::raster::Frame;
 use bytemuck::{Pod, Zeroable};
@@ -87,20 +87,9 @@ pub(crate) struct LossKernels {
     reduce: wgpu::ComputePipeline,
 }
 
+/// A loss kernel of `body` after the loss kernels' shared declarations.
 fn kernel(device: &wgpu::Device, label: &str, body: &str) -> wgpu::ComputePipeline {
-    let src = format!("{}\n{}", include_str!("shaders/loss/common.wgsl"), body);
-    let m = device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some(label),
-        source: wgpu::ShaderSource::Wgsl(src.into()),
-    });
-    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-        label: Some(label),
-        layout: None,
-        module: &m,
-        entry_point: Some("main"),
-        compilation_options: Default::default(),
-        cache: None,
-    })
+    kernel_of(device, label, &[include_str!("shaders/loss/common.wgsl"), body])
 }
 
 /// The loss's scratch buffers for images of up to `npx` pixels, its uniform and the ring.

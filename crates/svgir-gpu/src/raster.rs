@@ -16,7 +16,7 @@
 //! Tiles are 16 px (one 256-thread workgroup each); the CPU's default is 32. Tiling changes no
 //! image bit on the CPU and only the order of gradient sums, so the two compare as the tests do.
 
-use crate::buffers::{bind, dispatch, dispatch_2d, read_back, storage, upload};
+use crate::buffers::{bind, dispatch, dispatch_2d, kernel_of, read_back, storage, upload};
 use crate::device::{Gpu, GpuError};
 use crate::sort::{scan_plan, sort_plan, ScanPlan, SortKernels, SortPlan};
 use bytemuck::{Pod, Zeroable};
@@ -109,24 +109,9 @@ pub struct GpuRaster {
     project_bwd: wgpu::ComputePipeline,
 }
 
-pub(crate) fn module(device: &wgpu::Device, label: &str, body: &str) -> wgpu::ShaderModule {
-    let src = format!("{}\n{}", include_str!("shaders/common.wgsl"), body);
-    device.create_shader_module(wgpu::ShaderModuleDescriptor {
-        label: Some(label),
-        source: wgpu::ShaderSource::Wgsl(src.into()),
-    })
-}
-
+/// A kernel of `body` after the shared declarations (`shaders/common.wgsl`).
 pub(crate) fn kernel(device: &wgpu::Device, label: &str, body: &str) -> wgpu::ComputePipeline {
-    let m = module(device, label, body);
-    device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-        label: Some(label),
-        layout: None,
-        module: &m,
-        entry_point: Some("main"),
-        compilation_options: Default::default(),
-        cache: None,
-    })
+    kernel_of(device, label, &[include_str!("shaders/common.wgsl"), body])
 }
 
 /// Surfel parameters resident on the GPU, in [`Surfels`]' layouts (positions 3, rotations 4 as
