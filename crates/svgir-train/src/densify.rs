@@ -188,12 +188,15 @@ pub fn densify_and_prune(
         keep[i] = !drop;
     }
     report.pruned = keep.iter().filter(|k| !**k).count() - report.split;
-    // Never prune everything: keep the scene alive even if a bad view zeroed all statistics.
+    // Never prune everything: keep the scene alive even if a bad view zeroed all statistics
+    // (and say so: nothing was pruned).
     if keep.iter().any(|k| *k) {
         s.retain(&keep);
         for g in groups.iter_mut() {
             g.retain_rows(&keep);
         }
+    } else {
+        report.pruned = 0;
     }
     report
 }
@@ -204,5 +207,104 @@ pub fn reset_opacity(s: &mut Surfels, opacity_group: &mut AdamGroup) {
     for (i, o) in s.opacity_logits.iter_mut().enumerate() {
         *o = o.min(cap);
         opacity_group.reset_row(i);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::{Quat, Vec3};
+    use svgir_core::ShCoeffs;
+
+    /// Six Gaussians, one per rule, with statistics that put each on its rule (extent 1,
+    /// so the clone/split line is `percent_dense` = 0.01 in world units):
+    /// 0 small + high gradient (clone), 1 large + high gradient (split), 2 transparent,
+    /// 3 never composited, 4 too large on screen, 5 ordinary.
+    fn scene() -> (Surfels, DensifyStats, Groups) {
+        let mut s = Surfels::with_capacity(6, 0);
+        let q = Quat::from_rotation_x(0.4);
+        let small = Vec2::splat(0.005f32.ln());
+        let large = Vec2::new(0.05f32.ln(), 0.02f32.ln());
+        for (i, (ls, o)) in [(small, 0.5), (large, 0.5), (small, 0.001), (small, 0.5), (small, 0.5), (small, 0.5)]
+            .into_iter()
+            .enumerate()
+        {
+            s.push(Vec3::new(i as f32, 0.0, 0.0), q, ls, logit(o), ShCoeffs::from_rgb([0.1 * i as f32; 3]));
+        }
+        let mut st = DensifyStats::new(6);
+        st.denom = vec![2, 2, 2, 2, 2, 0];
+        st.grad_accum = vec![1e-3, 1e-3, 0.0, 0.0, 0.0, 1.0];
+        st.accum_weight = vec![1.0, 1.0, 1.0, 0.0, 1.0, 1.0];
+        st.max_radius = vec![5.0, 5.0, 5.0, 5.0, 50.0, 5.0];
+        let cfg = crate::config::Stage1Config::default();
+        let mut groups = crate::stage1::make_groups(&cfg, 6, 1.0);
+        // Moments that name their row, to follow the rows through the edit.
+        for g in groups.iter_mut() {
+            for (k, m) in g.m.iter_mut().enumerate() {
+                *m = (k / g.stride) as f32 + 1.0;
+            }
+        }
+        (s, st, groups)
+    }
+
+    #[test]
+    fn clones_splits_and_prunes_by_the_rules() {
+        let (mut s, st, mut groups) = scene();
+        let before = s.clone();
+        let cfg = DensifyConfig::default();
+        let mut rng = Rng::new(1);
+        let r = densify_and_prune(&mut s, &mut groups, &st, &cfg, 1.0, true, &mut rng);
+        assert_eq!((r.cloned, r.split, r.pruned), (1, 1, 3), "{r:?}");
+        // Kept: 0 and 5 (5's gradient counts nothing: no view saw it), the clone of 0, the
+        // two children of 1.
+        assert_eq!(s.len(), 5);
+        assert_eq!(s.positions[0], before.positions[0]);
+        assert_eq!(s.positions[1], before.positions[5]);
+        assert_eq!(s.positions[2], before.positions[0], "the clone is an identical copy");
+        assert_eq!(s.opacity_logits[2], before.opacity_logits[0]);
+        let normal = before.rotation_matrix(1).z_axis;
+        for c in 3..5 {
+            let d = s.positions[c] - before.positions[1];
+            assert!(d.length() > 0.0 && d.dot(normal).abs() < 1e-6, "a child moves in the parent's plane: {d}");
+            assert!(d.length() < 0.05 * 5.0, "within a few parent scales: {d}");
+            let want = before.log_scales[1] - Vec2::splat(1.6f32.ln());
+            assert!((s.log_scales[c] - want).abs().max_element() < 1e-6, "children are 1.6x smaller");
+            assert_eq!(s.sh[c].0, before.sh[1].0);
+        }
+        // The moments follow their rows; new rows start at zero.
+        for g in &groups {
+            assert_eq!(g.rows(), 5, "{}", g.name);
+            let row = |r: usize| g.m[r * g.stride];
+            assert_eq!([row(0), row(1), row(2), row(3), row(4)], [1.0, 6.0, 0.0, 0.0, 0.0], "{}", g.name);
+        }
+    }
+
+    #[test]
+    fn size_pruning_waits_for_prune_big() {
+        let (mut s, st, mut groups) = scene();
+        let r = densify_and_prune(&mut s, &mut groups, &st, &DensifyConfig::default(), 1.0, false, &mut Rng::new(1));
+        assert_eq!(r.pruned, 2, "only the transparent and the unused: {r:?}");
+        assert_eq!(s.len(), 6);
+    }
+
+    #[test]
+    fn over_budget_only_the_largest_gradients_grow() {
+        let (mut s, mut st, mut groups) = scene();
+        st.grad_accum[0] = 1e-3;
+        st.grad_accum[1] = 2e-3;
+        let cfg = DensifyConfig { max_gaussians: 7, ..DensifyConfig::default() };
+        let r = densify_and_prune(&mut s, &mut groups, &st, &cfg, 1.0, false, &mut Rng::new(1));
+        assert_eq!((r.cloned, r.split), (0, 1), "room for one: the larger gradient (the split) {r:?}");
+    }
+
+    #[test]
+    fn never_prunes_everything() {
+        let (mut s, mut st, mut groups) = scene();
+        st.accum_weight = vec![0.0; 6];
+        st.grad_accum = vec![0.0; 6];
+        let r = densify_and_prune(&mut s, &mut groups, &st, &DensifyConfig::default(), 1.0, false, &mut Rng::new(1));
+        assert_eq!(r.pruned, 0, "the prune that would empty the scene is not done, nor reported");
+        assert_eq!(s.len(), 6, "a view that zeroed every statistic keeps the scene");
+        assert!(groups.iter().all(|g| g.rows() == 6));
     }
 }
