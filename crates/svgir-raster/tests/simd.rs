@@ -231,9 +231,24 @@ fn check_scene_tiles(
 }
 
 /// Stage 1 and the SH renders: one colour per Gaussian, over sizes, tile sizes and densities.
+/// The SIMD paths this CPU has are printed; with none, the SIMD tests check nothing and say
+/// SKIPPED. `SVGIR_REQUIRE_SIMD=avx2,...` (as `.ci/run` sets for AVX2) names paths that must be
+/// there, so a CI machine without them fails instead of passing on the scalar path alone.
+fn report_paths() {
+    let have = Simd::available();
+    eprintln!("SIMD paths on this CPU: {have:?}");
+    if svgir_raster::simd::best_available() == Simd::Scalar {
+        eprintln!("SKIPPED: no SIMD path on this CPU, the SIMD tests compare nothing");
+    }
+    for name in std::env::var("SVGIR_REQUIRE_SIMD").unwrap_or_default().split(',').filter(|n| !n.is_empty()) {
+        let want = Simd::parse(name).unwrap_or_else(|| panic!("SVGIR_REQUIRE_SIMD: unknown path {name:?}"));
+        assert!(have.contains(&want), "SVGIR_REQUIRE_SIMD names {name}, which this CPU lacks ({have:?})");
+    }
+}
+
 #[test]
 fn simd_paths_match_scalar() {
-    eprintln!("SIMD paths on this CPU: {:?}", Simd::available());
+    report_paths();
     let mut checked = 0;
     for (seed, n, res, tile, dist, geometry) in [
         (1u64, 3000usize, 64u32, 16u32, true, true),
