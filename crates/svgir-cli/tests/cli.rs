@@ -47,7 +47,13 @@ fn quick_demo_writes_a_report_with_metrics() {
     let eval: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("stage2/eval.json")).unwrap()).unwrap();
     let psnr = eval["nvs"]["psnr"].as_f64().expect("NVS PSNR present");
-    assert!(psnr.is_finite() && psnr > 5.0, "NVS PSNR {psnr}");
+    // Measured: NVS 11.0 dB, relighting 21.1, albedo 20.3 (the quick demo's 300 + 20 iterations);
+    // the floors leave 1.5 dB for other CPUs' SIMD paths.
+    assert!(psnr.is_finite() && psnr > 9.5, "NVS PSNR {psnr}");
+    let relit_mean = eval["relight"]["mean"]["psnr"].as_f64().expect("relighting PSNR present");
+    assert!(relit_mean > 19.5, "relighting PSNR {relit_mean}");
+    let albedo = eval["albedo"]["psnr"].as_f64().expect("albedo PSNR present");
+    assert!(albedo > 18.5, "albedo PSNR {albedo}");
     assert!(eval["relight"]["per_light"]["night"]["psnr"].as_f64().is_some());
     assert!(out.join("stage2/envmap.hdr").exists() && out.join("point_cloud.ply").exists());
     assert!(out.join("stage2/test/test_000_albedo.exr").exists() && out.join("stage2/turntable").exists());
@@ -62,8 +68,18 @@ fn quick_demo_writes_a_report_with_metrics() {
         .status()
         .unwrap();
     assert!(status.success(), "svgir relight failed");
-    let relit = svgir_io_png(&out.join("stage2/relit_sunset/test_000.png"));
-    assert!(relit > 0, "relit image is empty");
+    // The relit view shows the object lit as the ground truth is: its luminance follows the
+    // truth's over the object's pixels (correlation 0.25 measured for the quick demo's 20
+    // stage-2 iterations; a blank or constant image gives 0).
+    let relit = svgir_io::read_image(out.join("stage2/relit_sunset/test_000.png")).expect("relit image written");
+    let gt = svgir_io::read_image(concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/../../scenes/bowl_fruit_128/test_000/rgba_sunset.png"
+    ))
+    .unwrap();
+    let corr = masked_luminance_correlation(&relit, &gt);
+    eprintln!("relit view against the truth: luminance correlation {corr:.3}");
+    assert!(corr > 0.15, "relit image does not follow the truth: correlation {corr:.3}");
 
     // `svgir eval` on the stage-2 run repeats SPEC 8's evaluation: the same numbers (with the
     // demo's relighting settings), a per-metric table and the scene table's row.
@@ -121,9 +137,24 @@ fn browser_tools() -> Option<std::path::PathBuf> {
     None
 }
 
-/// Size in bytes of a written PNG (0 if missing).
-fn svgir_io_png(path: &std::path::Path) -> u64 {
-    std::fs::metadata(path).map_or(0, |m| m.len())
+/// Pearson correlation of the luminances of `a` and `gt` over the pixels where `gt`'s alpha is
+/// above one half.
+fn masked_luminance_correlation(a: &svgir_core::Image, gt: &svgir_core::Image) -> f64 {
+    assert_eq!((a.width, a.height), (gt.width, gt.height), "relit image size");
+    let lum = |im: &svgir_core::Image, i: usize| {
+        let c = im.channels as usize;
+        let p = &im.data[i * c..i * c + 3];
+        (0.2126 * p[0] + 0.7152 * p[1] + 0.0722 * p[2]) as f64
+    };
+    let on: Vec<usize> = (0..gt.pixel_count()).filter(|&i| gt.data[i * 4 + 3] > 0.5).collect();
+    assert!(on.len() > 100, "the truth's mask is nearly empty");
+    let (xs, ys): (Vec<f64>, Vec<f64>) = on.iter().map(|&i| (lum(a, i), lum(gt, i))).unzip();
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let (mx, my) = (mean(&xs), mean(&ys));
+    let cov: f64 = xs.iter().zip(&ys).map(|(x, y)| (x - mx) * (y - my)).sum();
+    let vx: f64 = xs.iter().map(|x| (x - mx).powi(2)).sum();
+    let vy: f64 = ys.iter().map(|y| (y - my).powi(2)).sum();
+    cov / (vx * vy).sqrt().max(1e-12)
 }
 
 /// `--profile views` keeps the mask losses off on a masked dataset, `--resume` with
