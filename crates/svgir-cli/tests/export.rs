@@ -138,8 +138,11 @@ fn export_mesh_and_splats_from_the_quick_demo() {
     // that the images are comparable; the PSNR of a full run is in docs/experiments.md.
     let psnr = cmp["psnr_db"].as_f64().unwrap();
     let iou = cmp["silhouette_iou"].as_f64().unwrap();
-    assert!(psnr.is_finite() && psnr > 8.0, "three.js vs relight PSNR {psnr}");
-    assert!(iou > 0.5, "three.js and relight silhouettes overlap by IoU {iou}");
+    // Measured: 12.12 dB and IoU 0.689 (the floors leave room for other CPUs' SIMD paths and
+    // Chromium's rasterizer).
+    eprintln!("three.js vs relight: PSNR {psnr:.2} dB, silhouette IoU {iou:.3}");
+    assert!(psnr.is_finite() && psnr > 11.0, "three.js vs relight PSNR {psnr}");
+    assert!(iou > 0.62, "three.js and relight silhouettes overlap by IoU {iou}");
     // The report shows both images side by side with the PSNR.
     assert!(svgir().arg("report").arg(&run).status().unwrap().success());
     let html = std::fs::read_to_string(run.join("report.html")).unwrap();
