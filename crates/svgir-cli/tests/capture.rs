@@ -63,7 +63,10 @@ fn statue_capture_profile_masks_then_object_profile() {
     assert!(cfg["stage1"]["densify"]["max_gaussians"].as_u64().unwrap() > 1 << 40, "no budget");
     let eval = json(&run1.join("eval.json"));
     let psnr = eval["psnr"].as_f64().unwrap();
-    assert!(psnr > 12.0, "test PSNR {psnr}");
+    // Measured: 16.15 dB (600 iterations at an eighth of the size); the floor leaves 1 dB for
+    // other CPUs' SIMD paths.
+    eprintln!("capture profile: test PSNR {psnr:.2} dB");
+    assert!(psnr > 15.0, "test PSNR {psnr}");
     let cov = eval["coverage"].as_array().expect("coverage per test view");
     assert_eq!(cov.len(), 3);
     for c in cov {
