@@ -114,6 +114,12 @@ pub(crate) fn kernel(device: &wgpu::Device, label: &str, body: &str) -> wgpu::Co
     kernel_of(device, label, &[include_str!("shaders/common.wgsl"), body])
 }
 
+/// A compositing kernel: `body` after the shared declarations and the batch staging (`stage.wgsl`).
+fn staged_kernel(device: &wgpu::Device, label: &str, body: &str) -> wgpu::ComputePipeline {
+    let parts = [include_str!("shaders/common.wgsl"), include_str!("shaders/stage.wgsl"), body];
+    kernel_of(device, label, &parts)
+}
+
 /// Surfel parameters resident on the GPU, in [`Surfels`]' layouts (positions 3, rotations 4 as
 /// x y z w, log-scales 2, opacity logits 1, SH 48 floats per Gaussian).
 pub struct SurfelBuffers {
@@ -218,9 +224,6 @@ pub struct Frame {
     depth_sort: SortPlan,
     offsets_scan: ScanPlan,
     tile_sort: SortPlan,
-    n: u32,
-    npx: u64,
-    tiles: u32,
     capacity: u32,
 }
 
@@ -268,16 +271,8 @@ impl Frame {
             depth_sort: sort_plan(d, n, 32, false),
             offsets_scan: scan_plan(d, n),
             tile_sort: sort_plan(d, capacity, tile_bits(tiles), true),
-            n,
-            npx,
-            tiles,
             capacity,
         })
-    }
-
-    /// Whether a render of `n` Gaussians on `npx` pixels and `tiles` tiles fits these buffers.
-    pub fn fits(&self, n: u32, npx: u64, tiles: u32) -> bool {
-        n == self.n && npx <= self.npx && tiles <= self.tiles
     }
 
     /// Tile entries the buffers hold.
@@ -339,8 +334,8 @@ impl GpuRaster {
             bin_total: kernel(d, "bin_total", include_str!("shaders/bin_total.wgsl")),
             bin_emit: kernel(d, "bin_emit", include_str!("shaders/bin_emit.wgsl")),
             bin_ranges: kernel(d, "bin_ranges", include_str!("shaders/bin_ranges.wgsl")),
-            forward: kernel(d, "raster_fwd", include_str!("shaders/raster_fwd.wgsl")),
-            backward: kernel(d, "raster_bwd", include_str!("shaders/raster_bwd.wgsl")),
+            forward: staged_kernel(d, "raster_fwd", include_str!("shaders/raster_fwd.wgsl")),
+            backward: staged_kernel(d, "raster_bwd", include_str!("shaders/raster_bwd.wgsl")),
             project_bwd: kernel(d, "project_bwd", include_str!("shaders/project_bwd.wgsl")),
         }
     }

@@ -243,11 +243,6 @@ impl GpuStage1 {
         &self.gpu
     }
 
-    /// True once the run's iterations have run.
-    pub fn is_done(&self) -> bool {
-        self.host.is_done()
-    }
-
     /// One iteration. With `read`, the iteration's loss record comes back (one small read);
     /// otherwise its loss fields are NaN, unless the periodic read falls on it.
     pub fn step(&mut self, dataset: &Dataset, read: bool) -> Result<StepStats, GpuError> {
@@ -333,18 +328,20 @@ impl GpuStage1 {
             stats.loss = rec[7];
             self.last_read = it;
         }
+        // Densification and resets change the surfels on the host (the CPU's own code): bring
+        // them there first, and the new set back after. Otherwise only the SH degree and the
+        // half-size views change.
         if changes {
             self.sync()?;
-            stats.densify = self.host.finish(it);
+        }
+        stats.densify = self.host.finish(it);
+        if changes {
             let before = self.res.surf.n.max(1) as f64;
             self.res = Resident::upload(&self.gpu, &self.host)?;
             // The entry buffers follow the Gaussian count, their capacity in proportion.
             let grown = self.frame.capacity() as f64 * self.res.surf.n as f64 / before;
             self.frame = Frame::new(&self.gpu, self.res.surf.n, self.npx, self.tiles, grown.ceil() as u32)?;
             stats.num_gaussians = self.res.surf.n as usize;
-        } else {
-            // Only the SH degree and the half-size views change here.
-            stats.densify = self.host.finish(it);
         }
         if self.host.iteration >= self.host.config.half_res_until {
             self.half = None;
@@ -363,8 +360,10 @@ impl GpuStage1 {
         let tmp = storage(d, "loss record", RECORD as u64 * 4);
         enc.copy_buffer_to_buffer(&self.loss_bufs.ring, off, &tmp, 0, RECORD as u64 * 4);
         q.submit([enc.finish()]);
-        let rec = read_back::<f32>(d, q, &[(&tmp, RECORD)])?.remove(0);
-        let counters = read_back::<u32>(d, q, &[(&self.frame.count, COUNTERS)])?.remove(0);
+        // One wait for both (the record's floats read as their bits).
+        let mut r = read_back::<u32>(d, q, &[(&tmp, RECORD), (&self.frame.count, COUNTERS)])?;
+        let counters = r.pop().unwrap_or_default();
+        let rec: Vec<f32> = r.pop().unwrap_or_default().into_iter().map(f32::from_bits).collect();
         // Clear the running maximum and the overflow count (C_MAX, C_OVERFLOWS).
         q.write_buffer(&self.frame.count, 12, bytemuck::cast_slice(&[0u32, 0u32]));
         self.overflows += counters[4] as u64;

@@ -32,14 +32,7 @@ const VPIX: u32 = 9u;
 const DIM: u32 = 24u;
 const MAX_SUBGROUPS: u32 = 64u;
 
-var<workgroup> s_a: array<vec3<f32>, BATCH>;
-var<workgroup> s_bw: array<vec3<f32>, BATCH>;
-var<workgroup> s_b0: array<vec3<f32>, BATCH>;
-var<workgroup> s_hw: array<vec3<f32>, BATCH>;
-var<workgroup> s_co: array<vec4<f32>, BATCH>;
-var<workgroup> s_n: array<vec3<f32>, BATCH>;
-var<workgroup> s_col: array<vec3<f32>, BATCH>;
-var<workgroup> s_rect: array<vec4<u32>, BATCH>;
+// The batch arrays and `stage` are in stage.wgsl.
 var<workgroup> s_slot: array<u32, BATCH>;
 var<workgroup> partial: array<array<vec4<f32>, 6>, MAX_SUBGROUPS>;
 var<workgroup> max_n: atomic<u32>;
@@ -116,18 +109,7 @@ fn main(
             let e = r0 + le;
             let slot = tval[e];
             let g = egauss[slot];
-            let s = g * SPLAT;
-            let hu = vec3<f32>(splat[s], splat[s + 1u], splat[s + 2u]);
-            let hv = vec3<f32>(splat[s + 3u], splat[s + 4u], splat[s + 5u]);
-            let hw = vec3<f32>(splat[s + 6u], splat[s + 7u], splat[s + 8u]);
-            s_a[tid] = cross(hv, hw);
-            s_bw[tid] = cross(hu, hw);
-            s_b0[tid] = cross(hu, hv);
-            s_hw[tid] = hw;
-            s_co[tid] = vec4<f32>(splat[s + S_CENTER], splat[s + S_CENTER + 1u], splat[s + S_OPACITY], 0.0);
-            s_n[tid] = vec3<f32>(splat[s + S_NORMAL], splat[s + S_NORMAL + 1u], splat[s + S_NORMAL + 2u]);
-            s_col[tid] = vec3<f32>(splat[s + S_COLOR], splat[s + S_COLOR + 1u], splat[s + S_COLOR + 2u]);
-            s_rect[tid] = vec4<u32>(rect[g * 4u], rect[g * 4u + 1u], rect[g * 4u + 2u], rect[g * 4u + 3u]);
+            stage(tid, g);
             s_slot[tid] = slot;
         }
         workgroupBarrier();

@@ -22,15 +22,7 @@
 const BATCH: u32 = 128u;
 const PIX: u32 = 13u;
 
-var<workgroup> s_a: array<vec3<f32>, BATCH>;
-var<workgroup> s_bw: array<vec3<f32>, BATCH>;
-var<workgroup> s_b0: array<vec3<f32>, BATCH>;
-var<workgroup> s_hw: array<vec3<f32>, BATCH>;
-// centre x, y, opacity, unused
-var<workgroup> s_co: array<vec4<f32>, BATCH>;
-var<workgroup> s_n: array<vec3<f32>, BATCH>;
-var<workgroup> s_col: array<vec3<f32>, BATCH>;
-var<workgroup> s_rect: array<vec4<u32>, BATCH>;
+// The batch arrays and `stage` are in stage.wgsl.
 var<workgroup> done_count: atomic<u32>;
 
 // One-dimensional workgroups: subgroup built-ins need them.
@@ -77,18 +69,7 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
         let e = b0 + tid;
         if tid < BATCH && e < r1 {
             let g = egauss[tval[e]];
-            let s = g * SPLAT;
-            let hu = vec3<f32>(splat[s], splat[s + 1u], splat[s + 2u]);
-            let hv = vec3<f32>(splat[s + 3u], splat[s + 4u], splat[s + 5u]);
-            let hw = vec3<f32>(splat[s + 6u], splat[s + 7u], splat[s + 8u]);
-            s_a[tid] = cross(hv, hw);
-            s_bw[tid] = cross(hu, hw);
-            s_b0[tid] = cross(hu, hv);
-            s_hw[tid] = hw;
-            s_co[tid] = vec4<f32>(splat[s + S_CENTER], splat[s + S_CENTER + 1u], splat[s + S_OPACITY], 0.0);
-            s_n[tid] = vec3<f32>(splat[s + S_NORMAL], splat[s + S_NORMAL + 1u], splat[s + S_NORMAL + 2u]);
-            s_col[tid] = vec3<f32>(splat[s + S_COLOR], splat[s + S_COLOR + 1u], splat[s + S_COLOR + 2u]);
-            s_rect[tid] = vec4<u32>(rect[g * 4u], rect[g * 4u + 1u], rect[g * 4u + 2u], rect[g * 4u + 3u]);
+            stage(tid, g);
         }
         workgroupBarrier();
         let cnt = min(BATCH, r1 - b0);
