@@ -6,22 +6,21 @@
 #
 # Stage 1: STAGE1_ITERATIONS (env, default SPEC's 30000) from 20k random points, black background,
 #          densify every 100 until half way, opacity reset every 3000.
-# Stage 2: STAGE2_ITERATIONS (SPEC's schedule is 20000), relighting evaluated at K = 384.
-#          Options after `--` replace the defaults in STAGE2_DEFAULTS.
+# Stage 2: STAGE2_ITERATIONS (SPEC's schedule is 20000), relighting evaluated at K = 384, with
+#          `svgir inverse`'s measured profile (Stage2Config::for_profile, the one place its
+#          settings are resolved). Options after `--` are passed on (e.g. `-- --profile spec`).
 # Environment: SCENES="cup_and_ball suzanne_marble" restricts the scenes.
 #
 # Re-running with the same OUT continues: an interrupted stage resumes from its last checkpoint
 # and finished scenes are only re-tabulated. Use a new OUT for new settings.
 set -euo pipefail
-STAGE2_DEFAULTS=(--lights 4 --env-activation exp --sun-at 400 --rho-lr 0 --materials-from 500
-                 --diffuse layered --sun-search-views 4 --two-sided)
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 DATA="$ROOT/../shared/data/synthetic"
 OUT="${1:-runs/synthetic}"
 ITERS2="${2:-1500}"
 shift $(( $# < 2 ? $# : 2 ))
 [ "${1:-}" = "--" ] && shift
-[ $# -gt 0 ] || set -- "${STAGE2_DEFAULTS[@]}"
+[ $# -gt 0 ] || set -- --profile measured
 ITERS1="${STAGE1_ITERATIONS:-30000}"
 [ -d "$DATA" ] || { echo "error: $DATA not found (the shared data folder next to the checkout)" >&2; exit 1; }
 cargo build --release --manifest-path "$ROOT/Cargo.toml" -p svgir-cli

@@ -47,13 +47,14 @@ fn quick_demo_writes_a_report_with_metrics() {
     let eval: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(out.join("stage2/eval.json")).unwrap()).unwrap();
     let psnr = eval["nvs"]["psnr"].as_f64().expect("NVS PSNR present");
-    // Measured: NVS 11.0 dB, relighting 21.1, albedo 20.3 (the quick demo's 300 + 20 iterations);
-    // the floors leave 1.5 dB for other CPUs' SIMD paths.
-    assert!(psnr.is_finite() && psnr > 9.5, "NVS PSNR {psnr}");
+    // Measured (the quick demo's 300 + 20 iterations, stage 2 in the measured profile): NVS
+    // 11.64 dB, relighting 21.64, albedo 20.28, the same on the AVX2 and AVX-512 paths; the
+    // floors are 1 dB below. tests/quality.rs holds a longer run to 0.3 dB.
+    assert!(psnr.is_finite() && psnr > 10.6, "NVS PSNR {psnr}");
     let relit_mean = eval["relight"]["mean"]["psnr"].as_f64().expect("relighting PSNR present");
-    assert!(relit_mean > 19.5, "relighting PSNR {relit_mean}");
+    assert!(relit_mean > 20.6, "relighting PSNR {relit_mean}");
     let albedo = eval["albedo"]["psnr"].as_f64().expect("albedo PSNR present");
-    assert!(albedo > 18.5, "albedo PSNR {albedo}");
+    assert!(albedo > 19.3, "albedo PSNR {albedo}");
     assert!(eval["relight"]["per_light"]["night"]["psnr"].as_f64().is_some());
     assert!(out.join("stage2/envmap.hdr").exists() && out.join("point_cloud.ply").exists());
     assert!(out.join("stage2/test/test_000_albedo.exr").exists() && out.join("stage2/turntable").exists());
@@ -204,7 +205,10 @@ fn views_profile_train_resume_and_inverse_periods_of_zero() {
         .expect("runs");
     assert!(res.status.success(), "svgir inverse failed: {}", String::from_utf8_lossy(&res.stderr));
     let rows = std::fs::read_to_string(out.join("stage2/metrics.jsonl")).expect("metrics.jsonl");
-    assert_eq!(rows.lines().count(), 0, "{rows}");
+    // The measured profile gathers and searches the sun at iteration 1 of so short a run: that
+    // search's row is the only one.
+    assert_eq!(rows.lines().count(), 1, "{rows}");
+    assert!(rows.contains("\"sun_search\":{"), "{rows}");
     assert!(out.join("stage2/checkpoint.bin").exists() && out.join("stage2/eval.json").exists());
     let _ = std::fs::remove_dir_all(&out);
 }

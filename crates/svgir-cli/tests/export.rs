@@ -135,14 +135,14 @@ fn export_mesh_and_splats_from_the_quick_demo() {
         serde_json::from_slice(&std::fs::read(run.join("export/compare/compare.json")).unwrap()).unwrap();
     // The quick demo's model is too rough (and its light too bright) for a close match, so this
     // checks that the engine drew the object where relight does (camera, pose and scale), and
-    // that the images are comparable; the PSNR of a full run is in docs/experiments.md.
+    // that the images are comparable; the PSNR of a full run is in docs/export.md.
     let psnr = cmp["psnr_db"].as_f64().unwrap();
     let iou = cmp["silhouette_iou"].as_f64().unwrap();
-    // Measured: 12.12 dB and IoU 0.689 (the floors leave room for other CPUs' SIMD paths and
-    // Chromium's rasterizer).
+    // Measured: 12.84 dB and IoU 0.714 with stage 2 in the measured profile (the floors, about
+    // 1 dB and 0.07 below, leave room for Chromium's rasterizer).
     eprintln!("three.js vs relight: PSNR {psnr:.2} dB, silhouette IoU {iou:.3}");
-    assert!(psnr.is_finite() && psnr > 11.0, "three.js vs relight PSNR {psnr}");
-    assert!(iou > 0.62, "three.js and relight silhouettes overlap by IoU {iou}");
+    assert!(psnr.is_finite() && psnr > 11.8, "three.js vs relight PSNR {psnr}");
+    assert!(iou > 0.65, "three.js and relight silhouettes overlap by IoU {iou}");
     // The report shows both images side by side with the PSNR.
     assert!(svgir().arg("report").arg(&run).status().unwrap().success());
     let html = std::fs::read_to_string(run.join("report.html")).unwrap();

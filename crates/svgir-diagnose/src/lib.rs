@@ -1,6 +1,6 @@
 //! svgir-diagnose: research diagnostics of the svgir pipeline, one binary each, that compare our
 //! surfel pipeline with a scene's ground truth (its mesh, its true light). They are how the
-//! deliberate differences in `docs/method.md` were measured; `docs/experiments.md` gives each
+//! deliberate differences in `docs/method.md` were measured; `docs/diagnostics.md` gives each
 //! command and what it showed.
 //!
 //! - `light_visibility`: traced visibility of the brightest texels of a map, per Gaussian.

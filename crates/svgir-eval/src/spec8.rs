@@ -43,8 +43,16 @@ fn png(path: &Path, w: u32, h: u32, data: Vec<f32>) -> Result<()> {
     Ok(())
 }
 
+/// The mean metrics of `all` as JSON; without an LPIPS model its entry says so
+/// (`lpips_weights::NOT_COMPUTED`) instead of being left out.
 fn mean_json(all: &[ImageMetrics]) -> serde_json::Value {
-    ImageMetrics::mean(all).map_or(serde_json::Value::Null, |m| json!(m))
+    ImageMetrics::mean(all).map_or(serde_json::Value::Null, |m| {
+        let mut v = json!(m);
+        if m.lpips.is_none() {
+            v["lpips"] = json!(crate::lpips_weights::NOT_COMPUTED);
+        }
+        v
+    })
 }
 
 /// SPEC 8 on the test views: NVS, albedo (median-scaled), roughness MSE, normal MAE, relighting.

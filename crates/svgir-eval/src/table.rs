@@ -5,7 +5,9 @@ pub const TABLE_HEADER: &str = "| scene | NVS PSNR | albedo PSNR | roughness MSE
 
 /// One markdown row of [`TABLE_HEADER`] from an [`evaluate`](crate::spec8::evaluate) result.
 pub fn table_row(scene: &str, e: &serde_json::Value) -> String {
-    let num = |v: &serde_json::Value, prec: usize| v.as_f64().map_or("-".to_string(), |x| format!("{x:.prec$}"));
+    let num = |v: &serde_json::Value, prec: usize| {
+        v.as_f64().map_or_else(|| v.as_str().unwrap_or("-").to_string(), |x| format!("{x:.prec$}"))
+    };
     let r = &e["relight"]["mean"];
     let per = e["relight"]["per_light"]
         .as_object()
@@ -25,7 +27,9 @@ pub fn table_row(scene: &str, e: &serde_json::Value) -> String {
 
 /// The per-metric table of one [`evaluate`](crate::spec8::evaluate) result, for the terminal.
 pub fn metric_table(e: &serde_json::Value) -> String {
-    let num = |v: &serde_json::Value, prec: usize| v.as_f64().map_or("-".to_string(), |x| format!("{x:.prec$}"));
+    let num = |v: &serde_json::Value, prec: usize| {
+        v.as_f64().map_or_else(|| v.as_str().unwrap_or("-").to_string(), |x| format!("{x:.prec$}"))
+    };
     let line = |name: &str, m: &serde_json::Value| {
         format!("{name:<24} {:>8} {:>8} {:>8}\n", num(&m["psnr"], 3), num(&m["ssim"], 4), num(&m["lpips"], 4))
     };

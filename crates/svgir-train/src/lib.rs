@@ -21,4 +21,4 @@ pub mod stage2;
 
 pub use config::{BackgroundMode, NamedWeights, Profile, Stage1Config, ViewOrder};
 pub use stage1::{Stage1, StepStats};
-pub use stage2::{Stage2, Stage2Config};
+pub use stage2::{Stage2, Stage2Config, Stage2Profile};

@@ -144,10 +144,11 @@ pub fn run(args: BenchArgs) -> Result<()> {
         },
         Kernel::Pbr => svgir_pbr::bench::bench_table(threads),
         Kernel::Lpips => {
-            let vgg = svgir_eval::lpips_weights::default_lpips_weights(svgir_metrics::Net::Vgg)
-                .context("LPIPS VGG weights not found")?;
-            let alex = svgir_eval::lpips_weights::default_lpips_weights(svgir_metrics::Net::Alex)
-                .context("LPIPS Alex weights not found")?;
+            use svgir_eval::lpips_weights::{find_lpips_weights, HOW_TO_GET};
+            let find = |net| {
+                find_lpips_weights(net, None)?.with_context(|| format!("LPIPS {net:?} weights not found. {HOW_TO_GET}"))
+            };
+            let (vgg, alex) = (find(svgir_metrics::Net::Vgg)?, find(svgir_metrics::Net::Alex)?);
             svgir_metrics::lpips::bench_table(&std::fs::read(vgg)?, &std::fs::read(alex)?, threads)?
         }
         Kernel::Train => {

@@ -10,7 +10,7 @@ use anyhow::{bail, Context, Result};
 use clap::{Args, ValueEnum};
 use serde_json::json;
 use std::path::{Path, PathBuf};
-use svgir_eval::lpips_weights::default_lpips_weights;
+use svgir_eval::lpips_weights::{find_lpips_weights, HOW_TO_GET, NOT_COMPUTED};
 use svgir_eval::spec8::rgb;
 use svgir_metrics::{Shape, SsimVariant};
 
@@ -30,6 +30,27 @@ impl LpipsNet {
             LpipsNet::Alex => Some(svgir_metrics::Net::Alex),
             LpipsNet::None => None,
         }
+    }
+}
+
+/// `--lpips` and `--lpips-weights`, for every command that evaluates.
+#[derive(Args, Clone, Debug)]
+pub struct LpipsArgs {
+    /// LPIPS network of the evaluation (`none`: PSNR and SSIM only).
+    #[arg(long, value_enum, default_value_t = LpipsNet::Vgg)]
+    pub lpips: LpipsNet,
+    /// LPIPS v0.1 weights: a folder holding lpips_vgg_v0.1.safetensors and
+    /// lpips_alex_v0.1.safetensors, or one such file (default: $SVGIR_LPIPS_DIR, then
+    /// ../shared/data/lpips). `python3 tools/lpips_weights.py DIR` fetches them. Without them
+    /// LPIPS is "not computed".
+    #[arg(long, value_name = "DIR")]
+    pub lpips_weights: Option<PathBuf>,
+}
+
+impl LpipsArgs {
+    /// The network, or `None` with a warning when no weights were found and none were named.
+    pub fn load(&self) -> Result<Option<svgir_metrics::Lpips>> {
+        svgir_eval::load_lpips(self.lpips.net(), self.lpips_weights.as_deref())
     }
 }
 
@@ -64,12 +85,8 @@ pub struct EvalArgs {
     pub data: Option<PathBuf>,
     #[command(flatten)]
     pub relight: super::spec8::EvalRelightArgs,
-    /// LPIPS network (weights from --lpips-weights or ../shared/data/lpips).
-    #[arg(long, value_enum, default_value_t = LpipsNet::Vgg)]
-    pub lpips: LpipsNet,
-    /// LPIPS safetensors file.
-    #[arg(long)]
-    pub lpips_weights: Option<PathBuf>,
+    #[command(flatten)]
+    pub lpips: LpipsArgs,
     #[arg(long, value_enum, default_value_t = SsimKind::Padded)]
     pub ssim: SsimKind,
     /// Background for RGBA images, as r,g,b in `[0, 1]`.
@@ -140,7 +157,7 @@ fn scene_name(dir: &Path) -> String {
 
 /// SPEC 8 on each stage-2 run (or its saved `eval.json` with `--cached`).
 fn run_stage2(args: &EvalArgs, dirs: &[PathBuf]) -> Result<()> {
-    let lpips = if args.cached { None } else { svgir_eval::load_lpips(args.lpips.net())? };
+    let lpips = if args.cached { None } else { args.lpips.load()? };
     let sampling = args.relight.sampling();
     let mut rows = Vec::new();
     for dir in dirs {
@@ -207,13 +224,12 @@ pub fn run(args: EvalArgs) -> Result<()> {
         }
     }
     let pairs = pairs(&args)?;
-    let lpips = match args.lpips.net() {
+    // Image pairs: LPIPS was asked for, so missing weights are an error, not a silent gap.
+    let lpips = match args.lpips.lpips.net() {
         None => None,
         Some(net) => {
-            let path =
-                args.lpips_weights.clone().or_else(|| default_lpips_weights(net)).with_context(|| {
-                    "LPIPS weights not found: pass --lpips-weights FILE (or --lpips none)".to_string()
-                })?;
+            let path = find_lpips_weights(net, args.lpips.lpips_weights.as_deref())?
+                .with_context(|| format!("LPIPS weights not found (or pass --lpips none). {HOW_TO_GET}"))?;
             let bytes = std::fs::read(&path).with_context(|| format!("{}: cannot read", path.display()))?;
             Some(
                 svgir_metrics::lpips::Lpips::from_safetensors(&bytes, net)
@@ -254,10 +270,12 @@ pub fn run(args: EvalArgs) -> Result<()> {
         sp += psnr;
         ss += ssim;
         sl += lp.unwrap_or(0.0);
-        rows.push(json!({"image": name, "psnr": psnr, "ssim": ssim, "lpips": lp}));
+        rows.push(
+            json!({"image": name, "psnr": psnr, "ssim": ssim, "lpips": lp.map_or(json!(NOT_COMPUTED), |v| json!(v))}),
+        );
     }
     let n = pairs.len() as f64;
-    let mean = json!({"psnr": sp / n, "ssim": ss / n, "lpips": lpips.as_ref().map(|_| sl / n), "images": pairs.len()});
+    let mean = json!({"psnr": sp / n, "ssim": ss / n, "lpips": lpips.as_ref().map_or(json!(NOT_COMPUTED), |_| json!(sl / n)), "images": pairs.len()});
     println!(
         "{:<32} {:>8.3} {:>8.4} {:>8}",
         format!("mean of {}", pairs.len()),

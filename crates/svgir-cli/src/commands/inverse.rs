@@ -4,7 +4,6 @@
 //! raw materials), and `test/` images (PBR, albedo, roughness, normal, each relit light, with
 //! ground truth beside them).
 
-use super::eval::LpipsNet;
 use crate::progress;
 use anyhow::{Context, Result};
 use clap::Args;
@@ -14,8 +13,8 @@ use std::path::{Path, PathBuf};
 use svgir_core::{Dataset, LightInfo};
 use svgir_pbr::EnvActivation;
 use svgir_shading::Diffuse;
-use svgir_train::stage2::{Coverage, EnvInit, GreyLight, ShadeSets, Stage2Rates, Stage2Weights};
-use svgir_train::{checkpoint, Stage2, Stage2Config};
+use svgir_train::stage2::{Coverage, EnvInit, GreyLight, ShadeSets};
+use svgir_train::{checkpoint, Stage2, Stage2Config, Stage2Profile};
 
 #[derive(Args)]
 pub struct InverseArgs {
@@ -89,9 +88,8 @@ pub struct InverseArgs {
     /// Ablation: no radiance-consistency loss.
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub no_consistency: bool,
-    /// LPIPS network for the evaluation.
-    #[arg(long, value_enum, default_value_t = LpipsNet::Vgg)]
-    pub lpips: LpipsNet,
+    #[command(flatten)]
+    pub lpips: super::eval::LpipsArgs,
     /// Append training statistics to OUT/metrics.jsonl every this many iterations (0: only the
     /// sun searches' rows).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 25)]
@@ -350,77 +348,102 @@ pub enum InverseProfile {
     Spec,
 }
 
-/// L_rc's sample size in the measured profile: a quarter of the library default (8192), the loss
-/// then costs about 7 ms of a ~190 ms iteration on a 256 x 256 scene instead of 22, with the
-/// evaluation unchanged within the noise (docs/method.md).
-const MEASURED_CONSISTENCY_SAMPLES: usize = 2048;
-
-/// The measured profile shades a quarter of the directions per iteration only where that leaves
-/// at least this many (16 of SPEC 4's 64), for the first two thirds of the run: on cup_and_ball
-/// the evaluation stayed within the spread of two seeds of shading all 64 throughout, and on
-/// bowl_fruit_128 and suzanne_marble every metric rose, where 16 throughout lost 0.27 dB of
-/// albedo on cup and raised the roughness error by 13% (docs/method.md).
-const MEASURED_MIN_SHADE_DIRECTIONS: usize = 16;
-
-/// The (profile) settings after the profile's defaults and the user's options.
-struct Resolved {
-    rho_lr: f32,
-    materials_from: u64,
-    diffuse: DiffuseArg,
-    two_sided: bool,
-    lights: usize,
-    env_activation: EnvActivationArg,
-    sun_at: u64,
-    sun_search_views: usize,
-    sun_search_settled_deg: f32,
-    shade_min_weight: f32,
-    shade_sets: ShadeSets,
-    consistency_samples: usize,
-    shade_directions: Option<usize>,
-    shade_directions_until: u64,
-    gradient_directions: Option<usize>,
-}
-
-impl Resolved {
-    fn of(a: &InverseArgs) -> Self {
-        let m = a.profile == InverseProfile::Measured;
-        let shade_directions = a.shade_directions.or_else(|| {
-            let quarter = a.directions / 4;
-            (m && a.directions.is_multiple_of(4) && quarter >= MEASURED_MIN_SHADE_DIRECTIONS).then_some(quarter)
-        });
-        Self {
-            rho_lr: a.rho_lr.unwrap_or(if m { 0.0 } else { 0.01 }),
-            materials_from: a.materials_from.unwrap_or(if m { 500 } else { 0 }),
-            diffuse: a.diffuse.unwrap_or(if m { DiffuseArg::Layered } else { DiffuseArg::Added }),
-            two_sided: if a.one_sided { false } else { a.two_sided || m },
-            lights: a.lights.unwrap_or(if m { 4 } else { 0 }),
-            env_activation: a.env_activation.unwrap_or(if m {
-                EnvActivationArg::Exp
-            } else {
-                EnvActivationArg::Softplus
-            }),
-            sun_at: a.sun_at.unwrap_or(if m { 400 } else { 0 }),
-            sun_search_views: a.sun_search_views.unwrap_or(if m { 4 } else { 0 }),
-            sun_search_settled_deg: a.sun_search_settled.unwrap_or(if m { 1.0 } else { 0.0 }),
-            shade_min_weight: a.shade_min_weight.unwrap_or(if m { 0.01 } else { 0.0 }),
-            shade_sets: a
-                .shade_sets
-                .unwrap_or(if m { ShadeSetsArg::LastVisit } else { ShadeSetsArg::ThisRender })
-                .model(),
-            consistency_samples: a.consistency_samples.unwrap_or(if m {
-                MEASURED_CONSISTENCY_SAMPLES
-            } else {
-                Stage2Config::default().consistency_samples
-            }),
-            shade_directions,
-            shade_directions_until: a.shade_directions_until.unwrap_or(if m { a.iterations * 2 / 3 } else { 0 }),
-            gradient_directions: a.gradient_directions.or(if m {
-                shade_directions.filter(|s| s.is_multiple_of(4)).map(|s| s / 4)
-            } else {
-                None
-            }),
+impl InverseProfile {
+    pub fn model(self) -> Stage2Profile {
+        match self {
+            InverseProfile::Measured => Stage2Profile::Measured,
+            InverseProfile::Spec => Stage2Profile::Spec,
         }
     }
+}
+
+/// The run's configuration: the profile's (`Stage2Config::for_profile`), with every option the
+/// user gave applied over it.
+pub fn config_of(args: &InverseArgs) -> Result<Stage2Config> {
+    let profile = args.profile.model();
+    let mut c = Stage2Config::for_profile(profile, args.iterations, args.directions);
+    c.seed = args.seed;
+    c.vertices = args.vertices;
+    if let Some(s) = args.shade_directions {
+        c.shade_directions = Some(s);
+        c.gradient_directions = profile.gradient_directions(Some(s));
+    }
+    if let Some(g) = args.gradient_directions {
+        c.gradient_directions = Some(g);
+    }
+    if let Some(u) = args.shade_directions_until {
+        c.shade_directions_until = u;
+    }
+    c.visibility = !args.no_visibility;
+    c.indirect = !args.no_indirect;
+    c.consistency = !args.no_consistency;
+    c.env_init = match args.env_init {
+        EnvInitArg::Random => EnvInit::Random,
+        EnvInitArg::Uniform => EnvInit::Uniform,
+    };
+    if let Some(r) = args.rho_lr {
+        c.lr.rho = r;
+    }
+    c.lr.albedo = args.albedo_lr;
+    if args.train_true_light {
+        c.lr.env = 0.0;
+    }
+    if let Some(n) = args.lights {
+        c.lights = n;
+    }
+    c.lights_every = args.lights_every.max(1);
+    if let Some(a) = args.env_activation {
+        c.env_activation = match a {
+            EnvActivationArg::Softplus => EnvActivation::Softplus,
+            EnvActivationArg::Exp => EnvActivation::Exp,
+        };
+    }
+    c.trace_eps = args.trace_eps;
+    c.trace_eps_scale = args.trace_eps_scale;
+    c.trace_start_scale = args.trace_start_scale;
+    c.trace_visibility_cut = args.visibility_cut;
+    c.trace_visibility_alpha_gain = args.visibility_alpha_gain;
+    c.trace_radiance_sh_degree = args.traced_sh_degree;
+    c.trace_linear_radiance = args.traced_radiance == TracedRadianceArg::Linear;
+    if let Some(at) = args.sun_at {
+        c.sun_at = at;
+    }
+    c.sun_radius_deg = args.sun_radius;
+    if let Some(from) = args.materials_from {
+        c.materials_from = from;
+    }
+    c.env_lr_after_warm_up = args.env_lr_after_warm_up;
+    c.grey_light = args.grey_light.model();
+    c.light_colour_degree = args.light_colour_degree;
+    if let Some(d) = args.diffuse {
+        c.diffuse = d.model();
+    }
+    c.pbr_coverage = args.pbr_coverage.model();
+    if args.two_sided {
+        c.two_sided = true;
+    }
+    if args.one_sided {
+        c.two_sided = false;
+    }
+    if let Some(v) = args.sun_search_views {
+        c.sun_search_views = v;
+    }
+    c.sun_search_every = args.sun_search_every;
+    c.sun_search_cone_deg = args.sun_search_cone;
+    if let Some(d) = args.sun_search_settled {
+        c.sun_search_settled_deg = d;
+    }
+    if let Some(w) = args.shade_min_weight {
+        c.shade_min_weight = w;
+    }
+    if let Some(sets) = args.shade_sets {
+        c.shade_sets = sets.model();
+    }
+    if let Some(n) = args.consistency_samples {
+        c.consistency_samples = n;
+    }
+    c.weights = super::loss_weights_over(c.weights.clone(), &args.weights)?;
+    Ok(c)
 }
 
 pub fn run(args: InverseArgs) -> Result<()> {
@@ -475,61 +498,8 @@ pub fn run(args: InverseArgs) -> Result<()> {
     let out = args.out.clone().unwrap_or_else(|| args.run.join("stage2"));
     std::fs::create_dir_all(&out).with_context(|| format!("creating {}", out.display()))?;
 
-    let p = Resolved::of(&args);
     eprintln!("stage 2 profile: {:?}", args.profile);
-    let config = Stage2Config {
-        iterations: args.iterations,
-        seed: args.seed,
-        vertices: args.vertices,
-        directions: args.directions,
-        shade_directions: p.shade_directions,
-        shade_directions_until: p.shade_directions_until,
-        gradient_directions: p.gradient_directions,
-        visibility: !args.no_visibility,
-        indirect: !args.no_indirect,
-        consistency: !args.no_consistency,
-        env_init: match args.env_init {
-            EnvInitArg::Random => EnvInit::Random,
-            EnvInitArg::Uniform => EnvInit::Uniform,
-        },
-        lr: Stage2Rates {
-            rho: p.rho_lr,
-            albedo: args.albedo_lr,
-            env: if args.train_true_light { 0.0 } else { Stage2Rates::default().env },
-            ..Stage2Rates::default()
-        },
-        lights: p.lights,
-        lights_every: args.lights_every.max(1),
-        env_activation: match p.env_activation {
-            EnvActivationArg::Softplus => EnvActivation::Softplus,
-            EnvActivationArg::Exp => EnvActivation::Exp,
-        },
-        trace_eps: args.trace_eps,
-        trace_eps_scale: args.trace_eps_scale,
-        trace_start_scale: args.trace_start_scale,
-        trace_visibility_cut: args.visibility_cut,
-        trace_visibility_alpha_gain: args.visibility_alpha_gain,
-        trace_radiance_sh_degree: args.traced_sh_degree,
-        trace_linear_radiance: args.traced_radiance == TracedRadianceArg::Linear,
-        sun_at: p.sun_at,
-        sun_radius_deg: args.sun_radius,
-        materials_from: p.materials_from,
-        env_lr_after_warm_up: args.env_lr_after_warm_up,
-        grey_light: args.grey_light.model(),
-        light_colour_degree: args.light_colour_degree,
-        diffuse: p.diffuse.model(),
-        pbr_coverage: args.pbr_coverage.model(),
-        two_sided: p.two_sided,
-        sun_search_views: p.sun_search_views,
-        sun_search_every: args.sun_search_every,
-        sun_search_cone_deg: args.sun_search_cone,
-        sun_search_settled_deg: p.sun_search_settled_deg,
-        shade_min_weight: p.shade_min_weight,
-        shade_sets: p.shade_sets,
-        consistency_samples: p.consistency_samples,
-        weights: super::loss_weights::<Stage2Weights>(&args.weights)?,
-        ..Stage2Config::default()
-    };
+    let config = config_of(&args)?;
     if !args.resume {
         config.shade_stride().map_err(|e| anyhow::anyhow!("--shade-directions: {e}"))?;
     }
@@ -675,7 +645,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
     if args.oracle_light {
         set_true_light(&mut s2, &dataset, "--oracle-light")?;
     }
-    let lpips = svgir_eval::load_lpips(args.lpips.net())?;
+    let lpips = args.lpips.load()?;
     let sampling = args.relight.sampling();
     let eval = svgir_eval::evaluate(
         &s2,
@@ -834,6 +804,28 @@ mod tests {
         ds.train_light.as_mut().unwrap().envmap_path = Some(PathBuf::from("/data/noon.hdr"));
         let (light, path) = true_light(&ds, "--oracle-light").unwrap();
         assert_eq!((light.name.as_str(), path), ("noon", Path::new("/data/noon.hdr")));
+    }
+
+    /// `svgir inverse` starts from the library's profile and changes only what a flag names.
+    #[test]
+    fn config_is_the_profiles_with_the_flags_over_it() {
+        let args = |flags: &[&str]| {
+            let flags: Vec<String> = ["--run", "r"].iter().chain(flags).map(|s| s.to_string()).collect();
+            config_of(&super::super::args_of::<InverseArgs>("inverse", &flags).unwrap()).unwrap()
+        };
+        let json = |c: &Stage2Config| serde_json::to_value(c).unwrap();
+        let measured = Stage2Config::for_profile(Stage2Profile::Measured, 20_000, 64);
+        assert_eq!(json(&args(&[])), json(&measured));
+        let spec = Stage2Config::for_profile(Stage2Profile::Spec, 1500, 32);
+        assert_eq!(json(&args(&["--profile", "spec", "--iterations", "1500", "--directions", "32"])), json(&spec));
+        // The measured profile's gradient subset follows a given shaded subset; spec's does not.
+        let c = args(&["--shade-directions", "32"]);
+        assert_eq!((c.shade_directions, c.gradient_directions), (Some(32), Some(8)));
+        let c = args(&["--profile", "spec", "--shade-directions", "32"]);
+        assert_eq!((c.shade_directions, c.gradient_directions), (Some(32), None));
+        let c = args(&["--one-sided", "--materials-from", "7", "--rho-lr", "0.5", "--weight", "env_tv=0"]);
+        assert_eq!((c.two_sided, c.materials_from, c.lr.rho, c.weights.env_tv), (false, 7, 0.5, 0.0));
+        assert_eq!((c.sun_at, c.lights), (measured.sun_at, measured.lights));
     }
 
     /// The stretch is the last one with the final count and a running clock: rows before a

@@ -55,13 +55,8 @@ impl DataArgs {
     }
 }
 
-/// Loss weights at their defaults (SPEC 2 or SPEC 6), with each `NAME=VALUE` of `--weight`
-/// applied; a bad name or value is an error that names it.
-pub fn loss_weights<W: svgir_train::NamedWeights>(overrides: &[String]) -> anyhow::Result<W> {
-    loss_weights_over(W::default(), overrides)
-}
-
-/// `base` with the `--weight NAME=VALUE` overrides applied.
+/// `base` (a profile's loss weights) with each `NAME=VALUE` of `--weight` applied; a bad name or
+/// value is an error that names it.
 pub fn loss_weights_over<W: svgir_train::NamedWeights>(mut weights: W, overrides: &[String]) -> anyhow::Result<W> {
     use anyhow::Context;
     for item in overrides {
@@ -90,12 +85,13 @@ pub fn args_of<T: clap::Args>(command: &str, flags: &[String]) -> anyhow::Result
 
 #[cfg(test)]
 mod tests {
-    use super::loss_weights;
+    use super::loss_weights_over;
     use svgir_train::stage2::Stage2Weights;
 
     #[test]
     fn weight_overrides_apply_and_bad_ones_are_named() {
-        let w = loss_weights::<Stage2Weights>(&["smooth_albedo=0.5".into(), " env_tv = 0 ".into()]).unwrap();
+        let w =
+            loss_weights_over(Stage2Weights::default(), &["smooth_albedo=0.5".into(), " env_tv = 0 ".into()]).unwrap();
         assert_eq!((w.smooth_albedo, w.env_tv), (0.5, 0.0));
         assert_eq!(w.l1, 0.9);
         for (bad, says) in [
@@ -105,7 +101,7 @@ mod tests {
             ("l1=-1", ">= 0"),
             ("l1=NaN", "finite"),
         ] {
-            let err = format!("{:#}", loss_weights::<Stage2Weights>(&[bad.into()]).unwrap_err());
+            let err = format!("{:#}", loss_weights_over(Stage2Weights::default(), &[bad.into()]).unwrap_err());
             assert!(err.contains(says) && err.contains(bad), "{bad}: {err}");
         }
     }

@@ -100,6 +100,7 @@ fn flatten(prefix: &str, v: &Value, out: &mut Vec<(String, String)>) {
             a.iter().map(|x| x.as_f64().map_or(x.to_string(), |f| format!("{f:.3}"))).collect::<Vec<_>>().join(", "),
         )),
         Value::Null => {}
+        Value::String(text) => out.push((prefix.to_string(), text.clone())),
         other => out.push((prefix.to_string(), other.to_string())),
     }
 }
@@ -332,6 +333,15 @@ mod tests {
         assert_eq!(super::label("nvs.lpips"), "novel views: LPIPS");
         assert_eq!(super::label("normal_mae_deg"), "normal MAE (deg)");
         assert_eq!(super::label("ms_per_iteration.forward"), "time per iteration (ms): forward");
+    }
+
+    /// An evaluation without LPIPS weights says so in the report, as in eval.json.
+    #[test]
+    fn lpips_not_computed_is_shown() {
+        let mut rows = Vec::new();
+        let v = serde_json::json!({"nvs": {"psnr": 20.0, "lpips": svgir_eval::lpips_weights::NOT_COMPUTED}});
+        super::flatten("", &v, &mut rows);
+        assert!(rows.contains(&("nvs.lpips".to_string(), "not computed".to_string())), "{rows:?}");
     }
 
     #[test]

@@ -21,6 +21,7 @@
 
 mod config;
 pub mod objective;
+mod profile;
 mod render;
 mod sh_channels;
 mod shaded_set;
@@ -30,6 +31,7 @@ mod sun_search;
 pub use crate::composite::Coverage;
 pub use config::{EnvInit, GreyLight, Stage2Config, Stage2Rates, Stage2Weights, DEFAULT_TRACE_EPS};
 pub use objective::EXTRA_CHANNELS;
+pub use profile::{Stage2Profile, MEASURED_CONSISTENCY_SAMPLES, MEASURED_MIN_SHADE_DIRECTIONS};
 pub use render::{BackShading, PbrRender, Shading};
 pub use sun_search::{SunSchedule, SunSearch};
 
