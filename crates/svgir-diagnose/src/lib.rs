@@ -7,7 +7,7 @@
 //! - `microbuffer_stats`: how the traced micro-buffers' visibility is distributed.
 //! - `sun_probe`: where the learned light puts its sun against the true one.
 //! - `visibility_vs_mesh`: our surfel visibility against rays traced on the true mesh.
-//! - `shading_oracle`: SPEC 4's shading on the true mesh and materials, against the photos.
+//! - `gt_shading`: SPEC 4's shading on the true mesh and materials, against the photos.
 //! - `nerf_normals`: a stage-1 run's normals on the NeRF-synthetic test views, where their
 //!   clipped normal pass still holds the true normal.
 //!

@@ -8,7 +8,7 @@
 //! A given map is used as is: its radiance is not clamped at SPEC 4's 64, which bounds the
 //! *learned* map during training. A measured HDR sun reaches thousands (the noon_grass map of
 //! the synthetic scenes: 2815 in a 32x64 texel, more than half of the map's power), and
-//! clamping it removes most of the light (the shading oracle example shows a 2-4x darker
+//! clamping it removes most of the light (the `gt_shading` diagnostic shows a 2-4x darker
 //! shading under the training light).
 //!
 //! The new map's brightest texels become directional lights with traced visibility, in the

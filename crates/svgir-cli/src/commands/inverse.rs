@@ -30,23 +30,23 @@ pub struct InverseArgs {
     /// Diagnostic: before the evaluation, replace the learned albedo and roughness by the
     /// ground truth of the training views projected onto each Gaussian (the relighting ceiling
     /// of this geometry and shading with perfect materials). Not a result: it reads ground truth.
-    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
-    pub oracle_materials: bool,
-    /// With --oracle-materials: passes over the training views fitting the vertex materials to
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, alias = "oracle-materials")]
+    pub gt_materials: bool,
+    /// With --gt-materials: passes over the training views fitting the vertex materials to
     /// the ground-truth maps through the rasteriser after the per-Gaussian projection (0: the
     /// projection alone, constant per Gaussian).
-    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 6)]
-    pub oracle_fit_epochs: usize,
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, alias = "oracle-fit-epochs", default_value_t = 6)]
+    pub gt_fit_epochs: usize,
     /// Diagnostic: before the evaluation, replace the learned light by the dataset's training
     /// light (its brightest texels as directional lights when --lights > 0), so NVS measures
     /// the model under the true light. Not a result: it reads ground truth.
-    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
-    pub oracle_light: bool,
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, alias = "oracle-light")]
+    pub gt_light: bool,
     /// Diagnostic: train the materials under the dataset's true training light, held fixed
     /// (its brightest texels as directional lights when --lights > 0): how well the materials
     /// are recovered when the light is known. Not a result: it reads ground truth.
-    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
-    pub train_true_light: bool,
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, alias = "train-true-light")]
+    pub train_gt_light: bool,
     /// Seed of every random choice (recorded in the run's config.json).
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
@@ -385,7 +385,7 @@ pub fn config_of(args: &InverseArgs) -> Result<Stage2Config> {
         c.lr.rho = r;
     }
     c.lr.albedo = args.albedo_lr;
-    if args.train_true_light {
+    if args.train_gt_light {
         c.lr.env = 0.0;
     }
     if let Some(n) = args.lights {
@@ -490,7 +490,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         );
     }
     // Checked before the micro-buffers are traced and stage 2 trains, not after.
-    for (given, flag) in [(args.train_true_light, "--train-true-light"), (args.oracle_light, "--oracle-light")] {
+    for (given, flag) in [(args.train_gt_light, "--train-gt-light"), (args.gt_light, "--gt-light")] {
         if given {
             true_light(&dataset, flag)?;
         }
@@ -545,8 +545,8 @@ pub fn run(args: InverseArgs) -> Result<()> {
         eprintln!("stage 2: tracing {} Gaussians x {} directions...", stage1.surfels.len(), config.directions);
         let mut s2 = Stage2::new(config, stage1.surfels.clone(), &dataset)?;
         eprintln!("micro-buffers traced in {:.1} s", s2.trace_seconds);
-        if args.train_true_light {
-            set_true_light(&mut s2, &dataset, "--train-true-light")?;
+        if args.train_gt_light {
+            set_true_light(&mut s2, &dataset, "--train-gt-light")?;
         }
         s2
     };
@@ -627,23 +627,23 @@ pub fn run(args: InverseArgs) -> Result<()> {
         }
     }
     checkpoint::save_stage2(&s2, &ckpt)?;
-    if args.oracle_materials {
-        let st = svgir_train::oracle_materials::apply(&mut s2, &dataset)?;
+    if args.gt_materials {
+        let st = svgir_train::gt_materials::apply(&mut s2, &dataset)?;
         eprintln!(
             "oracle materials: ground truth from {} training views on {} of {} Gaussians",
             st.views, st.assigned, st.total
         );
-        anyhow::ensure!(st.views > 0, "--oracle-materials: the training views have no albedo/roughness maps");
-        if args.oracle_fit_epochs > 0 {
-            let loss = svgir_train::oracle_materials::fit(&mut s2, &dataset, args.oracle_fit_epochs)?;
+        anyhow::ensure!(st.views > 0, "--gt-materials: the training views have no albedo/roughness maps");
+        if args.gt_fit_epochs > 0 {
+            let loss = svgir_train::gt_materials::fit(&mut s2, &dataset, args.gt_fit_epochs)?;
             eprintln!(
                 "oracle materials: fitted to the training views' maps, {} epochs, last loss {loss:.5}",
-                args.oracle_fit_epochs
+                args.gt_fit_epochs
             );
         }
     }
-    if args.oracle_light {
-        set_true_light(&mut s2, &dataset, "--oracle-light")?;
+    if args.gt_light {
+        set_true_light(&mut s2, &dataset, "--gt-light")?;
     }
     let lpips = args.lpips.load()?;
     let sampling = args.relight.sampling();
@@ -732,7 +732,7 @@ fn stage1_final_ms(run: &Path) -> Option<Stage1Final> {
 }
 
 /// The dataset's training light and its map, for the diagnostic `flag` that asked for them
-/// (`--oracle-light` or `--train-true-light`, named in the error).
+/// (`--gt-light` or `--train-gt-light`, named in the error).
 fn true_light<'a>(dataset: &'a Dataset, flag: &str) -> Result<(&'a LightInfo, &'a Path)> {
     let root = dataset.root.display();
     let light = dataset.train_light.as_ref().with_context(|| format!("{flag}: {root} names no training light"))?;
@@ -793,17 +793,29 @@ mod tests {
             masks: Default::default(),
             world_rotation: glam::Mat3::IDENTITY,
         };
-        for flag in ["--train-true-light", "--oracle-light"] {
-            let other = if flag == "--oracle-light" { "--train-true-light" } else { "--oracle-light" };
+        for flag in ["--train-gt-light", "--gt-light"] {
+            let other = if flag == "--gt-light" { "--train-gt-light" } else { "--gt-light" };
             let err = format!("{:#}", true_light(&ds, flag).unwrap_err());
             assert!(err.starts_with(flag) && !err.contains(other) && err.contains("/data/scene_x"), "{err}");
         }
         ds.train_light = Some(LightInfo { name: "noon".into(), envmap_path: None, strength: 1.0 });
-        let err = format!("{:#}", true_light(&ds, "--train-true-light").unwrap_err());
-        assert!(err.starts_with("--train-true-light") && err.contains("\"noon\""), "{err}");
+        let err = format!("{:#}", true_light(&ds, "--train-gt-light").unwrap_err());
+        assert!(err.starts_with("--train-gt-light") && err.contains("\"noon\""), "{err}");
         ds.train_light.as_mut().unwrap().envmap_path = Some(PathBuf::from("/data/noon.hdr"));
-        let (light, path) = true_light(&ds, "--oracle-light").unwrap();
+        let (light, path) = true_light(&ds, "--gt-light").unwrap();
         assert_eq!((light.name.as_str(), path), ("noon", Path::new("/data/noon.hdr")));
+    }
+
+    /// The ground-truth switches' old names still parse, hidden from the help.
+    #[test]
+    fn ground_truth_switches_keep_their_old_names() {
+        let flags: Vec<String> = ["--run", "r", "--oracle-materials", "--oracle-fit-epochs", "2", "--oracle-light"]
+            .iter()
+            .chain(&["--train-true-light"])
+            .map(|s| s.to_string())
+            .collect();
+        let a = super::super::args_of::<InverseArgs>("inverse", &flags).unwrap();
+        assert!(a.gt_materials && a.gt_light && a.train_gt_light && a.gt_fit_epochs == 2);
     }
 
     /// `svgir inverse` starts from the library's profile and changes only what a flag names.

@@ -307,7 +307,7 @@ fn default_sun_radius_deg() -> f32 {
 /// anyway, so no offset is needed against re-hits. Measured on cup_and_ball with ground-truth
 /// materials and light (relighting K = 128): relighting 23.1 -> 25.6 dB, and the render without
 /// indirect light becomes as dark as with visibility against the true mesh (GT/ours 1.14-1.20
-/// against the mesh oracle's 1.16-1.20), where 0.05 left it at 0.96-0.99.
+/// against visibility traced on the true mesh, 1.16-1.20), where 0.05 left it at 0.96-0.99.
 pub const DEFAULT_TRACE_EPS: f32 = 1e-4;
 
 fn default_lights_every() -> u64 {

@@ -1,4 +1,4 @@
-//! The oracle materials (`svgir inverse --oracle-materials`): a diagnostic that replaces the learned albedo and
+//! The ground-truth materials (`svgir inverse --gt-materials`): a diagnostic that replaces the learned albedo and
 //! roughness by the dataset's ground truth before the evaluation, so the relighting scores
 //! measure our geometry, visibility, one-bounce indirect and shading with perfect materials: the
 //! ceiling of the relighting pipeline on that scene, to compare with the learned materials.

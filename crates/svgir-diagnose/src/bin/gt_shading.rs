@@ -1,10 +1,10 @@
-//! Shading oracle: renders every covered pixel of a synthetic scene's test views from the
+//! Ground-truth shading: renders every covered pixel of a synthetic scene's test views from the
 //! GROUND-TRUTH albedo, roughness and normal maps under the ground-truth lights with our own BRDF
 //! (SPEC 4, `svgir_shading::brdf`) and our environment-map code (`EnvMap`, SPEC 4 grid,
 //! `read_envmap` with the dataset's strength), then compares with the Cycles images (SPEC 8).
 //!
 //! Why: stage 2 can only reach the ground truth if our shading model and conventions can
-//! reproduce it. If this oracle is far from the Cycles images, a convention is wrong (env-map
+//! reproduce it. If this render is far from the Cycles images, a convention is wrong (env-map
 //! direction, strength, sRGB, albedo or normal encoding, F0, 1/pi, integration); if it is close,
 //! the gap is in the optimisation.
 //!
@@ -29,7 +29,7 @@
 //! `--variants` tries env-lookup transforms (rotations about z, mirrors, y-up) and strength off
 //! with V = 1 (`--variants-vis`: with V = mesh and GT indirect).
 //!
-//! Usage: `shading_oracle DATA [OUT=/tmp/oracle] [--every N] [--diff-h H] [--spec-h H]
+//! Usage: `gt_shading DATA [OUT=/tmp/gt_shading] [--every N] [--diff-h H] [--spec-h H]
 //!         [--spec M] [--no-vis] [--variants | --variants-vis] [--no-png] [--no-k] [--bright R] [--max-bright N]`
 
 use anyhow::{Context, Result};
@@ -467,7 +467,7 @@ fn psnr(se: f64, n: f64) -> f64 {
 }
 
 impl Stats {
-    /// Adds one view; `lin` is the oracle's linear radiance per pixel (RGB), `gt` RGBA straight.
+    /// Adds one view; `lin` is the ground-truth shading's linear radiance per pixel (RGB), `gt` RGBA straight.
     fn add(&mut self, lin: &[f32], gt: &Image, covered: &[bool]) {
         let (mut vse, mut vn) = (0.0, 0.0);
         for i in 0..gt.pixel_count() {
@@ -509,7 +509,7 @@ impl Stats {
     fn line(&self) -> String {
         let r = [0, 1, 2].map(|c| self.gt_lin[c] / self.or_lin[c].max(1e-12));
         format!(
-            "fg {:6.2} | full {:6.2} | eval-relit-style {:6.2} | eval-nvs-style {:6.2} | GT/oracle {:.3} {:.3} {:.3} | worst view fg {:5.2}",
+            "fg {:6.2} | full {:6.2} | eval-relit-style {:6.2} | eval-nvs-style {:6.2} | GT/ours {:.3} {:.3} {:.3} | worst view fg {:5.2}",
             psnr(self.fg_se, self.fg_n),
             psnr(self.full_se, self.full_n),
             psnr(self.relit_eval_se, self.full_n),
@@ -605,7 +605,7 @@ struct Args {
 fn parse_args() -> Result<Args> {
     let mut a = Args {
         data: PathBuf::new(),
-        out: PathBuf::from("/tmp/oracle"),
+        out: PathBuf::from("/tmp/gt_shading"),
         every: 1,
         diff_h: 32,
         spec_h: 256,
@@ -638,7 +638,7 @@ fn parse_args() -> Result<Args> {
             _ => pos.push(s),
         }
     }
-    a.data = PathBuf::from(pos.first().context("usage: shading_oracle DATA [OUT] [options]")?);
+    a.data = PathBuf::from(pos.first().context("usage: gt_shading DATA [OUT] [options]")?);
     if let Some(o) = pos.get(1) {
         a.out = PathBuf::from(o);
     }
