@@ -77,25 +77,41 @@ fn max_err(a: &[f64], b: &[f64]) -> f64 {
     a.iter().zip(b).fold(0.0, |m, (x, y)| m.max((x - y).abs()))
 }
 
-/// The SIMD gradients are as close to the f64 oracle as the scalar f32 ones: per array,
-/// `max |simd - f64| <= 2 max |scalar - f64| + 5e-4 max |f64|`. (Per element the two f32 paths
-/// can differ by far more than their own size where a gradient is a sum that cancels, e.g. the
-/// scale gradient of a splat whose terms are a million times larger than their sum; both are
-/// then f32 noise around the f64 value, and which path lands nearer is luck: seed 12's
-/// log-scale gradients were 2.6e-6 (SIMD) and 4.7e-6 (scalar) from f64 with one exact form of
-/// the hit plane and 5.6e-6 / 2.3e-6 with another, a largest gradient of 5.4e-2; with the
-/// exponential in Estrin's form, one of seed 17's is 5.3e-5 (SIMD) and -1.3e-5 (scalar) where
-/// f64 gives 1e-14, a largest gradient of 0.127. A wrong gradient is off by a sizeable part of
-/// the largest one.)
+/// The SIMD gradients are as close to the f64 oracle as the scalar f32 ones, with a bound made
+/// of the scalar path's own errors: per array, `max |simd - f64| <= 2 e + 4 r s`, where `e` is
+/// the scalar path's largest error in that array, `s` the array's largest f64 gradient and `r`
+/// the scalar path's worst relative error `e / s` over all the scene's arrays.
+///
+/// Why the `r s` term: per element the two f32 paths can differ by far more than their own size
+/// where a gradient is a sum that cancels (the scale gradient of a splat whose terms are a
+/// million times larger than their sum). Both are then f32 noise around the f64 value, and
+/// which path lands nearer is luck (seed 17: one log-scale gradient is 5.3e-5 on the SIMD path
+/// and -1.3e-5 on the scalar one where f64 gives 1e-14, a largest gradient of 0.127). How large
+/// that noise gets relative to the gradients is what the scalar path shows on its worst array,
+/// so the floor is measured, not chosen; r is 0.9e-4 to 1.6e-3 on the scenes below. The closest
+/// any array comes to its bound is seed 17's log scales, at two thirds of it (SIMD 4.0x the
+/// scalar path's error there). A wrong gradient is off by a sizeable part of the largest one,
+/// orders of magnitude above the bound.
 fn same_grads(what: &str, simd: &Grads, scalar: &Grads, exact: &GradsOf<f64>) {
-    for ((name, a), (b, c)) in
-        grad_arrays(simd).iter().zip(grad_arrays(scalar).iter().map(|x| &x.1).zip(grad_arrays64(exact)))
-    {
-        let scale = c.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-        let (e_simd, e_scalar) = (max_err(a, &c), max_err(b, &c));
+    let arrays: Vec<(&str, Vec<f64>, Vec<f64>, Vec<f64>)> = grad_arrays(simd)
+        .into_iter()
+        .zip(grad_arrays(scalar))
+        .zip(grad_arrays64(exact))
+        .map(|(((name, a), (_, b)), c)| (name, a, b, c))
+        .collect();
+    let scale = |c: &[f64]| c.iter().fold(0.0f64, |m, v| m.max(v.abs()));
+    let worst_relative = arrays
+        .iter()
+        .map(|(_, _, b, c)| (max_err(b, c), scale(c)))
+        .filter(|&(_, s)| s > 0.0)
+        .fold(0.0f64, |r, (e, s)| r.max(e / s));
+    for (name, a, b, c) in &arrays {
+        let (e_simd, e_scalar, s) = (max_err(a, c), max_err(b, c), scale(c));
+        let bound = 2.0 * e_scalar + 4.0 * worst_relative * s;
         assert!(
-            e_simd <= 2.0 * e_scalar + 5e-4 * scale,
-            "{what}: {name}: SIMD is {e_simd:.3e} from f64, scalar f32 {e_scalar:.3e} (largest gradient {scale:.3e})"
+            e_simd <= bound,
+            "{what}: {name}: SIMD is {e_simd:.3e} from f64, above {bound:.3e} (scalar f32 {e_scalar:.3e}, largest \
+             gradient {s:.3e}, the scalar path's worst relative error {worst_relative:.2e})"
         );
     }
 }
