@@ -93,7 +93,9 @@ fn max_err(a: &[f64], b: &[f64]) -> f64 {
 /// scalar path's error there). A wrong gradient is off by a sizeable part of the largest one,
 /// orders of magnitude above the bound.
 fn same_grads(what: &str, simd: &Grads, scalar: &Grads, exact: &GradsOf<f64>) {
-    let arrays: Vec<(&str, Vec<f64>, Vec<f64>, Vec<f64>)> = grad_arrays(simd)
+    // (name, SIMD, scalar f32, f64) per gradient array.
+    type Arrays<'a> = Vec<(&'a str, Vec<f64>, Vec<f64>, Vec<f64>)>;
+    let arrays: Arrays = grad_arrays(simd)
         .into_iter()
         .zip(grad_arrays(scalar))
         .zip(grad_arrays64(exact))
