@@ -7,7 +7,7 @@ use crate::buffers::read_back;
 use crate::device::{Gpu, GpuError};
 use crate::raster::{Frame, GpuRaster, Params, SurfelBuffers, COUNTERS, VPIX};
 use std::time::Instant;
-use svgir_raster::bench::{bench_camera, random_scene};
+use svgir_raster::fixtures::{bench_camera, random_scene};
 use svgir_raster::RasterConfig;
 
 fn wait(gpu: &Gpu) -> Result<(), GpuError> {

@@ -15,6 +15,8 @@
 //! keep apart, and a run's gradients are the same at every run, as on the CPU (SPEC 9.4).
 //! Nothing is read back per iteration: the entry count stays on the GPU (see `raster`).
 
+/// Timing tables for `svgir bench` (feature `bench`).
+#[cfg(feature = "bench")]
 pub mod bench;
 pub mod buffers;
 pub mod device;

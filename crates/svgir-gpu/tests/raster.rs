@@ -9,7 +9,7 @@ use svgir_gpu::{Gpu, GpuRaster};
 
 mod common;
 use common::gpu;
-use svgir_raster::bench::{look_at_camera, random_scene};
+use svgir_raster::fixtures::{look_at_camera, random_scene};
 use svgir_raster::{Background, ColorSource, OutputGrads, RasterConfig, RenderInput, Simd};
 
 /// Random Gaussians on a unit sphere (svgir-raster's bench scene, larger splats) and a few

@@ -7,7 +7,7 @@ use common::gpu;
 use glam::Vec3;
 use svgir_core::{Image, Rng};
 use svgir_gpu::testing::{adam_step, stage1_loss, LossInput};
-use svgir_raster::bench::{look_at_camera, random_scene};
+use svgir_raster::fixtures::{look_at_camera, random_scene};
 use svgir_raster::{Background, ColorSource, RasterConfig, RenderInput};
 use svgir_train::adam::AdamGroup;
 use svgir_train::losses::objective::{stage1_objective, ObjectiveInput, ObjectiveTarget};

@@ -26,7 +26,9 @@ pub mod ssim_backward;
 
 pub use error::{MetricsError, Result};
 pub use geometry::{apply_albedo_scale, normal_error_map, AlbedoScale, NormalMae};
-pub use lpips::{bench_table, Lpips, LpipsDistance, Net};
+#[cfg(feature = "bench")]
+pub use lpips::bench_table;
+pub use lpips::{Lpips, LpipsDistance, Net};
 pub use psnr::{mse, mse_to_psnr, psnr};
 pub use real::Real;
 pub use ssim::{ssim, ssim_image, Shape, SsimVariant};

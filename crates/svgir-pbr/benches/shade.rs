@@ -2,7 +2,7 @@
 //! micro-buffer, all visible, traced indirect), forward and backward, without and with the
 //! direction cache, on the default rayon pool.
 
-use svgir_pbr::bench::Problem;
+use svgir_pbr::fixtures::Problem;
 use svgir_pbr::{
     shade, shade_backward, shade_backward_cached, shade_into_cached, DirectionCache, ShadeInputs, ShadeOutput,
 };

@@ -2,7 +2,7 @@
 //! `cargo run --release -p svgir-pbr --example pbr_profile [N] [reps] [cached|plain] [fwd]` (M = 4, K = 64);
 //! the difference of two rep counts isolates the shading from the set-up.
 
-use svgir_pbr::bench::Problem;
+use svgir_pbr::fixtures::Problem;
 use svgir_pbr::{shade_backward_cached, shade_into_cached, DirectionCache, ShadeOutput};
 
 fn main() {

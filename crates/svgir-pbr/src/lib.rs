@@ -33,10 +33,13 @@
 #![cfg_attr(not(target_arch = "x86_64"), allow(dead_code, unused_variables, unused_mut))]
 
 pub mod activation;
+/// Timing tables for `svgir bench` (feature `bench`).
+#[cfg(feature = "bench")]
 pub mod bench;
 pub mod consistency;
 pub mod env;
 pub mod env_colour;
+pub mod fixtures;
 pub mod grads;
 pub mod material;
 #[cfg(target_arch = "x86_64")]

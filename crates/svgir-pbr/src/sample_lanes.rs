@@ -393,7 +393,7 @@ unsafe fn half_lanes(h: __m256i) -> __m256 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bench::{synthetic_materials, synthetic_microbuffer, synthetic_positions};
+    use crate::fixtures::{synthetic_materials, synthetic_microbuffer, synthetic_positions};
     use crate::shade::{sample, ShadeParams};
     use crate::EnvLight;
     use glam::Vec3;

@@ -4,7 +4,7 @@
 
 use glam::Vec3;
 use svgir_core::{EnvMap, Rng};
-use svgir_pbr::bench::synthetic_materials;
+use svgir_pbr::fixtures::synthetic_materials;
 use svgir_pbr::{
     activate, env_radiance, l1_loss, mirror_pick, radiance_consistency, radiance_consistency_backward,
     radiance_consistency_with_grad, select_pairs, ConsistencyInputs, EnvLight, SvgMaterials,

@@ -4,7 +4,7 @@
 
 use glam::Vec3;
 use svgir_core::{EnvMap, Rng};
-use svgir_pbr::bench::{synthetic_materials, synthetic_microbuffer, synthetic_positions};
+use svgir_pbr::fixtures::{synthetic_materials, synthetic_microbuffer, synthetic_positions};
 use svgir_pbr::{
     activate, activate_backward, env_radiance, env_radiance_backward, negated, shade, shade_backward,
     shade_backward_cached, shade_into_cached, shade_sides_backward, shade_sides_into, split_by_side, DirectionCache,

@@ -6,7 +6,7 @@
 use glam::Vec3;
 use svgir_core::simd::Simd;
 use svgir_core::{EnvMap, Rng};
-use svgir_pbr::bench::{synthetic_materials, synthetic_microbuffer, synthetic_positions};
+use svgir_pbr::fixtures::{synthetic_materials, synthetic_microbuffer, synthetic_positions};
 use svgir_pbr::{
     shade_backward_cached, shade_into_cached, DirectionCache, EnvLight, Indirect, PbrGrads, ShadeInputs, ShadeOutput,
     ShadeParams,

@@ -2,7 +2,7 @@
 //! `svgir_raster::bench` (SH degree 3, all auxiliary outputs). Run with
 //! `cargo bench -p svgir-raster`; thread count is rayon's default (RAYON_NUM_THREADS).
 
-use svgir_raster::bench::Problem;
+use svgir_raster::fixtures::Problem;
 use svgir_raster::{backward, render, RasterConfig};
 
 fn main() {

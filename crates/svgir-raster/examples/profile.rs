@@ -2,7 +2,7 @@
 //!
 //! `profile [REPS] [PLY DATASET]`: the benchmark's random scene (100k Gaussians, 400x400), or a
 //! trained scene (a 3DGS-layout PLY) seen from the first test camera of DATASET.
-use svgir_raster::bench::Problem;
+use svgir_raster::fixtures::Problem;
 use svgir_raster::{backward, render, ColorSource, RasterConfig};
 
 fn main() {

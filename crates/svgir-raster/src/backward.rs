@@ -699,7 +699,7 @@ fn backward_tile_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
 
 #[cfg(test)]
 mod tests {
-    use crate::bench::{random_scene, Problem};
+    use crate::fixtures::{random_scene, Problem};
     use crate::simd::Simd;
     use crate::{backward, render, Grads, RasterConfig};
 

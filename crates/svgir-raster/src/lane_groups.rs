@@ -348,7 +348,7 @@ impl Groups {
 #[cfg(all(test, target_arch = "x86_64"))]
 mod tests {
     use super::*;
-    use crate::bench::Problem;
+    use crate::fixtures::Problem;
     use crate::preprocess::{preprocess, Cam};
     use crate::simd::F8;
     use crate::tiles::{bin, gather_records};

@@ -20,7 +20,10 @@
 
 pub mod backward;
 mod backward_simd;
+/// Timing tables for `svgir bench` (reads `/proc` and the clock).
+#[cfg(feature = "bench")]
 pub mod bench;
+pub mod fixtures;
 pub mod forward;
 mod forward_simd;
 pub mod interp;
@@ -40,6 +43,7 @@ use rayon::prelude::*;
 use svgir_core::{Camera, ShCoeffs, Surfels};
 
 pub use backward::backward_generic;
+#[cfg(feature = "bench")]
 pub use bench::bench_table;
 pub use forward::render_generic;
 pub use phases::PhaseTimes;

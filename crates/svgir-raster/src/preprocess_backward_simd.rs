@@ -422,7 +422,7 @@ unsafe fn sh_basis_grad<S: Lanes>(d: [S; 3]) -> [[S; 3]; 16] {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::bench::{bench_camera, random_scene};
+    use crate::fixtures::{bench_camera, random_scene};
     use crate::preprocess::preprocess;
     use crate::preprocess::{assume_init, uninit_vec};
     use crate::preprocess_backward::{gaussian_backward, SplatGradSum};

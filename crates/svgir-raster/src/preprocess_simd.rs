@@ -413,7 +413,7 @@ fn sh_basis(d: [V<f32>; 3]) -> [V<f32>; 16] {
 
 #[cfg(test)]
 mod tests {
-    use crate::bench::{bench_camera, random_scene};
+    use crate::fixtures::{bench_camera, random_scene};
     use crate::preprocess::{preprocess, Cam};
     use crate::{ColorSourceOf, RasterConfig, Simd};
     use glam::{Quat, Vec2, Vec3};

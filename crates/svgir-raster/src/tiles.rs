@@ -466,7 +466,7 @@ mod tests {
     #[test]
     fn scattered_records_match_the_gather() {
         use crate::preprocess::{preprocess, Cam};
-        let p = crate::bench::Problem::new(3000, 96);
+        let p = crate::fixtures::Problem::new(3000, 96);
         let input = p.input();
         let cfg = crate::RasterConfig::default();
         let cam = Cam::<f32>::new(input.camera);

@@ -10,7 +10,7 @@ mod common;
 
 use common::P64;
 use svgir_core::{Camera, Surfels};
-use svgir_raster::bench::{bench_camera, random_scene};
+use svgir_raster::fixtures::{bench_camera, random_scene};
 use svgir_raster::{
     backward, backward_generic, render, render_generic, Background, BackgroundOf, ColorSourceOf, FeaturesOf, Grads,
     GradsOf, OutputGrads, OutputGradsOf, RasterConfig, RasterError, RenderInput, RenderInputOf, RenderOutput, Simd,

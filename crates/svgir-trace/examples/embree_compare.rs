@@ -9,8 +9,8 @@
 use rayon::prelude::*;
 use std::io::Write;
 use std::time::Instant;
-use svgir_trace::bench::rays_for;
 use svgir_trace::scenes::object_scene;
+use svgir_trace::scenes::rays_for;
 use svgir_trace::{disks_of, Bvh, HitSource, TraceParams};
 
 fn main() -> Result<(), Box<dyn std::error::Error>> {

@@ -4,29 +4,12 @@
 //! [`crate::scenes::object_scene`] scenes of 10k / 100k / 300k surfels, on 1 thread and on
 //! `threads` threads (each in its own rayon pool).
 
-use crate::scenes::object_scene;
-use crate::traverse::{march, march_visibility, HitSource, Ray, TraceParams};
+use crate::scenes::{object_scene, rays_for, RAYS};
+use crate::traverse::{march, march_visibility, HitSource, TraceParams};
 use crate::{gather_all, Bvh, GatherParams, MicroBuffer, VertexMaterials};
 use rayon::prelude::*;
 use std::fmt::Write;
 use std::time::Instant;
-use svgir_core::Rng;
-use svgir_shading::hemisphere_dir;
-
-/// Rays per throughput measurement.
-const RAYS: usize = 200_000;
-
-/// The benchmark rays: `RAYS` micro-buffer rays from random Gaussians along random Fibonacci directions.
-pub fn rays_for(s: &svgir_core::Surfels, p: &TraceParams, seed: u64) -> Vec<Ray> {
-    let mut rng = Rng::new(seed);
-    (0..RAYS)
-        .map(|_| {
-            let j = rng.below(s.len());
-            let d = hemisphere_dir(s.normal(j), rng.below(64), 64, rng.range(0.0, std::f32::consts::TAU));
-            Ray::from_gaussian(s, j, d, p)
-        })
-        .collect()
-}
 
 fn header(out: &mut String) {
     let _ = writeln!(

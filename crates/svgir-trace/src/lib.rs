@@ -17,6 +17,8 @@
 // x86-64 build, which CI lints.
 #![cfg_attr(not(target_arch = "x86_64"), allow(dead_code, unused_variables, unused_mut))]
 
+/// Timing tables for `svgir bench` (feature `bench`).
+#[cfg(feature = "bench")]
 pub mod bench;
 pub mod bounce;
 pub mod bright;

@@ -1,7 +1,9 @@
 //! Synthetic surfel scenes for tests and benchmarks (deterministic from a seed).
 
+use crate::traverse::{Ray, TraceParams};
 use glam::{Quat, Vec2, Vec3};
 use svgir_core::{surfel::logit, Rng, ShCoeffs, Surfels};
+use svgir_shading::hemisphere_dir;
 
 fn random_sh(rng: &mut Rng) -> ShCoeffs {
     let mut sh = ShCoeffs::from_rgb([rng.uniform(), rng.uniform(), rng.uniform()]);
@@ -69,4 +71,19 @@ pub fn object_scene(n: usize, seed: u64) -> Surfels {
         s.push(p, q, ls, o, random_sh(&mut rng));
     }
     s
+}
+
+/// Rays per throughput measurement.
+pub const RAYS: usize = 200_000;
+
+/// The benchmark rays: `RAYS` micro-buffer rays from random Gaussians along random Fibonacci directions.
+pub fn rays_for(s: &Surfels, p: &TraceParams, seed: u64) -> Vec<Ray> {
+    let mut rng = Rng::new(seed);
+    (0..RAYS)
+        .map(|_| {
+            let j = rng.below(s.len());
+            let d = hemisphere_dir(s.normal(j), rng.below(64), 64, rng.range(0.0, std::f32::consts::TAU));
+            Ray::from_gaussian(s, j, d, p)
+        })
+        .collect()
 }

@@ -7,12 +7,14 @@
 //! Winograd F(4x4,3x3) (3x3 layers, `winograd.rs`) or im2col + sgemm (`conv.rs`), in row bands;
 //! the head runs on pixel chunks in parallel with rayon. Inference only, nothing saved for backward.
 
+#[cfg(feature = "bench")]
 mod bench;
 mod conv;
 mod net;
 pub mod safetensors;
 mod winograd;
 
+#[cfg(feature = "bench")]
 pub use bench::bench_table;
 pub use conv::{max_pool, Conv, ConvScratch};
 pub use net::Net;

@@ -107,7 +107,8 @@ fn tiny_network_properties() {
 }
 
 /// The `svgir bench` table; slow (~1 min), so only on request:
-/// `cargo test --release -p svgir-metrics bench_table -- --ignored --nocapture`.
+/// `cargo test --release -p svgir-metrics --features bench bench_table -- --ignored --nocapture`.
+#[cfg(feature = "bench")]
 #[test]
 #[ignore]
 fn bench_table_runs() {

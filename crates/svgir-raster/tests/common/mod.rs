@@ -3,7 +3,7 @@
 
 use glam::{Quat, Vec2, Vec3};
 use svgir_core::{Camera, Rng, ShCoeffs, Surfels};
-use svgir_raster::bench::look_at_camera;
+use svgir_raster::fixtures::look_at_camera;
 use svgir_raster::{GaussianParams, OutputGradsOf, RenderOutputOf};
 
 /// Raw surfel parameters in f64 (so finite differences can use tiny steps).

@@ -106,7 +106,7 @@ mod tests {
     use crate::init;
     use glam::Vec3;
     use svgir_core::Rng;
-    use svgir_raster::bench::look_at_camera;
+    use svgir_raster::fixtures::look_at_camera;
     use svgir_raster::{backward, render, Background, ColorSource, Features, OutputGrads, RasterConfig, RenderInput};
 
     fn random(rng: &mut Rng, n: usize) -> Vec<f32> {
