@@ -5,8 +5,10 @@
 //!   defaults to `fl_x`; `camera_angle_x` / `camera_angle_y` stand in for missing focal lengths;
 //!   `cx`, `cy` default to the image centre, `w`, `h` to the image file's size. Views may differ
 //!   in size: each keeps its own camera.
-//! - `camera_model`: `PINHOLE` or absent (no distortion), `OPENCV` (`k1 k2 p1 p2`, optional
-//!   `k3`), `OPENCV_FISHEYE` (`k1..k4`; instant-ngp's `is_fisheye` means the same). The lens maps
+//! - `camera_model`: `PINHOLE`, `OPENCV` (`k1 k2 p1 p2`, optional `k3`), `OPENCV_FISHEYE`
+//!   (`k1..k4`; instant-ngp's `is_fisheye` means the same). Absent, the distortion terms decide,
+//!   as instant-ngp and nerfstudio read such files: any nonzero `k1 k2 k3 p1 p2` is OPENCV
+//!   (instant-ngp's own `transforms.json` carry them with no model), none is PINHOLE. The lens maps
 //!   onto COLMAP's parameter vectors and photos are undistorted on load ([`undistort_image`]).
 //!   OPENCV's `k4` is nerfstudio's r^8 radial term, which COLMAP's models lack: a nonzero one is
 //!   refused rather than silently dropped. Other models (`EQUIRECTANGULAR`, ...) are refused.
@@ -17,7 +19,14 @@
 //!   missing its partner meaning "all other frames"; otherwise every 8th frame (index 0, 8, ...)
 //!   after sorting by `file_path` is a test view, like the COLMAP loader (`llffhold = 8`).
 //! - `ply_file_path` (nerfstudio's initial point cloud) -> [`Dataset::points`]; none when absent
-//!   or empty, so training falls back to its own initialisation.
+//!   or empty, so training falls back to its own initialisation. It is read in the frames' world
+//!   frame: `ns-process-data` writes the points and the poses with the same `applied_transform`.
+//! - Read and left alone, since they change no camera: `applied_transform` and `applied_scale`
+//!   (what `ns-process-data` already applied to the poses and points), instant-ngp's `aabb_scale`,
+//!   `scale` and `offset` (its own scene box and normalisation, applied inside instant-ngp, not
+//!   to the file's poses) and per-frame `sharpness` (colmap2nerf's blur score for picking frames).
+//!   Where both levels give an intrinsic or a distortion term, the frame's wins, as in instant-ngp
+//!   (nerfstudio would take the top level's).
 
 use crate::camera_model::{undistort_image, CameraModel};
 use crate::error::{ErrorKind, Result, WithPath};
@@ -33,6 +42,9 @@ use svgir_core::{Dataset, Intrinsics, MaskSource, View};
 
 /// The lens models this loader undistorts, by their nerfstudio names.
 const SUPPORTED: &str = "PINHOLE, OPENCV, OPENCV_FISHEYE";
+
+/// The distortion terms instant-ngp and nerfstudio read, with or without a `camera_model`.
+const DISTORTION_KEYS: [&str; 6] = ["k1", "k2", "k3", "k4", "p1", "p2"];
 
 /// One frame's lens as the json states it; focal lengths from angles and the default principal
 /// point need the image size, so they are resolved in [`Lens::params`].
@@ -153,13 +165,23 @@ impl Src<'_> {
 /// loader does not handle.
 fn lens_model(src: &Src) -> std::result::Result<(String, CameraModel, Vec<f64>), String> {
     let fisheye = src.get("is_fisheye").and_then(Value::as_bool) == Some(true);
+    let k = |key: &str| src.num(key).map(|v| v.unwrap_or(0.0));
+    let mut implied = false;
     let name = match src.get("camera_model") {
         None | Some(Value::Null) if fisheye => "OPENCV_FISHEYE".to_string(),
-        None | Some(Value::Null) => "PINHOLE".to_string(),
+        None | Some(Value::Null) => {
+            // instant-ngp's own files and nerfstudio both undistort with the terms they find
+            // when no model is named (nerfstudio's PERSPECTIVE camera applies k1..k4, p1, p2).
+            let mut terms = Vec::new();
+            for key in DISTORTION_KEYS {
+                terms.push(k(key)?);
+            }
+            implied = terms.iter().any(|&c| c != 0.0);
+            if implied { "OPENCV" } else { "PINHOLE" }.to_string()
+        }
         Some(Value::String(s)) => s.to_ascii_uppercase(),
         Some(v) => return Err(format!("camera_model {v} is not a name")),
     };
-    let k = |key: &str| src.num(key).map(|v| v.unwrap_or(0.0));
     let (model, dist) = match name.as_str() {
         "PINHOLE" | "SIMPLE_PINHOLE" => (CameraModel::Pinhole, vec![]),
         "OPENCV" => {
@@ -180,6 +202,7 @@ fn lens_model(src: &Src) -> std::result::Result<(String, CameraModel, Vec<f64>),
         "OPENCV_FISHEYE" => (CameraModel::OpenCvFisheye, vec![k("k1")?, k("k2")?, k("k3")?, k("k4")?]),
         _ => return Err(format!("unsupported camera_model {name} (supported: {SUPPORTED})")),
     };
+    let name = if implied { format!("{name} (distortion terms without a camera_model)") } else { name };
     Ok((name, model, dist))
 }
 
@@ -429,6 +452,57 @@ mod tests {
         let e = lens(json!({"camera_model": "EQUIRECTANGULAR"})).unwrap_err().to_string();
         assert_eq!(e, "unsupported camera_model EQUIRECTANGULAR (supported: PINHOLE, OPENCV, OPENCV_FISHEYE)");
         assert!(lens(json!({"camera_model": "OPENCV", "k4": 0.1})).unwrap_err().to_string().contains("k4"));
+    }
+
+    /// What instant-ngp and nerfstudio do with a file that names no model, or keys that are
+    /// not about the camera.
+    #[test]
+    fn implicit_conventions_of_instant_ngp_and_nerfstudio() {
+        let capture = |extra: Value, frame: Value| {
+            let mut j = json!({"fl_x": 100.0, "w": 64, "h": 48, "frames": frames(2)});
+            for (k, v) in extra.as_object().unwrap() {
+                j[k] = v.clone();
+            }
+            for (k, v) in frame.as_object().unwrap() {
+                j["frames"][1][k] = v.clone();
+            }
+            parse_capture(&j, Path::new("/d"))
+        };
+        let none = json!({});
+        // Distortion terms without camera_model: OPENCV; with k3, the k1..k3 polynomial.
+        let c = capture(json!({"k1": -0.1, "p1": 0.001}), none.clone()).unwrap();
+        let l = &c.frames[0].lens;
+        assert_eq!((l.model, l.distortion.clone()), (CameraModel::OpenCv, vec![-0.1, 0.0, 0.001, 0.0]));
+        assert_eq!(l.model_name, "OPENCV (distortion terms without a camera_model)");
+        let c = capture(json!({"k1": 0.1, "k3": 0.01}), none.clone()).unwrap();
+        assert_eq!(c.frames[0].lens.model, CameraModel::FullOpenCv);
+        // All zero, or none: a pinhole; k4 without a fisheye is refused, not dropped.
+        let c = capture(json!({"k1": 0.0, "k2": 0.0}), none.clone()).unwrap();
+        assert_eq!((c.frames[0].lens.model, c.frames[0].lens.model_name.as_str()), (CameraModel::Pinhole, "PINHOLE"));
+        assert!(capture(json!({"k4": 0.1}), none.clone()).unwrap_err().to_string().contains("k4"));
+        // Per-frame terms (and w, h, fl_x) apply to their frame only.
+        let c = capture(none.clone(), json!({"k2": 0.05, "w": 80, "h": 60, "fl_x": 90.0})).unwrap();
+        let (l0, l1) = (&c.frames[0].lens, &c.frames[1].lens);
+        assert_eq!((l0.model, l1.model), (CameraModel::Pinhole, CameraModel::OpenCv));
+        assert_eq!((l0.w, l0.h, l1.w, l1.h), (Some(64), Some(48), Some(80), Some(60)));
+        assert_eq!(l1.params(80, 60).unwrap()[..2], [90.0, 90.0]);
+        // is_fisheye (instant-ngp) is OPENCV_FISHEYE.
+        let c = capture(json!({"is_fisheye": true, "k1": 0.05, "k4": 0.001}), none.clone()).unwrap();
+        assert_eq!(c.frames[0].lens.distortion, vec![0.05, 0.0, 0.0, 0.001]);
+        // Keys that change no camera leave every frame as it was.
+        let plain = capture(none.clone(), none.clone()).unwrap();
+        let other = capture(
+            json!({"aabb_scale": 16, "scale": 0.33, "offset": [0.5, 0.5, 0.5], "applied_scale": 0.2,
+                   "applied_transform": [[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0]]}),
+            json!({"sharpness": 812.5}),
+        )
+        .unwrap();
+        for (a, b) in plain.frames.iter().zip(&other.frames) {
+            assert_eq!((&a.lens, a.c2w), (&b.lens, b.c2w));
+        }
+        // ply_file_path resolves against the json's folder, "./" or not.
+        let c = capture(json!({"ply_file_path": "./sparse_pc.ply"}), none).unwrap();
+        assert_eq!(c.ply_path, Some(PathBuf::from("/d/sparse_pc.ply")));
     }
 
     #[test]

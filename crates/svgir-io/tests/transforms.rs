@@ -106,11 +106,56 @@ fn capture_with_distortion_per_frame_intrinsics_and_masks() {
     let (_, expect) = write_capture(&d);
     assert_eq!(detect_layout(&d).unwrap(), Layout::Transforms);
     let ds = load_dataset(&d, &LoadOptions::default()).unwrap();
+    assert_eq!(ds.camera_model, "OPENCV");
+    check_capture(&ds, &expect);
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+/// instant-ngp's own files: distortion terms with no `camera_model` (read as OPENCV, as
+/// instant-ngp and nerfstudio do, and `svgir info` says so), beside keys that change no camera
+/// (`aabb_scale`, `scale`, `offset`, `applied_transform`, `applied_scale`, per-frame
+/// `sharpness`): the same cameras, undistorted photos and points as the explicit OPENCV file.
+#[test]
+fn instant_ngp_conventions_read_as_its_tools_read_them() {
+    let d = tmp_dir("tf-ngp");
+    let (mut tf, expect) = write_capture(&d);
+    let top = tf.as_object_mut().unwrap();
+    top.remove("camera_model");
+    top.insert("aabb_scale".into(), json!(16));
+    top.insert("scale".into(), json!(0.33));
+    top.insert("offset".into(), json!([0.5, 0.5, 0.5]));
+    top.insert("applied_transform".into(), json!([[1, 0, 0, 0], [0, 0, 1, 0], [0, -1, 0, 0]]));
+    top.insert("applied_scale".into(), json!(0.25));
+    for (i, f) in tf["frames"].as_array_mut().unwrap().iter_mut().enumerate() {
+        f["sharpness"] = json!(100.0 + i as f64);
+    }
+    std::fs::write(d.join("transforms.json"), serde_json::to_string_pretty(&tf).unwrap()).unwrap();
+    let ds = load_dataset(&d, &LoadOptions::default()).unwrap();
+    assert_eq!(ds.camera_model, "OPENCV (distortion terms without a camera_model)");
+    check_capture(&ds, &expect);
+    assert!(dataset_summary(&ds).contains("cameras   OPENCV (distortion terms without a camera_model)"));
+    // The same file without its distortion terms is a pinhole capture: the spots stay where the
+    // lens put them, pixels away from the pinhole projection.
+    for k in ["k1", "k2", "p1", "p2"] {
+        tf.as_object_mut().unwrap().remove(k);
+    }
+    std::fs::write(d.join("transforms.json"), serde_json::to_string_pretty(&tf).unwrap()).unwrap();
+    let ds = load_dataset(&d, &LoadOptions::default()).unwrap();
+    assert_eq!(ds.camera_model, "PINHOLE");
+    let v = &ds.train[0];
+    let e = expect.iter().find(|e| e.name == v.name).unwrap();
+    let (sx, sy) = peak(&v.image, 0);
+    assert!((sx - e.pixel.0).hypot(sy - e.pixel.1) > 1.0, "{}: no distortion left to see", v.name);
+    let _ = std::fs::remove_dir_all(&d);
+}
+
+/// The cameras, photos, masks, points and summary of [`write_capture`]'s capture.
+fn check_capture(ds: &svgir_core::Dataset, expect: &[Expect]) {
     // Every 8th frame after sorting by file path is a test view.
     let names = |v: &[svgir_core::View]| v.iter().map(|v| v.name.clone()).collect::<Vec<_>>();
     assert_eq!(names(&ds.test), ["f00", "f08"]);
     assert_eq!(names(&ds.train), ["f01", "f02", "f03", "f04", "f05", "f06", "f07", "f09"]);
-    assert_eq!((ds.camera_model.as_str(), &ds.masks), ("OPENCV", &MaskSource::PerFrame));
+    assert_eq!(ds.masks, MaskSource::PerFrame);
     assert!(ds.has_masks());
     assert_eq!(ds.points.as_ref().unwrap().positions.len(), 3);
     for view in ds.all_views() {
@@ -141,13 +186,12 @@ fn capture_with_distortion_per_frame_intrinsics_and_masks() {
     assert_eq!((f03.fx, f03.fy, f03.cx, f03.cy, f03.width), (70.0, 52.0, 40.5, 29.5, 80));
 
     // `svgir info` on the folder.
-    let s = dataset_summary(&ds);
+    let s = dataset_summary(ds);
     eprintln!("{s}");
     for line in ["layout    transforms.json\n", "masks     per-frame mask_path\n", "points    3\n", "8 train, 2 test"] {
         assert!(s.contains(line), "{line:?} not in\n{s}");
     }
     assert!(s.contains("cameras   OPENCV"), "{s}");
-    let _ = std::fs::remove_dir_all(&d);
 }
 
 #[test]
