@@ -1,17 +1,26 @@
-//! A minimal float abstraction so kernels run in f32 (production) and f64 (gradient checks
-//! against finite differences) from one source. Shared by shading, tracing, PBR and metrics.
+//! The float abstraction every kernel crate shares (rasterizer, shading, tracing, PBR, metrics),
+//! so kernels run in f32 (production) and f64 (gradient checks against finite differences, and
+//! the rasterizer's reference kernels) from one source.
 
+use crate::ShCoeffs;
+use glam::{DQuat, DVec2, DVec3, Quat, Vec2, Vec3};
 use std::fmt::Debug;
+use std::iter::Sum;
 use std::ops::{Add, AddAssign, Div, Mul, MulAssign, Neg, Sub, SubAssign};
 
-/// The float operations shared kernels need, implemented for f32 and f64.
+/// The one scalar type every kernel is generic over: `f32` in training and evaluation, `f64`
+/// for the finite-difference and reference checks of the same code. Besides arithmetic it
+/// carries the glam types the rasterizer returns gradients in, and the SH basis in that
+/// precision.
 pub trait Float:
     Copy
     + Debug
+    + Default
     + PartialOrd
     + Send
     + Sync
     + 'static
+    + Sum
     + Add<Output = Self>
     + Sub<Output = Self>
     + Mul<Output = Self>
@@ -21,12 +30,26 @@ pub trait Float:
     + SubAssign
     + MulAssign
 {
+    /// 2-vector gradient type (`Vec2` for `f32`, `DVec2` for `f64`).
+    type V2: Copy + Send + Sync + Debug + Default + bytemuck::Zeroable;
+    /// 3-vector gradient type (`Vec3` for `f32`, `DVec3` for `f64`).
+    type V3: Copy + Send + Sync + Debug + Default + bytemuck::Zeroable;
+    /// Quaternion gradient type (`Quat` for `f32`, `DQuat` for `f64`).
+    type Q: Copy + Send + Sync + Debug + bytemuck::Zeroable;
+    /// SH-coefficient gradient type (`ShCoeffs` for `f32`, `[[f64; 3]; 16]` for `f64`).
+    type Sh: Copy + Send + Sync + Debug + bytemuck::Zeroable;
+
     /// Additive identity.
     const ZERO: Self;
     /// Multiplicative identity.
     const ONE: Self;
     /// Convert from f64 (rounding for f32).
     fn from_f64(x: f64) -> Self;
+    /// A constant, rounded from `f64` (`from_f64`, short for the kernels' formulas).
+    #[inline(always)]
+    fn c(x: f64) -> Self {
+        Self::from_f64(x)
+    }
     /// Convert from f32 (exact).
     fn from_f32(x: f32) -> Self;
     /// Convert to f64 (exact).
@@ -37,12 +60,19 @@ pub trait Float:
     fn sqrt(self) -> Self;
     /// Natural exponential e^x.
     fn exp(self) -> Self;
+    /// `e^x` for the hot loops: [`exp_f32`] in `f32` (branch-free, inlinable, relative error
+    /// under 3e-7 on [-87, 88]), libm's in `f64` (the checks' reference).
+    fn exp_fast(self) -> Self;
     /// Base-2 exponential 2^x.
     fn exp2(self) -> Self;
+    /// Natural logarithm.
+    fn ln(self) -> Self;
     /// Absolute value.
     fn abs(self) -> Self;
     /// `self` raised to the power `e`.
     fn powf(self, e: Self) -> Self;
+    /// `self * a + b` with one rounding (the SIMD kernels' FMA, bit for bit).
+    fn mul_add(self, a: Self, b: Self) -> Self;
 
     /// Larger of the two (plain comparison; callers never pass NaN).
     #[inline]
@@ -69,55 +99,158 @@ pub trait Float:
     fn clampf(self, lo: Self, hi: Self) -> Self {
         self.maxf(lo).minf(hi)
     }
+
+    /// The smaller of the two (`self` when they are equal or `o` is NaN), as the rasterizer's
+    /// SIMD lanes compute it.
+    #[inline]
+    fn min(self, o: Self) -> Self {
+        if o < self {
+            o
+        } else {
+            self
+        }
+    }
+
+    /// The larger of the two (`self` when they are equal or `o` is NaN), as the rasterizer's
+    /// SIMD lanes compute it.
+    #[inline]
+    fn max(self, o: Self) -> Self {
+        if o > self {
+            o
+        } else {
+            self
+        }
+    }
+
+    /// Packs two scalars into [`Float::V2`].
+    fn v2(a: [Self; 2]) -> Self::V2;
+    /// Packs three scalars into [`Float::V3`].
+    fn v3(a: [Self; 3]) -> Self::V3;
+    /// Packs `x, y, z, w` into [`Float::Q`].
+    fn quat(a: [Self; 4]) -> Self::Q;
+    /// Packs SH coefficients `[k][channel]` into [`Float::Sh`].
+    fn sh(a: &[[Self; 3]; 16]) -> Self::Sh;
+    /// The real SH basis (3DGS convention) of a unit direction ([`crate::sh::basis`]).
+    fn sh_basis(degree: u32, d: [Self; 3], out: &mut [Self; 16]);
+    /// Its Jacobian w.r.t. the direction components ([`crate::sh::basis_grad`]).
+    fn sh_basis_grad(degree: u32, d: [Self; 3], out: &mut [[Self; 3]; 16]);
 }
 
-macro_rules! impl_float {
+/// The methods whose body is the same call for both types.
+macro_rules! common_float {
     ($t:ty) => {
-        impl Float for $t {
-            const ZERO: Self = 0.0;
-            const ONE: Self = 1.0;
-            #[inline]
-            fn from_f64(x: f64) -> Self {
-                x as $t
-            }
-            #[inline]
-            fn from_f32(x: f32) -> Self {
-                x as $t
-            }
-            #[inline]
-            fn to_f64(self) -> f64 {
-                self as f64
-            }
-            #[inline]
-            fn to_f32(self) -> f32 {
-                self as f32
-            }
-            #[inline]
-            fn sqrt(self) -> Self {
-                <$t>::sqrt(self)
-            }
-            #[inline]
-            fn exp(self) -> Self {
-                <$t>::exp(self)
-            }
-            #[inline]
-            fn exp2(self) -> Self {
-                <$t>::exp2(self)
-            }
-            #[inline]
-            fn abs(self) -> Self {
-                <$t>::abs(self)
-            }
-            #[inline]
-            fn powf(self, e: Self) -> Self {
-                <$t>::powf(self, e)
-            }
+        const ZERO: Self = 0.0;
+        const ONE: Self = 1.0;
+        #[inline(always)]
+        fn from_f64(x: f64) -> Self {
+            x as $t
+        }
+        #[inline(always)]
+        fn from_f32(x: f32) -> Self {
+            x as $t
+        }
+        #[inline(always)]
+        fn to_f64(self) -> f64 {
+            self as f64
+        }
+        #[inline(always)]
+        fn to_f32(self) -> f32 {
+            self as f32
+        }
+        #[inline(always)]
+        fn sqrt(self) -> Self {
+            <$t>::sqrt(self)
+        }
+        #[inline(always)]
+        fn exp(self) -> Self {
+            <$t>::exp(self)
+        }
+        #[inline(always)]
+        fn exp2(self) -> Self {
+            <$t>::exp2(self)
+        }
+        #[inline(always)]
+        fn ln(self) -> Self {
+            <$t>::ln(self)
+        }
+        #[inline(always)]
+        fn abs(self) -> Self {
+            <$t>::abs(self)
+        }
+        #[inline(always)]
+        fn powf(self, e: Self) -> Self {
+            <$t>::powf(self, e)
+        }
+        #[inline(always)]
+        fn mul_add(self, a: Self, b: Self) -> Self {
+            <$t>::mul_add(self, a, b)
         }
     };
 }
 
-impl_float!(f32);
-impl_float!(f64);
+impl Float for f32 {
+    type V2 = Vec2;
+    type V3 = Vec3;
+    type Q = Quat;
+    type Sh = ShCoeffs;
+    common_float!(f32);
+    #[inline(always)]
+    fn exp_fast(self) -> Self {
+        exp_f32(self)
+    }
+    fn v2(a: [f32; 2]) -> Vec2 {
+        Vec2::from_array(a)
+    }
+    fn v3(a: [f32; 3]) -> Vec3 {
+        Vec3::from_array(a)
+    }
+    fn quat(a: [f32; 4]) -> Quat {
+        Quat::from_array(a)
+    }
+    fn sh(a: &[[f32; 3]; 16]) -> ShCoeffs {
+        ShCoeffs(*a)
+    }
+    fn sh_basis(degree: u32, d: [f32; 3], out: &mut [f32; 16]) {
+        crate::sh::basis(degree, Vec3::from_array(d), out);
+    }
+    fn sh_basis_grad(degree: u32, d: [f32; 3], out: &mut [[f32; 3]; 16]) {
+        let mut g = [Vec3::ZERO; 16];
+        crate::sh::basis_grad(degree, Vec3::from_array(d), &mut g);
+        for k in 0..16 {
+            out[k] = g[k].to_array();
+        }
+    }
+}
+
+impl Float for f64 {
+    type V2 = DVec2;
+    type V3 = DVec3;
+    type Q = DQuat;
+    type Sh = [[f64; 3]; 16];
+    common_float!(f64);
+    #[inline(always)]
+    fn exp_fast(self) -> Self {
+        f64::exp(self)
+    }
+    fn v2(a: [f64; 2]) -> DVec2 {
+        DVec2::from_array(a)
+    }
+    fn v3(a: [f64; 3]) -> DVec3 {
+        DVec3::from_array(a)
+    }
+    fn quat(a: [f64; 4]) -> DQuat {
+        DQuat::from_array(a)
+    }
+    fn sh(a: &[[f64; 3]; 16]) -> [[f64; 3]; 16] {
+        *a
+    }
+    fn sh_basis(degree: u32, d: [f64; 3], out: &mut [f64; 16]) {
+        crate::sh::basis_f64(degree, d, out);
+    }
+    fn sh_basis_grad(degree: u32, d: [f64; 3], out: &mut [[f64; 3]; 16]) {
+        crate::sh::basis_grad_f64(degree, d, out);
+    }
+}
 
 /// `exp(x)` as `2^n * p(r)`, `x = n ln2 + r`, `|r| <= ln2 / 2`, `p` the degree-6 Taylor
 /// polynomial in Estrin's form; branch-free and inlinable (libm's `expf` is a call on baseline
@@ -177,6 +310,24 @@ pub fn to_f<F: Float>(a: [f32; 3]) -> [F; 3] {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn f64_sh_twin_matches_core() {
+        let d = Vec3::new(0.3, -0.6, 0.74).normalize();
+        let dd = [d.x as f64, d.y as f64, d.z as f64];
+        let (mut a, mut b) = ([0.0f32; 16], [0.0f64; 16]);
+        f32::sh_basis(3, d.to_array(), &mut a);
+        f64::sh_basis(3, dd, &mut b);
+        let (mut ga, mut gb) = ([[0.0f32; 3]; 16], [[0.0f64; 3]; 16]);
+        f32::sh_basis_grad(3, d.to_array(), &mut ga);
+        f64::sh_basis_grad(3, dd, &mut gb);
+        for k in 0..16 {
+            assert!((a[k] as f64 - b[k]).abs() < 1e-6, "basis {k}");
+            for j in 0..3 {
+                assert!((ga[k][j] as f64 - gb[k][j]).abs() < 1e-5, "grad {k} {j}");
+            }
+        }
+    }
 
     #[test]
     fn fast_ln_is_accurate() {

@@ -122,6 +122,72 @@ pub fn basis_grad(degree: u32, d: Vec3, out: &mut [Vec3; 16]) {
     out[15] = SH_C3[6] * Vec3::new(3.0 * xx - 3.0 * yy, -6.0 * x * y, 0.0);
 }
 
+/// `f64` twin of [`basis`], for the finite-difference checks and the reference kernels (a test
+/// asserts the two agree).
+pub fn basis_f64(degree: u32, d: [f64; 3], out: &mut [f64; 16]) {
+    let c = |v: f32| v as f64;
+    let [x, y, z] = d;
+    out[0] = c(SH_C0);
+    if degree < 1 {
+        return;
+    }
+    out[1] = -c(SH_C1) * y;
+    out[2] = c(SH_C1) * z;
+    out[3] = -c(SH_C1) * x;
+    if degree < 2 {
+        return;
+    }
+    let (xx, yy, zz, xy, yz, xz) = (x * x, y * y, z * z, x * y, y * z, x * z);
+    out[4] = c(SH_C2[0]) * xy;
+    out[5] = c(SH_C2[1]) * yz;
+    out[6] = c(SH_C2[2]) * (2.0 * zz - xx - yy);
+    out[7] = c(SH_C2[3]) * xz;
+    out[8] = c(SH_C2[4]) * (xx - yy);
+    if degree < 3 {
+        return;
+    }
+    out[9] = c(SH_C3[0]) * y * (3.0 * xx - yy);
+    out[10] = c(SH_C3[1]) * xy * z;
+    out[11] = c(SH_C3[2]) * y * (4.0 * zz - xx - yy);
+    out[12] = c(SH_C3[3]) * z * (2.0 * zz - 3.0 * xx - 3.0 * yy);
+    out[13] = c(SH_C3[4]) * x * (4.0 * zz - xx - yy);
+    out[14] = c(SH_C3[5]) * z * (xx - yy);
+    out[15] = c(SH_C3[6]) * x * (xx - 3.0 * yy);
+}
+
+/// `f64` twin of [`basis_grad`] (see [`basis_f64`]).
+pub fn basis_grad_f64(degree: u32, d: [f64; 3], out: &mut [[f64; 3]; 16]) {
+    let c = |v: f32| v as f64;
+    let [x, y, z] = d;
+    let s = |k: f64, v: [f64; 3]| [k * v[0], k * v[1], k * v[2]];
+    out[0] = [0.0; 3];
+    if degree < 1 {
+        return;
+    }
+    out[1] = [0.0, -c(SH_C1), 0.0];
+    out[2] = [0.0, 0.0, c(SH_C1)];
+    out[3] = [-c(SH_C1), 0.0, 0.0];
+    if degree < 2 {
+        return;
+    }
+    out[4] = s(c(SH_C2[0]), [y, x, 0.0]);
+    out[5] = s(c(SH_C2[1]), [0.0, z, y]);
+    out[6] = s(c(SH_C2[2]), [-2.0 * x, -2.0 * y, 4.0 * z]);
+    out[7] = s(c(SH_C2[3]), [z, 0.0, x]);
+    out[8] = s(c(SH_C2[4]), [2.0 * x, -2.0 * y, 0.0]);
+    if degree < 3 {
+        return;
+    }
+    let (xx, yy, zz) = (x * x, y * y, z * z);
+    out[9] = s(c(SH_C3[0]), [6.0 * x * y, 3.0 * xx - 3.0 * yy, 0.0]);
+    out[10] = s(c(SH_C3[1]), [y * z, x * z, x * y]);
+    out[11] = s(c(SH_C3[2]), [-2.0 * x * y, 4.0 * zz - xx - 3.0 * yy, 8.0 * y * z]);
+    out[12] = s(c(SH_C3[3]), [-6.0 * x * z, -6.0 * y * z, 6.0 * zz - 3.0 * xx - 3.0 * yy]);
+    out[13] = s(c(SH_C3[4]), [4.0 * zz - 3.0 * xx - yy, -2.0 * x * y, 8.0 * x * z]);
+    out[14] = s(c(SH_C3[5]), [2.0 * x * z, -2.0 * y * z, xx - yy]);
+    out[15] = s(c(SH_C3[6]), [3.0 * xx - 3.0 * yy, -6.0 * x * y, 0.0]);
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -7,7 +7,7 @@
 //! - [`geometry`]: normal mean angular error, albedo per-channel median scale.
 //! - [`ImageMetrics`] / [`evaluate_pair`]: PSNR + SSIM + LPIPS of one rendered view, for `svgir eval`.
 //!
-//! Kernels are generic over [`Real`] (f32/f64) where a gradient must be checked in f64.
+//! Kernels are generic over [`Float`] (f32/f64) where a gradient must be checked in f64.
 //! No I/O, no printing.
 
 #![warn(missing_docs)]
@@ -20,7 +20,6 @@ pub mod error;
 pub mod geometry;
 pub mod lpips;
 pub mod psnr;
-pub mod real;
 pub mod ssim;
 pub mod ssim_backward;
 
@@ -30,9 +29,9 @@ pub use geometry::{apply_albedo_scale, normal_error_map, AlbedoScale, NormalMae}
 pub use lpips::bench_table;
 pub use lpips::{Lpips, LpipsDistance, Net};
 pub use psnr::{mse, mse_to_psnr, psnr};
-pub use real::Real;
 pub use ssim::{ssim, ssim_image, Shape, SsimVariant};
 pub use ssim_backward::ssim_with_grad;
+pub use svgir_core::Float;
 
 use serde::{Deserialize, Serialize};
 use svgir_core::Image;

@@ -17,7 +17,7 @@ use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{check_eq, MetricsError, Result};
-use crate::real::Real;
+use svgir_core::Float;
 
 /// Side of the square Gaussian window in pixels.
 pub const WINDOW: usize = 11;
@@ -40,7 +40,7 @@ pub enum SsimVariant {
 }
 
 /// Normalised 1-D Gaussian taps `exp(-(i-5)^2 / (2 sigma^2))`; the 2-D window is their outer product.
-pub fn gaussian_window<T: Real>() -> [T; WINDOW] {
+pub fn gaussian_window<T: Float>() -> [T; WINDOW] {
     let raw: [f64; WINDOW] =
         std::array::from_fn(|i| (-((i as f64 - HALF as f64).powi(2)) / (2.0 * SIGMA * SIGMA)).exp());
     let sum: f64 = raw.iter().sum();
@@ -98,7 +98,7 @@ const CHAINS: usize = 4;
 /// `tmp` and `out` are scratch reused between calls (their old contents are ignored); the result is
 /// `out[..k_planes * wo * ho]`.
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn blur<T: Real>(
+pub(crate) fn blur<T: Float>(
     src: &[T],
     k_planes: usize,
     w: usize,
@@ -115,7 +115,7 @@ pub(crate) fn blur<T: Real>(
 /// [`blur`] of planes whose rows `source_row(r, row)` writes on demand (row `r` of the stacked
 /// planes), so that a source computed per pixel is never stored whole.
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn blur_rows<T: Real>(
+pub(crate) fn blur_rows<T: Float>(
     source_row: impl Fn(usize, &mut [T]) + Sync,
     k_planes: usize,
     w: usize,
@@ -164,7 +164,7 @@ pub(crate) fn blur_rows<T: Real>(
 
 /// `v` with length `n`; its old contents are kept or zeros, as the callers overwrite every
 /// element (a fresh buffer is zeroed by the workers, not by a serial `resize`).
-pub(crate) fn sized<T: Real>(v: &mut Vec<T>, n: usize) {
+pub(crate) fn sized<T: Float>(v: &mut Vec<T>, n: usize) {
     if v.len() < n {
         *v = svgir_core::par::filled(n, T::ZERO);
     } else {
@@ -175,7 +175,7 @@ pub(crate) fn sized<T: Real>(v: &mut Vec<T>, n: usize) {
 /// `out[x] = sum_k g[k] src[k * stride + x]` for every output, the taps summed in order from
 /// zero: along a padded row with `stride` 1, down 11 rows of `stride` floats otherwise.
 #[inline]
-fn taps<T: Real>(src: &[T], stride: usize, out: &mut [T], g: &[T; WINDOW]) {
+fn taps<T: Float>(src: &[T], stride: usize, out: &mut [T], g: &[T; WINDOW]) {
     #[cfg(target_arch = "x86_64")]
     if wide() {
         // SAFETY: `wide` found AVX2 on this CPU.
@@ -187,12 +187,12 @@ fn taps<T: Real>(src: &[T], stride: usize, out: &mut [T], g: &[T; WINDOW]) {
 /// [`taps`] compiled for AVX2: the same operations in the same order on 8-float registers.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-pub(crate) unsafe fn taps_avx2<T: Real>(src: &[T], stride: usize, out: &mut [T], g: &[T; WINDOW]) {
+pub(crate) unsafe fn taps_avx2<T: Float>(src: &[T], stride: usize, out: &mut [T], g: &[T; WINDOW]) {
     taps_body(src, stride, out, g)
 }
 
 #[inline(always)]
-pub(crate) fn taps_body<T: Real>(src: &[T], stride: usize, out: &mut [T], g: &[T; WINDOW]) {
+pub(crate) fn taps_body<T: Float>(src: &[T], stride: usize, out: &mut [T], g: &[T; WINDOW]) {
     // `CHAINS` groups of `LANES` outputs at a time: each group's 11 adds depend on each other,
     // so one group alone waits on the add latency; independent groups fill the wait.
     let mut blocks = out.chunks_exact_mut(CHAINS * LANES);
@@ -214,7 +214,7 @@ pub(crate) fn taps_body<T: Real>(src: &[T], stride: usize, out: &mut [T], g: &[T
 /// `N` groups of [`LANES`] outputs from column `x` on (`out`, `N * LANES` long), each summing
 /// its taps in order from zero in registers.
 #[inline(always)]
-fn tap_groups<T: Real, const N: usize>(src: &[T], stride: usize, x: usize, out: &mut [T], g: &[T; WINDOW]) {
+fn tap_groups<T: Float, const N: usize>(src: &[T], stride: usize, x: usize, out: &mut [T], g: &[T; WINDOW]) {
     let mut acc = [[T::ZERO; LANES]; N];
     for (k, &gk) in g.iter().enumerate() {
         let row = &src[k * stride + x..k * stride + x + N * LANES];
@@ -247,7 +247,7 @@ pub(crate) struct BlurBuffers<T> {
     pub out: Vec<T>,
 }
 
-impl<T: Real> BlurBuffers<T> {
+impl<T: Float> BlurBuffers<T> {
     /// Blur `self.src` (`k_planes` planes) into `self.out`.
     pub(crate) fn blur(&mut self, k_planes: usize, w: usize, h: usize, same: bool) -> (usize, usize) {
         blur(&self.src, k_planes, w, h, &gaussian_window(), same, &mut self.tmp, &mut self.out)
@@ -256,7 +256,7 @@ impl<T: Real> BlurBuffers<T> {
 
 /// Filtered moments of channel `c` as five stacked planes in `bufs.out`: mu_x, mu_y, E[x^2], E[y^2],
 /// E[xy]. Returns the map size.
-pub(crate) fn moments<T: Real>(
+pub(crate) fn moments<T: Float>(
     a: &[T],
     b: &[T],
     shape: Shape,
@@ -284,13 +284,13 @@ pub(crate) fn moments<T: Real>(
 
 /// The five moments of pixel `i` from stacked planes of `np` pixels.
 #[inline]
-pub(crate) fn gather5<T: Real>(m: &[T], np: usize, i: usize) -> [T; 5] {
+pub(crate) fn gather5<T: Float>(m: &[T], np: usize, i: usize) -> [T; 5] {
     [m[i], m[np + i], m[2 * np + i], m[3 * np + i], m[4 * np + i]]
 }
 
 /// SSIM map value at one pixel from its filtered moments; `clip` applies TensoIR's clipping.
 #[inline]
-pub(crate) fn ssim_from_moments<T: Real>(m: &[T; 5], clip: bool) -> T {
+pub(crate) fn ssim_from_moments<T: Float>(m: &[T; 5], clip: bool) -> T {
     let two = T::from_f64(2.0);
     let (c1, c2) = (T::from_f64(C1), T::from_f64(C2));
     let (mu1, mu2) = (m[0], m[1]);
@@ -308,7 +308,7 @@ pub(crate) fn ssim_from_moments<T: Real>(m: &[T; 5], clip: bool) -> T {
 }
 
 /// Mean SSIM of `a` against `b` over all channels and map pixels.
-pub fn ssim<T: Real>(a: &[T], b: &[T], shape: Shape, variant: SsimVariant) -> Result<T> {
+pub fn ssim<T: Float>(a: &[T], b: &[T], shape: Shape, variant: SsimVariant) -> Result<T> {
     shape.check(a, b, variant)?;
     let same = variant == SsimVariant::GaussianSplatting;
     let mut total = 0.0f64;
@@ -401,7 +401,7 @@ pub(crate) mod tests {
 
     /// The blur as its definition reads: each output adds only the taps inside the image, one tap
     /// over the whole row at a time (the oracle of [`blur`]).
-    fn blur_reference<T: Real>(src: &[T], k_planes: usize, w: usize, h: usize, same: bool) -> Vec<T> {
+    fn blur_reference<T: Float>(src: &[T], k_planes: usize, w: usize, h: usize, same: bool) -> Vec<T> {
         let g = gaussian_window::<T>();
         let (off, wo, ho) = if same { (HALF, w, h) } else { (0, w + 1 - WINDOW, h + 1 - WINDOW) };
         let mut tmp = vec![T::ZERO; k_planes * wo * h];

@@ -13,11 +13,11 @@
 use rayon::prelude::*;
 
 use crate::error::Result;
-use crate::real::Real;
 use crate::ssim::{moments, sized, BlurBuffers, Shape, SsimVariant, C1, C2};
+use svgir_core::Float;
 
 /// 3DGS SSIM of `a` against `b` and its gradient `v_a` (d SSIM / d a, same layout as `a`).
-pub fn ssim_with_grad<T: Real>(a: &[T], b: &[T], shape: Shape) -> Result<(T, Vec<T>)> {
+pub fn ssim_with_grad<T: Float>(a: &[T], b: &[T], shape: Shape) -> Result<(T, Vec<T>)> {
     shape.check(a, b, SsimVariant::GaussianSplatting)?;
     let n = shape.channels;
     let inv_count = T::from_f64(1.0 / a.len() as f64);
@@ -69,7 +69,7 @@ pub fn ssim_with_grad<T: Real>(a: &[T], b: &[T], shape: Shape) -> Result<(T, Vec
 /// One row of the SSIM map from its five moments (mu1, mu2, e11, e22, e12, as the rows of
 /// [`moments`]' planes): the partials dS/dmu1, dS/de11, dS/de12 into `out` (scaled by
 /// `inv_count`), and the row's map sum in pixel order (f64).
-fn map_row<T: Real>(moments: [&[T]; 5], inv_count: T, out: [&mut [T]; 3]) -> f64 {
+fn map_row<T: Float>(moments: [&[T]; 5], inv_count: T, out: [&mut [T]; 3]) -> f64 {
     #[cfg(target_arch = "x86_64")]
     if crate::ssim::wide() {
         // SAFETY: `wide` found AVX2 on this CPU.
@@ -81,7 +81,7 @@ fn map_row<T: Real>(moments: [&[T]; 5], inv_count: T, out: [&mut [T]; 3]) -> f64
 /// [`map_row`] compiled for AVX2 (the same operations in the same order).
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2")]
-unsafe fn map_row_avx2<T: Real>(moments: [&[T]; 5], inv_count: T, out: [&mut [T]; 3]) -> f64 {
+unsafe fn map_row_avx2<T: Float>(moments: [&[T]; 5], inv_count: T, out: [&mut [T]; 3]) -> f64 {
     map_row_body(moments, inv_count, out)
 }
 
@@ -90,7 +90,7 @@ unsafe fn map_row_avx2<T: Real>(moments: [&[T]; 5], inv_count: T, out: [&mut [T]
 const MAP_BLOCK: usize = 64;
 
 #[inline(always)]
-fn map_row_body<T: Real>(moments: [&[T]; 5], inv_count: T, out: [&mut [T]; 3]) -> f64 {
+fn map_row_body<T: Float>(moments: [&[T]; 5], inv_count: T, out: [&mut [T]; 3]) -> f64 {
     let (two, c1, c2) = (T::from_f64(2.0), T::from_f64(C1), T::from_f64(C2));
     let [p_mu1, p_mu2, p_e11, p_e22, p_e12] = moments;
     let [r_mu, r_e11, r_e12] = out;
@@ -170,7 +170,7 @@ mod tests {
                 let m64: Vec<f64> =
                     (0..5 * w).map(|i| if i < 2 * w { rng.uniform_f64() } else { 0.6 * rng.uniform_f64() }).collect();
                 let m32: Vec<f32> = m64.iter().map(|&x| x as f32).collect();
-                fn rows<T: Real>(m: &[T], w: usize, wide: bool) -> (f64, Vec<T>) {
+                fn rows<T: Float>(m: &[T], w: usize, wide: bool) -> (f64, Vec<T>) {
                     let mut r = vec![T::ZERO; 3 * w];
                     let (a, rest) = r.split_at_mut(w);
                     let (b, c) = rest.split_at_mut(w);

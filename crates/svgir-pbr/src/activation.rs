@@ -1,48 +1,15 @@
 //! Scalar activations of the stage-2 parameters (SPEC 3, 4): sigmoid for albedo and roughness,
-//! softplus for the environment map. Generic over [`Real`] (the shading crate's `Float` plus a
-//! logarithm) so that f64 runs the same code as the oracle of the gradient tests.
+//! softplus for the environment map. Generic over [`Float`] so that f64 runs the same code as the
+//! reference of the gradient tests.
 
-use svgir_core::float::exp_f32;
 use svgir_shading::Float;
-
-/// `Float` with a natural logarithm (softplus needs it; the shading crate's trait does not)
-/// and the exponential the sigmoid uses.
-pub trait Real: Float {
-    /// Natural logarithm.
-    fn ln(self) -> Self;
-    /// `e^x`: branch-free and inlinable in f32 ([`exp_f32`], under 3e-7 relative error, so the
-    /// loops over every vertex's materials vectorise), libm's in f64 (the tests' oracle).
-    fn exp_fast(self) -> Self;
-}
-
-impl Real for f32 {
-    #[inline]
-    fn ln(self) -> Self {
-        f32::ln(self)
-    }
-    #[inline(always)]
-    fn exp_fast(self) -> Self {
-        exp_f32(self)
-    }
-}
-
-impl Real for f64 {
-    #[inline]
-    fn ln(self) -> Self {
-        f64::ln(self)
-    }
-    #[inline]
-    fn exp_fast(self) -> Self {
-        f64::exp(self)
-    }
-}
 
 /// Logistic sigmoid, evaluated without overflow for either sign of `x`: `1 / (1 + e^-x)` for
 /// `x >= 0`, `e^x / (1 + e^x)` below. Both are `num / (1 + e^-|x|)`, so the sign selects only the
 /// numerator, without a branch (the signs of trained parameters are mixed, and a mispredicted
-/// branch cost as much as the `exp`). The exponential is [`Real::exp_fast`].
+/// branch cost as much as the `exp`). The exponential is [`Float::exp_fast`].
 #[inline(always)]
-pub fn sigmoid<F: Real>(x: F) -> F {
+pub fn sigmoid<F: Float>(x: F) -> F {
     let e = (-x.abs()).exp_fast();
     let num = if x >= F::ZERO { F::ONE } else { e };
     num / (F::ONE + e)
@@ -51,19 +18,20 @@ pub fn sigmoid<F: Real>(x: F) -> F {
 /// `ln(1 + e^x)` as `max(x, 0) + ln(1 + e^-|x|)`: no overflow for large x. Its derivative is
 /// [`sigmoid`].
 #[inline]
-pub fn softplus<F: Real>(x: F) -> F {
+pub fn softplus<F: Float>(x: F) -> F {
     x.maxf(F::ZERO) + (F::ONE + (-x.abs()).exp()).ln()
 }
 
 /// Inverse of softplus for y > 0: `y + ln(1 - e^-y)`.
 #[inline]
-pub fn softplus_inv<F: Real>(y: F) -> F {
+pub fn softplus_inv<F: Float>(y: F) -> F {
     y + (F::ONE - (-y).exp()).ln()
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use svgir_core::float::exp_f32;
 
     /// The two-branch form the selected numerator replaces (with the same exponential).
     fn sigmoid_branches(x: f32) -> f32 {

@@ -7,8 +7,9 @@
 //! Work split: texels are few (2048), everything runs sequentially; the generic functions take
 //! f64 in the gradient tests.
 
-use crate::activation::{sigmoid, softplus, softplus_inv, Real};
+use crate::activation::{sigmoid, softplus, softplus_inv};
 use crate::{expect_len, PbrError};
+use svgir_core::Float;
 use svgir_core::{EnvMap, Rng};
 
 /// Default map height (SPEC 4); width is twice this.
@@ -42,13 +43,13 @@ pub struct EnvLight {
 }
 
 /// Radiance `2 softplus(param)` per texel.
-pub fn env_radiance<F: Real>(param: &[[F; 3]]) -> Vec<[F; 3]> {
+pub fn env_radiance<F: Float>(param: &[[F; 3]]) -> Vec<[F; 3]> {
     let two = F::from_f64(2.0);
     param.iter().map(|p| p.map(|x| two * softplus(x))).collect()
 }
 
 /// Backward of [`env_radiance`]: `d/dx 2 softplus(x) = 2 sigmoid(x)`.
-pub fn env_radiance_backward<F: Real>(param: &[[F; 3]], v_radiance: &[[F; 3]]) -> Vec<[F; 3]> {
+pub fn env_radiance_backward<F: Float>(param: &[[F; 3]], v_radiance: &[[F; 3]]) -> Vec<[F; 3]> {
     let two = F::from_f64(2.0);
     param.iter().zip(v_radiance).map(|(p, g)| [0, 1, 2].map(|c| two * sigmoid(p[c]) * g[c])).collect()
 }
@@ -137,13 +138,13 @@ impl EnvLight {
 }
 
 /// TV-L2 of a `w` x `h` map and its gradient w.r.t. the texels (generic for the tests).
-pub fn tv_l2<F: Real>(rad: &[[F; 3]], w: usize, h: usize) -> (F, Vec<[F; 3]>) {
+pub fn tv_l2<F: Float>(rad: &[[F; 3]], w: usize, h: usize) -> (F, Vec<[F; 3]>) {
     tv_l2_masked(rad, w, h, None)
 }
 
 /// [`tv_l2`] without the pairs that touch a texel with `skip[t]` (the mean keeps the full pair
 /// count, so the weight of the remaining pairs does not change).
-pub fn tv_l2_masked<F: Real>(rad: &[[F; 3]], w: usize, h: usize, skip: Option<&[bool]>) -> (F, Vec<[F; 3]>) {
+pub fn tv_l2_masked<F: Float>(rad: &[[F; 3]], w: usize, h: usize, skip: Option<&[bool]>) -> (F, Vec<[F; 3]>) {
     let mut grad = vec![[F::ZERO; 3]; rad.len()];
     if rad.len() != w * h || w < 2 || h < 2 || skip.is_some_and(|s| s.len() != rad.len()) {
         return (F::ZERO, grad);

@@ -50,7 +50,6 @@ pub mod shade_backward;
 mod shade_simd;
 pub mod two_sided;
 
-pub use activation::Real;
 pub use consistency::{
     l1_loss, mirror_pick, radiance_consistency, radiance_consistency_backward, radiance_consistency_with_grad,
     select_pairs, Consistency, ConsistencyInputs,
@@ -61,6 +60,7 @@ pub use grads::PbrGrads;
 pub use material::{activate, activate_backward, ActivatedMaterials, MaterialGrads, SvgMaterials};
 pub use shade::{shade, shade_into, shade_into_cached, Indirect, ShadeInputs, ShadeOutput, ShadeParams, ENV_MAX};
 pub use shade_backward::{shade_backward, shade_backward_cached};
+pub use svgir_core::Float;
 pub use svgir_trace::DirectionCache;
 pub use two_sided::{
     faces, negated, shade_sides_backward, shade_sides_backward_into, shade_sides_into, split_by_side, Side,

@@ -8,10 +8,11 @@
 //! layout `svgir_trace::VertexMaterials` reads. Work split: rayon over Gaussians; nothing is saved
 //! for backward, which recomputes the (cheap) activations from the raw values.
 
-use crate::activation::{sigmoid, Real};
+use crate::activation::sigmoid;
 use crate::{expect_len, PbrError};
 use glam::Vec3;
 use rayon::prelude::*;
+use svgir_core::Float;
 use svgir_shading::float::dot;
 use svgir_trace::VertexMaterials;
 
@@ -169,7 +170,7 @@ fn check_shapes<F>(m: usize, n: usize, albedo: &[F], rough: &[F], offset: &[F]) 
 }
 
 #[inline(always)]
-fn albedo_of<F: Real>(x: F) -> F {
+fn albedo_of<F: Float>(x: F) -> F {
     F::from_f64(ALBEDO_SCALE) * sigmoid(x) + F::from_f64(ALBEDO_BIAS)
 }
 
@@ -190,13 +191,13 @@ fn logit_clamped(s: f64) -> f32 {
 }
 
 #[inline(always)]
-fn roughness_of<F: Real>(x: F) -> F {
+fn roughness_of<F: Float>(x: F) -> F {
     F::from_f64(ROUGHNESS_SCALE) * sigmoid(x) + F::from_f64(ROUGHNESS_BIAS)
 }
 
 /// `u = n + dN`, its length, and the unit shading normal (n itself if u is degenerate).
 #[inline]
-fn offset_normal<F: Real>(n: Vec3, d: &[F]) -> ([F; 3], F, bool) {
+fn offset_normal<F: Float>(n: Vec3, d: &[F]) -> ([F; 3], F, bool) {
     let u = [F::from_f32(n.x) + d[0], F::from_f32(n.y) + d[1], F::from_f32(n.z) + d[2]];
     let len = dot(u, u).sqrt();
     if len > F::from_f64(MIN_NORMAL_LEN) {
@@ -211,7 +212,7 @@ const CHUNK: usize = 4096;
 
 /// `x.map(f)` as plain loops over chunks, in parallel: the loop bodies vectorise (a `map` over a
 /// parallel iterator left each value to a scalar call).
-fn map_in_chunks<F: Real>(x: &[F], f: impl Fn(F) -> F + Sync) -> Vec<F> {
+fn map_in_chunks<F: Float>(x: &[F], f: impl Fn(F) -> F + Sync) -> Vec<F> {
     let mut out = vec![F::ZERO; x.len()];
     out.par_chunks_mut(CHUNK).zip(x.par_chunks(CHUNK)).for_each(|(o, x)| {
         for (o, &x) in o.iter_mut().zip(x) {
@@ -222,7 +223,7 @@ fn map_in_chunks<F: Real>(x: &[F], f: impl Fn(F) -> F + Sync) -> Vec<F> {
 }
 
 /// `x.zip(y).map(f)` as [`map_in_chunks`].
-fn zip_in_chunks<F: Real>(x: &[F], y: &[F], f: impl Fn(F, F) -> F + Sync) -> Vec<F> {
+fn zip_in_chunks<F: Float>(x: &[F], y: &[F], f: impl Fn(F, F) -> F + Sync) -> Vec<F> {
     let mut out = vec![F::ZERO; x.len()];
     out.par_chunks_mut(CHUNK).zip(x.par_chunks(CHUNK).zip(y.par_chunks(CHUNK))).for_each(|(o, (x, y))| {
         for ((o, &x), &y) in o.iter_mut().zip(x).zip(y) {
@@ -233,7 +234,7 @@ fn zip_in_chunks<F: Real>(x: &[F], y: &[F], f: impl Fn(F, F) -> F + Sync) -> Vec
 }
 
 /// SPEC 3 activations for N = `normals.len()` Gaussians (generic; f64 for the tests).
-pub fn activate<F: Real>(
+pub fn activate<F: Float>(
     m: usize,
     albedo_raw: &[F],
     roughness_raw: &[F],
@@ -254,7 +255,7 @@ pub fn activate<F: Real>(
 
 /// Backward of [`activate`]: sigmoid chains for albedo and roughness, and for the normals
 /// `d n_m / d dN = (I - n_m n_m^T) / |n + dN|`.
-pub fn activate_backward<F: Real>(
+pub fn activate_backward<F: Float>(
     m: usize,
     albedo_raw: &[F],
     roughness_raw: &[F],

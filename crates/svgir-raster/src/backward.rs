@@ -28,7 +28,6 @@ use crate::preprocess::Cam;
 use crate::preprocess::{assume_init, uninit_vec, Splat};
 use crate::preprocess_backward::{gaussian_backward, opacity_logit_grad, GradSlots, ParamGrad, SplatGradSum};
 use crate::preprocess_backward_simd::{gaussian_backward_block, Inputs, BLOCK};
-use crate::real::Real;
 use crate::splat::{
     eval_row, hit_from_row, intersect_backward, plane_setup, row_offsets, row_setup, RowEval, SplatGrad,
 };
@@ -40,6 +39,7 @@ use crate::{
 use rayon::prelude::*;
 use std::mem::MaybeUninit;
 use svgir_core::par::{filled, zeroed};
+use svgir_core::Float;
 
 // Per-entry gradient slot layout.
 pub(crate) const OFF_H: usize = 0;
@@ -69,7 +69,7 @@ struct PixB<F> {
 }
 
 /// Backward in scalar type `F` (see [`crate::backward()`] for the f32 entry point).
-pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
+pub fn backward_generic<F: Float, P: GaussianParams<F> + ?Sized>(
     input: &RenderInputOf<F, P>,
     cfg: &RasterConfig,
     state: &ForwardStateOf<F>,
@@ -327,7 +327,7 @@ pub fn backward_generic<F: Real, P: GaussianParams<F> + ?Sized>(
 }
 
 /// The background's gradient: `C = ... + T_N bg`.
-fn background_grad<F: Real>(bg: &BackgroundOf<F>, gc: Option<&[F]>, final_t: &[F]) -> Vec<F> {
+fn background_grad<F: Float>(bg: &BackgroundOf<F>, gc: Option<&[F]>, final_t: &[F]) -> Vec<F> {
     let npx = final_t.len();
     match (bg, gc) {
         (BackgroundOf::Color(_), None) => vec![F::ZERO; 3],
@@ -369,7 +369,7 @@ fn background_grad<F: Real>(bg: &BackgroundOf<F>, gc: Option<&[F]>, final_t: &[F
     }
 }
 
-pub(crate) struct Ctx<'a, F: Real> {
+pub(crate) struct Ctx<'a, F: Float> {
     pub(crate) bins: &'a TileBins,
     pub(crate) recs: &'a [TileRec<F>],
     pub(crate) state: &'a ForwardStateOf<F>,
@@ -401,7 +401,7 @@ struct Scratch<F> {
     groups: crate::lane_groups::Groups,
 }
 
-impl<F: Real> Scratch<F> {
+impl<F: Float> Scratch<F> {
     fn new(tile: usize, ce: usize) -> Self {
         let tp = tile * tile;
         Self {
@@ -420,7 +420,7 @@ impl<F: Real> Scratch<F> {
 /// Dispatches to the kernel specialised for which optional paths are live (each is a branch
 /// per composited pixel otherwise). Writes every slot of `eg`: the SIMD kernels zero each
 /// entry's slot as they reach it (in cache), the scalar ones the whole tile's first.
-fn backward_tile<F: Real>(ctx: &Ctx<F>, t: usize, eg: &mut [MaybeUninit<F>], scr: &mut Scratch<F>) {
+fn backward_tile<F: Float>(ctx: &Ctx<F>, t: usize, eg: &mut [MaybeUninit<F>], scr: &mut Scratch<F>) {
     let ci = ctx.cf.vertices > 1;
     let ex = ctx.ef.channels > 0;
     let dist = ctx.cfg.distortion && ctx.grads.distortion.is_some();
@@ -466,7 +466,7 @@ fn backward_tile<F: Real>(ctx: &Ctx<F>, t: usize, eg: &mut [MaybeUninit<F>], scr
 /// One tile; `eg` holds its entries' gradient slots. `CI`: colours interpolated from several
 /// vertices; `EX`: extra feature channels; `DIST`: the distortion output has a gradient.
 #[inline(never)]
-fn backward_tile_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
+fn backward_tile_k<F: Float, const CI: bool, const EX: bool, const DIST: bool>(
     ctx: &Ctx<F>,
     t: usize,
     eg: &mut [F],

@@ -25,7 +25,6 @@ use crate::interp::{normalised_coord, weights, MAX_VERTICES};
 use crate::lane_groups::{EntryGroups, GroupSlot};
 use crate::phases::Stopwatch;
 use crate::preprocess::{preprocess, Cam, Splat};
-use crate::real::Real;
 use crate::splat::{eval_row, plane_setup, row_offsets, row_setup, RowEval};
 use crate::tiles::{bin, columns_mask, gather_records, EntryBox, TileBins, TileRec};
 use crate::{
@@ -36,6 +35,7 @@ use rayon::prelude::*;
 use std::ops::Range;
 use std::sync::Arc;
 use svgir_core::par::{filled, Disjoint};
+use svgir_core::Float;
 
 /// A feature table seen by the kernels: `data[(g * vertices + m) * channels + c]`.
 #[derive(Clone, Copy, Debug)]
@@ -52,7 +52,7 @@ pub struct FeatView<'a, F> {
     pub lerped: usize,
 }
 
-impl<'a, F: Real> FeatView<'a, F> {
+impl<'a, F: Float> FeatView<'a, F> {
     /// The colour table: SH colours (one vertex) or the given features.
     pub fn colors(colors: &ColorSourceOf<'a, F>, sh_colors: &'a [[F; 3]]) -> Self {
         match colors {
@@ -118,7 +118,7 @@ impl<'a, F: Real> FeatView<'a, F> {
 
 /// Interpolation weights at a hit (u, v) for `vertices` (1: `[1, ..]`).
 #[inline(always)]
-pub(crate) fn hit_weights<F: Real>(vertices: usize, u: F, v: F, w: &mut [F; MAX_VERTICES]) {
+pub(crate) fn hit_weights<F: Float>(vertices: usize, u: F, v: F, w: &mut [F; MAX_VERTICES]) {
     if vertices > 1 {
         let (ut, _) = normalised_coord(u);
         let (vt, _) = normalised_coord(v);
@@ -130,13 +130,13 @@ pub(crate) fn hit_weights<F: Real>(vertices: usize, u: F, v: F, w: &mut [F; MAX_
 
 /// 2DGS's depth mapping for the distortion loss.
 #[inline(always)]
-pub(crate) fn distortion_depth<F: Real>(z: F, near: F, far: F) -> F {
+pub(crate) fn distortion_depth<F: Float>(z: F, near: F, far: F) -> F {
     far / (far - near) * (F::ONE - near / z)
 }
 
 /// Background colour of pixel `pix`.
 #[inline(always)]
-pub(crate) fn background_at<F: Real>(bg: &BackgroundOf<F>, pix: usize) -> [F; 3] {
+pub(crate) fn background_at<F: Float>(bg: &BackgroundOf<F>, pix: usize) -> [F; 3] {
     match bg {
         BackgroundOf::Color(c) => *c,
         BackgroundOf::Image(b) => [b[pix * 3], b[pix * 3 + 1], b[pix * 3 + 2]],
@@ -246,7 +246,7 @@ pub(crate) fn split_lens<T>(mut v: &mut [T], lens: impl Iterator<Item = usize>) 
 }
 
 /// Renders in scalar type `F` (see [`crate::render`] for the f32 entry point).
-pub fn render_generic<F: Real, P: GaussianParams<F> + ?Sized>(
+pub fn render_generic<F: Float, P: GaussianParams<F> + ?Sized>(
     input: &RenderInputOf<F, P>,
     cfg: &RasterConfig,
 ) -> (RenderOutputOf<F>, ForwardStateOf<F>) {
@@ -256,14 +256,14 @@ pub fn render_generic<F: Real, P: GaussianParams<F> + ?Sized>(
 }
 
 /// The projection of [`render_generic`] alone (see [`crate::try_project`]).
-pub(crate) fn project<F: Real, P: GaussianParams<F> + ?Sized>(
+pub(crate) fn project<F: Float, P: GaussianParams<F> + ?Sized>(
     input: &RenderInputOf<F, P>,
     cfg: &RasterConfig,
 ) -> Projection<F> {
     project_timed(input, cfg, &mut Stopwatch::start())
 }
 
-fn project_timed<F: Real, P: GaussianParams<F> + ?Sized>(
+fn project_timed<F: Float, P: GaussianParams<F> + ?Sized>(
     input: &RenderInputOf<F, P>,
     cfg: &RasterConfig,
     sw: &mut Stopwatch,
@@ -280,13 +280,13 @@ fn project_timed<F: Real, P: GaussianParams<F> + ?Sized>(
 }
 
 /// Per Gaussian, its screen radius when it is in view, else 0 ([`RenderOutputOf::max_radius`]).
-pub(crate) fn max_radius<F: Real>(splats: &[Splat<F>]) -> Vec<f32> {
+pub(crate) fn max_radius<F: Float>(splats: &[Splat<F>]) -> Vec<f32> {
     splats.par_iter().with_min_len(4096).map(|s| if s.visible() { s.radius } else { 0.0 }).collect()
 }
 
 /// The tile passes of [`render_generic`] over a projection already made (by this render or an
 /// earlier one of the same Gaussians and camera, [`crate::try_render_reusing`]).
-pub(crate) fn render_projected<F: Real, P: GaussianParams<F> + ?Sized>(
+pub(crate) fn render_projected<F: Float, P: GaussianParams<F> + ?Sized>(
     input: &RenderInputOf<F, P>,
     cfg: &RasterConfig,
     proj: Arc<Projection<F>>,
@@ -396,7 +396,7 @@ struct PixAcc<F> {
 /// Dispatches to the kernel specialised for which optional paths are live (each is a branch per
 /// composited pixel otherwise): interpolated colours, extra channels, distortion.
 #[allow(clippy::too_many_arguments)]
-fn render_tiles<F: Real>(
+fn render_tiles<F: Float>(
     o: &Outputs<F>,
     run: Range<usize>,
     bins: &TileBins,
@@ -446,7 +446,7 @@ fn render_tiles<F: Real>(
 /// A run of tiles; see [`render_tiles`] for the const parameters.
 #[allow(clippy::too_many_arguments)]
 #[inline(never)]
-fn render_tiles_k<F: Real, const CI: bool, const EX: bool, const DIST: bool>(
+fn render_tiles_k<F: Float, const CI: bool, const EX: bool, const DIST: bool>(
     o: &Outputs<F>,
     run: Range<usize>,
     bins: &TileBins,

@@ -12,8 +12,8 @@
 
 #![allow(unsafe_op_in_unsafe_fn)]
 
-use crate::real::Real;
 use crate::simd::Lanes;
+use svgir_core::Float;
 
 /// Largest supported vertex count.
 pub const MAX_VERTICES: usize = 6;
@@ -26,7 +26,7 @@ pub fn supported_vertices(m: usize) -> bool {
 /// Normalised tangent coordinate from a sigma-unit one (SPEC 3: `u~ = clamp(0.5 + 0.5 u, 0.001,
 /// 0.999)`), and `d u~ / d u` (0 where the clamp is active: the exact derivative).
 #[inline(always)]
-pub fn normalised_coord<F: Real>(u: F) -> (F, F) {
+pub fn normalised_coord<F: Float>(u: F) -> (F, F) {
     let t = F::c(0.5) + F::c(0.5) * u;
     if t < F::c(0.001) {
         (F::c(0.001), F::ZERO)
@@ -39,7 +39,7 @@ pub fn normalised_coord<F: Real>(u: F) -> (F, F) {
 
 /// Weights `w[m]` at (u~, v~) for `m < vertices`.
 #[inline(always)]
-pub fn weights<F: Real>(vertices: usize, u: F, v: F, w: &mut [F; MAX_VERTICES]) {
+pub fn weights<F: Float>(vertices: usize, u: F, v: F, w: &mut [F; MAX_VERTICES]) {
     let one = F::ONE;
     match vertices {
         2 => {
@@ -65,7 +65,7 @@ pub fn weights<F: Real>(vertices: usize, u: F, v: F, w: &mut [F; MAX_VERTICES]) 
 
 /// Derivatives `du[m] = d w_m / d u~`, `dv[m] = d w_m / d v~`.
 #[inline(always)]
-pub fn weight_grads<F: Real>(vertices: usize, u: F, v: F, du: &mut [F; MAX_VERTICES], dv: &mut [F; MAX_VERTICES]) {
+pub fn weight_grads<F: Float>(vertices: usize, u: F, v: F, du: &mut [F; MAX_VERTICES], dv: &mut [F; MAX_VERTICES]) {
     let one = F::ONE;
     match vertices {
         2 => {
@@ -102,14 +102,14 @@ pub fn weight_grads<F: Real>(vertices: usize, u: F, v: F, du: &mut [F; MAX_VERTI
 }
 
 #[inline(always)]
-fn lagrange<F: Real>(u: F) -> [F; 3] {
+fn lagrange<F: Float>(u: F) -> [F; 3] {
     let h = F::c(0.5);
     let one = F::ONE;
     [F::c(2.0) * (u - h) * (u - one), F::c(-4.0) * u * (u - one), F::c(2.0) * u * (u - h)]
 }
 
 #[inline(always)]
-fn lagrange_grad<F: Real>(u: F) -> [F; 3] {
+fn lagrange_grad<F: Float>(u: F) -> [F; 3] {
     [F::c(4.0) * u - F::c(3.0), F::c(4.0) - F::c(8.0) * u, F::c(4.0) * u - F::ONE]
 }
 

@@ -9,7 +9,7 @@
 //! See [`splat`] for the per-pixel rules (filter, cut-offs), [`preprocess`] for culling and the
 //! screen box, [`forward`] / [`backward`](mod@backward) for compositing.
 //!
-//! Every kernel is generic over [`Real`]: training uses `f32` ([`render`], [`backward()`]); the
+//! Every kernel is generic over [`Float`]: training uses `f32` ([`render`], [`backward()`]); the
 //! tests run the same code in `f64` against finite differences of the dense [`reference`](mod@reference) renderer.
 
 #![warn(missing_docs)]
@@ -33,11 +33,11 @@ pub mod preprocess;
 pub mod preprocess_backward;
 mod preprocess_backward_simd;
 mod preprocess_simd;
-pub mod real;
 pub mod reference;
 pub mod simd;
 pub mod splat;
 pub mod tiles;
+pub mod vec3;
 
 use rayon::prelude::*;
 use svgir_core::{Camera, ShCoeffs, Surfels};
@@ -47,8 +47,8 @@ pub use backward::backward_generic;
 pub use bench::bench_table;
 pub use forward::render_generic;
 pub use phases::PhaseTimes;
-pub use real::Real;
 pub use simd::Simd;
+pub use svgir_core::Float;
 
 /// Rasterizer settings.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -164,7 +164,7 @@ pub enum RasterError {
 
 /// Read access to the raw Gaussian parameters in the kernels' scalar type. [`Surfels`] implements
 /// it for both `f32` and `f64`; tests implement it on `f64` arrays to perturb parameters finely.
-pub trait GaussianParams<F: Real>: Sync {
+pub trait GaussianParams<F: Float>: Sync {
     /// Number of Gaussians.
     fn count(&self) -> usize;
     /// SH degree of the colour coefficients (0..=3).
@@ -181,7 +181,7 @@ pub trait GaussianParams<F: Real>: Sync {
     fn sh(&self, i: usize, k: usize, ch: usize) -> F;
 }
 
-impl<F: Real> GaussianParams<F> for Surfels {
+impl<F: Float> GaussianParams<F> for Surfels {
     fn count(&self) -> usize {
         self.len()
     }
@@ -255,7 +255,7 @@ pub enum BackgroundOf<'a, F> {
 pub type Background<'a> = BackgroundOf<'a, f32>;
 
 /// Everything one render reads.
-pub struct RenderInputOf<'a, F: Real, P: GaussianParams<F> + ?Sized> {
+pub struct RenderInputOf<'a, F: Float, P: GaussianParams<F> + ?Sized> {
     /// The Gaussians' raw parameters.
     pub surfels: &'a P,
     /// The camera rendered from.
@@ -426,7 +426,7 @@ pub type OutputGrads<'a> = OutputGradsOf<'a, f32>;
 
 /// Gradients w.r.t. the raw parameters stored in [`Surfels`] and the other inputs.
 #[derive(Clone, Debug)]
-pub struct GradsOf<F: Real> {
+pub struct GradsOf<F: Float> {
     /// W.r.t. the world-space centres, one per Gaussian.
     pub v_positions: Vec<F::V3>,
     /// W.r.t. the raw unnormalised quaternion.
@@ -456,7 +456,7 @@ pub struct GradsOf<F: Real> {
 pub type Grads = GradsOf<f32>;
 
 /// Checks lengths, vertex counts and surfel arrays; [`render`] panics on what this rejects.
-pub fn check_input<F: Real, P: GaussianParams<F> + ?Sized>(
+pub fn check_input<F: Float, P: GaussianParams<F> + ?Sized>(
     input: &RenderInputOf<F, P>,
     cfg: &RasterConfig,
 ) -> Result<(), RasterError> {
@@ -584,7 +584,7 @@ pub fn sh_colors_backward(
         // A Gaussian no pixel saw has a zero gradient: its row stays zero.
         if splats[i].visible() && v_colors[i] != [0.0; 3] {
             let rows = preprocess_backward::sh_color_rows(input.surfels, &cam, &splats[i], &v_colors[i], i);
-            *row = <f32 as Real>::sh(&rows);
+            *row = <f32 as Float>::sh(&rows);
         }
     });
     Ok(v_sh)

@@ -22,11 +22,12 @@
 #![allow(clippy::neg_cmp_op_on_partial_ord)]
 
 use crate::preprocess_simd::BLOCK;
-use crate::real::{dot3, matvec, sub3, Real};
+use crate::vec3::{dot3, matvec, sub3};
 use crate::{ColorSourceOf, GaussianParams, RasterConfig};
 use rayon::prelude::*;
 use std::mem::MaybeUninit;
 use svgir_core::Camera;
+use svgir_core::Float;
 
 /// Support cut-off in sigma units (SPEC 1).
 pub const CUTOFF: f64 = 3.0;
@@ -56,7 +57,7 @@ pub struct Cam<F> {
     pub height: u32,
 }
 
-impl<F: Real> Cam<F> {
+impl<F: Float> Cam<F> {
     /// Converts a [`Camera`] to the kernels' scalar type (and precomputes its centre `-R^T t`).
     pub fn new(cam: &Camera) -> Self {
         let rows = [0, 1, 2].map(|i| cam.rotation.row(i).to_array().map(F::from_f32));
@@ -121,7 +122,7 @@ impl<F> Splat<F> {
 
 /// Unit quaternion and its rotation matrix (row-major; columns are t_u, t_v, n).
 #[inline]
-pub fn quat_to_rot<F: Real>(q: [F; 4]) -> Option<([F; 4], F, [[F; 3]; 3])> {
+pub fn quat_to_rot<F: Float>(q: [F; 4]) -> Option<([F; 4], F, [[F; 3]; 3])> {
     let len = dot3([q[0], q[1], q[2]], [q[0], q[1], q[2]]) + q[3] * q[3];
     let len = len.sqrt();
     if !(len > F::ZERO) {
@@ -140,12 +141,12 @@ pub fn quat_to_rot<F: Real>(q: [F; 4]) -> Option<([F; 4], F, [[F; 3]; 3])> {
 
 /// Column `c` of a row-major matrix.
 #[inline]
-pub fn col<F: Real>(m: &[[F; 3]; 3], c: usize) -> [F; 3] {
+pub fn col<F: Float>(m: &[[F; 3]; 3], c: usize) -> [F; 3] {
     [m[0][c], m[1][c], m[2][c]]
 }
 
 /// Preprocesses every Gaussian; returns the splats and (for SH colours) per-Gaussian RGB.
-pub fn preprocess<F: Real, P: GaussianParams<F> + ?Sized>(
+pub fn preprocess<F: Float, P: GaussianParams<F> + ?Sized>(
     params: &P,
     cam: &Cam<F>,
     colors: &ColorSourceOf<F>,
@@ -223,7 +224,7 @@ pub fn preprocess<F: Real, P: GaussianParams<F> + ?Sized>(
 }
 
 /// The splat record of Gaussian `i`, or `None` when culled.
-pub fn project_one<F: Real, P: GaussianParams<F> + ?Sized>(
+pub fn project_one<F: Float, P: GaussianParams<F> + ?Sized>(
     params: &P,
     cam: &Cam<F>,
     cfg: &RasterConfig,
@@ -284,7 +285,7 @@ pub fn project_one<F: Real, P: GaussianParams<F> + ?Sized>(
 }
 
 /// Pixel box and radius (see the module docs).
-fn screen_box<F: Real>(h: &[F; 9], center: [F; 2], rho_max: f64, w: u32, hh: u32) -> Option<([u32; 4], f32)> {
+fn screen_box<F: Float>(h: &[F; 9], center: [F; 2], rho_max: f64, w: u32, hh: u32) -> Option<([u32; 4], f32)> {
     let t: [f64; 9] = h.map(|v| v.to_f64());
     let c = [center[0].to_f64(), center[1].to_f64()];
     if !t.iter().chain(c.iter()).all(|v| v.is_finite()) {
@@ -341,7 +342,7 @@ fn conic_extent(t: &[f64; 9], cut2: f64) -> Option<[f64; 4]> {
 }
 
 /// SH colour `max(0, 0.5 + SH(normalize(p - cam)))` (3DGS) and the clamp bits.
-pub fn sh_color<F: Real, P: GaussianParams<F> + ?Sized>(params: &P, cam: &Cam<F>, i: usize) -> ([F; 3], u8) {
+pub fn sh_color<F: Float, P: GaussianParams<F> + ?Sized>(params: &P, cam: &Cam<F>, i: usize) -> ([F; 3], u8) {
     let deg = params.sh_degree().min(3);
     let dir = sub3(params.position(i), cam.center);
     let len = dot3(dir, dir).sqrt();

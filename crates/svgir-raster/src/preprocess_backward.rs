@@ -6,9 +6,10 @@
 //! everything is recomputed from the raw parameters (nothing beyond the splat record is saved).
 
 use crate::preprocess::{col, quat_to_rot, Cam, Splat};
-use crate::real::{dot3, matvec, matvec_t, sub3, Real};
+use crate::vec3::{dot3, matvec, matvec_t, sub3};
 use crate::GaussianParams;
 use std::mem::MaybeUninit;
+use svgir_core::Float;
 
 /// Summed gradients of one Gaussian's splat record.
 #[derive(Clone, Copy, Debug, Default)]
@@ -42,7 +43,7 @@ pub struct ParamGrad<F> {
     pub mean2d_norm: F,
 }
 
-impl<F: Real> Default for ParamGrad<F> {
+impl<F: Float> Default for ParamGrad<F> {
     fn default() -> Self {
         Self {
             position: [F::ZERO; 3],
@@ -56,7 +57,7 @@ impl<F: Real> Default for ParamGrad<F> {
 }
 
 /// d(loss)/d(raw quaternion) from d(loss)/dR (row-major), for R = R(q / |q|).
-pub fn quat_backward<F: Real>(q: [F; 4], v_r: &[[F; 3]; 3]) -> [F; 4] {
+pub fn quat_backward<F: Float>(q: [F; 4], v_r: &[[F; 3]; 3]) -> [F; 4] {
     let Some(([x, y, z, w], len, _)) = quat_to_rot(q) else { return [F::ZERO; 4] };
     let g = v_r;
     let two = F::c(2.0);
@@ -82,12 +83,12 @@ pub fn quat_backward<F: Real>(q: [F; 4], v_r: &[[F; 3]; 3]) -> [F; 4] {
 /// `dL/d(logit)` of an opacity `o = sigmoid(logit)` from `dL/do` (the lane kernel of
 /// `preprocess_backward_simd` forms the same product in the same order).
 #[inline]
-pub(crate) fn opacity_logit_grad<F: Real>(v_o: F, o: F) -> F {
+pub(crate) fn opacity_logit_grad<F: Float>(v_o: F, o: F) -> F {
     v_o * o * (F::ONE - o)
 }
 
 /// Parameter gradients of Gaussian `i` given its summed splat-record gradients.
-pub fn gaussian_backward<F: Real, P: GaussianParams<F> + ?Sized>(
+pub fn gaussian_backward<F: Float, P: GaussianParams<F> + ?Sized>(
     params: &P,
     cam: &Cam<F>,
     splat: &Splat<F>,
@@ -159,7 +160,7 @@ pub fn gaussian_backward<F: Real, P: GaussianParams<F> + ?Sized>(
 /// Backward of Gaussian `i`'s SH colour `max(0, 0.5 + SH(d))`, `d` the unit direction from the
 /// camera centre: the coefficient rows (`[k][channel]`, as [`sh_color_rows`]) and the gradient reaching the
 /// centre through `d`, from `v_color` (a clamped channel passes none). Visible Gaussians only.
-pub fn sh_color_backward<F: Real, P: GaussianParams<F> + ?Sized>(
+pub fn sh_color_backward<F: Float, P: GaussianParams<F> + ?Sized>(
     params: &P,
     cam: &Cam<F>,
     splat: &Splat<F>,
@@ -188,7 +189,7 @@ pub fn sh_color_backward<F: Real, P: GaussianParams<F> + ?Sized>(
 
 /// The coefficient rows alone of [`sh_color_backward`] (its bits), for a caller that keeps the
 /// centres fixed.
-pub fn sh_color_rows<F: Real, P: GaussianParams<F> + ?Sized>(
+pub fn sh_color_rows<F: Float, P: GaussianParams<F> + ?Sized>(
     params: &P,
     cam: &Cam<F>,
     splat: &Splat<F>,
@@ -200,14 +201,14 @@ pub fn sh_color_rows<F: Real, P: GaussianParams<F> + ?Sized>(
 }
 
 /// Unit direction from the camera centre to Gaussian `i`, and the distance.
-fn view_direction<F: Real, P: GaussianParams<F> + ?Sized>(params: &P, cam: &Cam<F>, i: usize) -> ([F; 3], F) {
+fn view_direction<F: Float, P: GaussianParams<F> + ?Sized>(params: &P, cam: &Cam<F>, i: usize) -> ([F; 3], F) {
     let dir = sub3(params.position(i), cam.center);
     let len = dot3(dir, dir).sqrt();
     (dir.map(|v| v / len), len)
 }
 
 /// `v_color` with the channels the forward clamped to zero.
-fn unclamped<F: Real>(splat: &Splat<F>, v_color: &[F; 3]) -> [F; 3] {
+fn unclamped<F: Float>(splat: &Splat<F>, v_color: &[F; 3]) -> [F; 3] {
     let mut gc = *v_color;
     for (ch, g) in gc.iter_mut().enumerate() {
         if splat.clamped & (1 << ch) != 0 {
@@ -218,7 +219,7 @@ fn unclamped<F: Real>(splat: &Splat<F>, v_color: &[F; 3]) -> [F; 3] {
 }
 
 /// `rows[k][ch] = Y_k(d) gc[ch]`: the colour is linear in the coefficients.
-fn sh_rows<F: Real>(deg: u32, d: [F; 3], gc: &[F; 3]) -> [[F; 3]; 16] {
+fn sh_rows<F: Float>(deg: u32, d: [F; 3], gc: &[F; 3]) -> [[F; 3]; 16] {
     let mut b = [F::ZERO; 16];
     F::sh_basis(deg, d, &mut b);
     let mut rows = [[F::ZERO; 3]; 16];
@@ -233,7 +234,7 @@ fn sh_rows<F: Real>(deg: u32, d: [F; 3], gc: &[F; 3]) -> [[F; 3]; 16] {
 /// The gradient outputs of a run of Gaussians, each slot written exactly once: the backward
 /// allocates its output vectors without zeroing them (a zeroing pass over the 19 MB of SH rows
 /// of 100k Gaussians is serial, inside `calloc`, and cost a third of the per-Gaussian phase).
-pub(crate) struct GradSlots<'a, F: Real> {
+pub(crate) struct GradSlots<'a, F: Float> {
     pub position: &'a mut [MaybeUninit<F::V3>],
     pub rotation: &'a mut [MaybeUninit<F::Q>],
     pub log_scale: &'a mut [MaybeUninit<F::V2>],
@@ -242,7 +243,7 @@ pub(crate) struct GradSlots<'a, F: Real> {
     pub mean2d_norm: &'a mut [MaybeUninit<F>],
 }
 
-impl<F: Real> GradSlots<'_, F> {
+impl<F: Float> GradSlots<'_, F> {
     /// Number of slots.
     pub(crate) fn len(&self) -> usize {
         self.position.len()

@@ -21,11 +21,11 @@
 use crate::backward::OFF_COL;
 use crate::preprocess::{Cam, Splat};
 use crate::preprocess_backward::{GradSlots, ParamGrad};
-use crate::real::Real;
 use crate::simd::{Lanes, Simd};
 use crate::GaussianParams;
 use glam::{Quat, Vec2, Vec3};
 use svgir_core::sh::ShCoeffs;
+use svgir_core::Float;
 
 /// Gaussians per block.
 pub(crate) const BLOCK: usize = 8;
@@ -118,7 +118,7 @@ impl Inputs {
     /// block's values, which are finite and whose results are never stored; reusing one
     /// `Inputs` per task instead of zeroing a new one per block saved a 31 MB memset per
     /// backward of 100k Gaussians.
-    pub(crate) fn fill<F: Real, P: GaussianParams<F> + ?Sized>(
+    pub(crate) fn fill<F: Float, P: GaussianParams<F> + ?Sized>(
         &mut self,
         params: &P,
         splats: &[Splat<F>],
@@ -176,13 +176,13 @@ unsafe fn st<S: Lanes>(v: S) -> [f32; BLOCK] {
     a
 }
 
-/// `a0 b0 + a1 b1 + a2 b2` ([`crate::real::dot3`]'s order).
+/// `a0 b0 + a1 b1 + a2 b2` ([`crate::vec3::dot3`]'s order).
 #[inline(always)]
 unsafe fn dot3<S: Lanes>(a: [S; 3], b: [S; 3]) -> S {
     a[0].mul(b[0]).add(a[1].mul(b[1])).add(a[2].mul(b[2]))
 }
 
-/// `m^T v` for a row-major camera rotation ([`crate::real::matvec_t`]'s order, summed from 0).
+/// `m^T v` for a row-major camera rotation ([`crate::vec3::matvec_t`]'s order, summed from 0).
 #[inline(always)]
 unsafe fn matvec_t<S: Lanes>(m: &[[f32; 3]; 3], v: [S; 3]) -> [S; 3] {
     let mut r = [S::splat(0.0); 3];

@@ -11,12 +11,12 @@
 //! (the tests compare them) and the fallback for f64 and other architectures.
 
 use crate::preprocess::{Cam, Splat, CUTOFF, FILTER_SIZE};
-use crate::real::Real;
 use crate::simd::Simd;
 use crate::splat::{rho_limit, RowConic};
 use crate::{GaussianParams, RasterConfig};
 use std::mem::MaybeUninit;
 use std::ops::{Add, Div, Mul, Sub};
+use svgir_core::Float;
 
 /// Gaussians per block.
 pub(crate) const BLOCK: usize = 8;
@@ -85,13 +85,13 @@ impl M {
     }
 }
 
-/// `a0 b0 + a1 b1 + a2 b2` ([`crate::real::dot3`]'s order).
+/// `a0 b0 + a1 b1 + a2 b2` ([`crate::vec3::dot3`]'s order).
 #[inline(always)]
 fn dot3<T: Copy + Add<Output = T> + Mul<Output = T>>(a: [V<T>; 3], b: [V<T>; 3]) -> V<T> {
     a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
 }
 
-/// `m v` for a row-major camera rotation ([`crate::real::matvec`]).
+/// `m v` for a row-major camera rotation ([`crate::vec3::matvec`]).
 #[inline(always)]
 fn matvec(m: &[[f32; 3]; 3], v: [V<f32>; 3]) -> [V<f32>; 3] {
     each(m, |row| dot3(each(&row, V::splat), v))
@@ -101,7 +101,7 @@ fn matvec(m: &[[f32; 3]; 3], v: [V<f32>; 3]) -> [V<f32>; 3] {
 /// ones as `Splat::default()`), with their SH colours and clamp bits when `colors` is `Some`,
 /// on the SIMD path `path` (already resolved); false when `path` is scalar (the caller runs the
 /// scalar functions). Every slot is written.
-pub(crate) fn project_block<F: Real, P: GaussianParams<F> + ?Sized>(
+pub(crate) fn project_block<F: Float, P: GaussianParams<F> + ?Sized>(
     path: Simd,
     params: &P,
     cam: &Cam<f32>,
@@ -181,7 +181,7 @@ impl Inputs {
 
     /// The parameters of Gaussians `g0..g0 + m`, read in the scalar type `F` (which is `f32` on
     /// the SIMD paths, so `to_f32` is exact).
-    fn fill<F: Real, P: GaussianParams<F> + ?Sized>(&mut self, params: &P, g0: usize, m: usize, sh: bool) {
+    fn fill<F: Float, P: GaussianParams<F> + ?Sized>(&mut self, params: &P, g0: usize, m: usize, sh: bool) {
         let nk = if sh { svgir_core::sh::num_coeffs(params.sh_degree().min(3)) } else { 0 };
         let x = self;
         x.nk = nk;

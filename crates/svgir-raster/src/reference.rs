@@ -8,13 +8,13 @@
 use crate::forward::{background_at, distortion_depth, hit_weights, FeatView};
 use crate::interp::MAX_VERTICES;
 use crate::preprocess::{preprocess, Cam};
-use crate::real::Real;
 use crate::splat::intersect;
 use crate::tiles::sort_key;
 use crate::{GaussianParams, RasterConfig, RenderInputOf, RenderOutputOf};
+use svgir_core::Float;
 
 /// Renders `input` densely (tiny images only: O(pixels x Gaussians)).
-pub fn render_reference<F: Real, P: GaussianParams<F> + ?Sized>(
+pub fn render_reference<F: Float, P: GaussianParams<F> + ?Sized>(
     input: &RenderInputOf<F, P>,
     cfg: &RasterConfig,
 ) -> RenderOutputOf<F> {

@@ -18,7 +18,8 @@
 //! branch is active, which 2DGS drops); the clamps at 0.99 and the branch of the min are treated as
 //! piecewise (derivative of the active piece).
 
-use crate::real::{cross3, Real};
+use crate::vec3::cross3;
+use svgir_core::Float;
 
 /// Result of a successful evaluation.
 #[derive(Clone, Copy, Debug)]
@@ -43,7 +44,7 @@ pub struct Hit<F> {
 
 /// Largest rho kept (3 sigma).
 #[inline(always)]
-pub fn max_rho<F: Real>() -> F {
+pub fn max_rho<F: Float>() -> F {
     F::c(9.0)
 }
 
@@ -204,7 +205,7 @@ pub struct PlaneSetup<F> {
 
 /// The [`PlaneSetup`] of the splat with rows `h`.
 #[inline(always)]
-pub fn plane_setup<F: Real>(h: &[F; 9]) -> PlaneSetup<F> {
+pub fn plane_setup<F: Float>(h: &[F; 9]) -> PlaneSetup<F> {
     let (tu, tv, tw) = ([h[0], h[1], h[2]], [h[3], h[4], h[5]], [h[6], h[7], h[8]]);
     PlaneSetup { a: cross3(tv, tw), bw: cross3(tu, tw), b0: cross3(tu, tv) }
 }
@@ -221,7 +222,7 @@ pub struct RowSetup<F> {
 
 /// The [`RowSetup`] of the splat with plane `p` on the pixel row with centre `y`.
 #[inline(always)]
-pub fn row_setup<F: Real>(p: &PlaneSetup<F>, y: F) -> RowSetup<F> {
+pub fn row_setup<F: Float>(p: &PlaneSetup<F>, y: F) -> RowSetup<F> {
     RowSetup { a: p.a, b: std::array::from_fn(|j| y * p.bw[j] - p.b0[j]) }
 }
 
@@ -245,7 +246,7 @@ pub struct RowEval<F> {
     pub inv_pz: [F; MAX_ROW],
 }
 
-impl<F: Real> Default for RowEval<F> {
+impl<F: Float> Default for RowEval<F> {
     fn default() -> Self {
         let z = [F::ZERO; MAX_ROW];
         Self { alpha: z, u: z, v: z, z, g: z, inv_pz: z }
@@ -255,7 +256,7 @@ impl<F: Real> Default for RowEval<F> {
 /// Branch-free evaluation at pixel centre x of a row: `(alpha or 0 if skipped, u, v, z, g, 1/p.z)`.
 /// Every skip test is a comparison that NaN (from `p.z == 0`) fails, so invalid pixels get 0.
 #[inline(always)]
-fn eval_px<F: Real>(h: &[F; 9], c: [F; 2], o: F, rs: &RowSetup<F>, x: F, y: F, near: F) -> (F, F, F, F, F, F) {
+fn eval_px<F: Float>(h: &[F; 9], c: [F; 2], o: F, rs: &RowSetup<F>, x: F, y: F, near: F) -> (F, F, F, F, F, F) {
     let px = x * rs.a[0] - rs.b[0];
     let py = x * rs.a[1] - rs.b[1];
     let pz = x * rs.a[2] - rs.b[2];
@@ -276,14 +277,14 @@ fn eval_px<F: Real>(h: &[F; 9], c: [F; 2], o: F, rs: &RowSetup<F>, x: F, y: F, n
 }
 
 /// `[0, 1, 2, ...]` in `F`, for [`eval_row`].
-pub fn row_offsets<F: Real>() -> [F; MAX_ROW] {
+pub fn row_offsets<F: Float>() -> [F; MAX_ROW] {
     std::array::from_fn(|i| F::c(i as f64))
 }
 
 /// Evaluates pixels `x0 + 0.5 + offsets[i]`, `i < n`, of row centre `y` set up by [`row_setup`]
 /// (a loop the compiler can vectorise: no branches); `offsets` is [`row_offsets`].
 #[inline(always)]
-pub fn eval_row<F: Real>(
+pub fn eval_row<F: Float>(
     h: &[F; 9],
     c: [F; 2],
     o: F,
@@ -311,12 +312,12 @@ pub fn eval_row<F: Real>(
 
 /// The full hit record of pixel `i` of a row evaluated by [`eval_row`] (for backward).
 #[inline(always)]
-pub fn hit_from_row<F: Real>(c: [F; 2], o: F, e: &RowEval<F>, i: usize, x: F, y: F) -> Hit<F> {
+pub fn hit_from_row<F: Float>(c: [F; 2], o: F, e: &RowEval<F>, i: usize, x: F, y: F) -> Hit<F> {
     hit_from_parts(c, o, [e.alpha[i], e.u[i], e.v[i], e.z[i], e.g[i], e.inv_pz[i]], x, y)
 }
 
 #[inline(always)]
-fn hit_from_parts<F: Real>(c: [F; 2], o: F, parts: [F; 6], x: F, y: F) -> Hit<F> {
+fn hit_from_parts<F: Float>(c: [F; 2], o: F, parts: [F; 6], x: F, y: F) -> Hit<F> {
     let [alpha, u, v, z, g, inv_pz] = parts;
     let dx = c[0] - x;
     let dy = c[1] - y;
@@ -328,7 +329,7 @@ fn hit_from_parts<F: Real>(c: [F; 2], o: F, parts: [F; 6], x: F, y: F) -> Hit<F>
 /// Evaluates the splat with matrix `h`, projected centre `c` and opacity `o` at pixel centre
 /// `(x, y)`; `None` when the pixel is skipped. Same arithmetic as [`eval_row`].
 #[inline(always)]
-pub fn intersect<F: Real>(h: &[F; 9], c: [F; 2], o: F, x: F, y: F, near: F) -> Option<Hit<F>> {
+pub fn intersect<F: Float>(h: &[F; 9], c: [F; 2], o: F, x: F, y: F, near: F) -> Option<Hit<F>> {
     let rs = row_setup(&plane_setup(h), y);
     let (alpha, u, v, z, g, inv_pz) = eval_px(h, c, o, &rs, x, y, near);
     if alpha == F::ZERO {
@@ -358,7 +359,7 @@ pub struct SplatGrad<F> {
     gp_y: [F; 3],
 }
 
-impl<F: Real> SplatGrad<F> {
+impl<F: Float> SplatGrad<F> {
     /// From sums accumulated elsewhere (the SIMD kernels): `sum gp`, `sum x gp`, `sum y gp`.
     pub(crate) fn from_sums(
         h_depth: [F; 3],
@@ -396,7 +397,7 @@ impl<F: Real> SplatGrad<F> {
 /// Adds to `out` the gradient given `dL/dalpha`, `dL/dz` and `dL/du`, `dL/dv` (the latter from
 /// the interpolation weights only; the depth and rho paths are added here).
 #[inline(always)]
-pub fn intersect_backward<F: Real>(
+pub fn intersect_backward<F: Float>(
     hit: &Hit<F>,
     h: &[F; 9],
     c: [F; 2],

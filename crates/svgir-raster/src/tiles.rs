@@ -11,13 +11,13 @@
 //! stream through memory instead of chasing Gaussian ids.
 
 use crate::preprocess::Splat;
-use crate::real::Real;
 use rayon::prelude::*;
 use svgir_core::par::Disjoint;
+use svgir_core::Float;
 
 /// The sort key: depth (as f32, whose bit pattern orders positive values) then id.
 #[inline]
-pub fn sort_key<F: Real>(depth: F, id: u32) -> u64 {
+pub fn sort_key<F: Float>(depth: F, id: u32) -> u64 {
     let d = depth.to_f32().max(0.0);
     ((d.to_bits() as u64) << 32) | id as u64
 }
@@ -49,7 +49,7 @@ pub struct TileRec<F> {
 /// the splats are then read in order and the records written at their positions, independent
 /// stores the core overlaps, where the gather's reads of splats in tile order missed the cache
 /// one after another (400x400 / 100k, 2 threads: 10.1 -> 7.5 ms; docs/performance.md).
-pub fn gather_records<F: Real>(bins: &TileBins, splats: &[Splat<F>], colors: Option<&[F]>) -> Vec<TileRec<F>> {
+pub fn gather_records<F: Float>(bins: &TileBins, splats: &[Splat<F>], colors: Option<&[F]>) -> Vec<TileRec<F>> {
     let n = bins.ids.len();
     // `bin` lays out `entries` as a permutation of `0..n` split by `entry_offsets`.
     assert!(
@@ -154,7 +154,7 @@ fn tile_span(s: &[u32; 4], tile: u32) -> [u32; 4] {
 }
 
 /// Bins the visible splats into `tile`-pixel tiles of a `width` x `height` image.
-pub fn bin<F: Real>(splats: &[Splat<F>], width: u32, height: u32, tile: u32) -> TileBins {
+pub fn bin<F: Float>(splats: &[Splat<F>], width: u32, height: u32, tile: u32) -> TileBins {
     let tiles_x = width.div_ceil(tile);
     let tiles_y = height.div_ceil(tile);
     let ntiles = (tiles_x * tiles_y) as usize;
@@ -373,7 +373,7 @@ pub(crate) struct EntryBox {
 impl EntryBox {
     /// The box of entry `s` inside the tile with pixel rectangle `tr`.
     #[inline(always)]
-    pub(crate) fn new<F: Real>(s: &TileRec<F>, tr: &[u32; 4]) -> Self {
+    pub(crate) fn new<F: Float>(s: &TileRec<F>, tr: &[u32; 4]) -> Self {
         Self {
             x0: s.rect[0].max(tr[0]) as usize,
             x1: s.rect[1].min(tr[1]) as usize,
@@ -386,7 +386,7 @@ impl EntryBox {
     /// Row `y`'s centre and its pixels `[xa, xb)`: the box row narrowed by the row chord of
     /// `conic`, then trimmed to the tile columns set in `live`; `None` when nothing is left.
     #[inline(always)]
-    pub(crate) fn row_span<F: Real>(
+    pub(crate) fn row_span<F: Float>(
         &self,
         conic: &crate::splat::RowConic,
         y: usize,
