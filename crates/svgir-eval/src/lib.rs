@@ -21,5 +21,5 @@ pub mod turntable;
 
 pub use lpips_weights::load_lpips;
 pub use run::{load_run_dataset, read_json};
-pub use spec8::evaluate;
+pub use spec8::{evaluate, EvalSink, EvalWriter, MetricsOnly};
 pub use turntable::turntable_cameras;

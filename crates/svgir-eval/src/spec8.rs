@@ -1,9 +1,11 @@
 //! SPEC 8's evaluation of a stage-2 model on the dataset's test views: novel views (the PBR
 //! image under the learned light), albedo after the per-channel median scale, roughness MSE,
 //! normal MAE, and relighting under every map the dataset names (SPEC 7), per light and on
-//! average. Used by `svgir inverse` at the end of training and by `svgir eval --run`; it writes
-//! the images it scores (with their ground truth) into `OUT/test/` and relit turntables into
-//! `OUT/turntable/`.
+//! average. Used by `svgir inverse` at the end of training and by `svgir eval --run`.
+//!
+//! [`evaluate`] computes and returns the metrics; the pictures it scores (with their ground
+//! truth) and the relit turntables go to an [`EvalSink`], and only a sink writes files:
+//! [`EvalWriter`] puts them under the run's `test/` and `turntable/` folders.
 
 use crate::turntable::turntable_cameras;
 use anyhow::Result;
@@ -37,10 +39,62 @@ pub fn straight_colour(over_black: &[f32], alpha: &[f32]) -> Vec<f32> {
         .collect()
 }
 
-fn png(path: &Path, w: u32, h: u32, data: Vec<f32>) -> Result<()> {
+/// Where the evaluation's pictures go, and its progress lines.
+pub trait EvalSink {
+    /// A picture the evaluation scored or made; `rel` is its path under the run's output folder
+    /// (`test/<view>_<kind>.png` or `.exr`, `turntable/<light>_<frame>.png`).
+    fn picture(&mut self, rel: &str, image: Image) -> Result<()>;
+    /// One line of progress (timings of the relighting traces).
+    fn progress(&mut self, line: &str);
+}
+
+/// Writes the pictures under `out` (8-bit PNG, or full-precision EXR by the name's extension)
+/// and prints progress to stderr: what `svgir inverse` and `svgir eval --run` use.
+pub struct EvalWriter {
+    out: std::path::PathBuf,
+}
+
+impl EvalWriter {
+    /// A writer into the folder `out` (created with its subfolders as pictures arrive).
+    pub fn new(out: &Path) -> Self {
+        Self { out: out.to_path_buf() }
+    }
+}
+
+impl EvalSink for EvalWriter {
+    fn picture(&mut self, rel: &str, image: Image) -> Result<()> {
+        let path = self.out.join(rel);
+        if let Some(dir) = path.parent() {
+            std::fs::create_dir_all(dir)?;
+        }
+        if rel.ends_with(".exr") {
+            svgir_io::write_exr(&path, &image)?;
+        } else {
+            svgir_io::write_png(&path, &image, 8)?;
+        }
+        Ok(())
+    }
+
+    fn progress(&mut self, line: &str) {
+        eprintln!("{line}");
+    }
+}
+
+/// Keeps no picture and prints nothing: the metrics alone.
+pub struct MetricsOnly;
+
+impl EvalSink for MetricsOnly {
+    fn picture(&mut self, _rel: &str, _image: Image) -> Result<()> {
+        Ok(())
+    }
+
+    fn progress(&mut self, _line: &str) {}
+}
+
+/// `data` (1 or 3 channels, `w x h`) as a picture for the sink.
+fn picture(sink: &mut dyn EvalSink, rel: String, w: u32, h: u32, data: Vec<f32>) -> Result<()> {
     let ch = (data.len() / (w * h) as usize) as u32;
-    svgir_io::write_png(path, &Image::from_data(w, h, ch, data), 8)?;
-    Ok(())
+    sink.picture(&rel, Image::from_data(w, h, ch, data))
 }
 
 /// The mean metrics of `all` as JSON; without an LPIPS model its entry says so
@@ -59,14 +113,12 @@ fn mean_json(all: &[ImageMetrics]) -> serde_json::Value {
 pub fn evaluate(
     s2: &Stage2,
     ds: &Dataset,
-    out: &Path,
     lpips: Option<&Lpips>,
     turntable: usize,
     sampling: RelightSampling,
     extra_lights: &[LightInfo],
+    sink: &mut dyn EvalSink,
 ) -> Result<serde_json::Value> {
-    let dir = out.join("test");
-    std::fs::create_dir_all(&dir)?;
     let env = s2.env.radiance();
     let black = [0.0f32; 3];
     let variant = SsimVariant::GaussianSplatting;
@@ -82,22 +134,20 @@ pub fn evaluate(
         let pred = Image::from_data(w, h, 3, r.image.clone());
         // SPEC 8: both over black (the photo is straight-alpha RGBA; the render already is).
         nvs.push(evaluate_pair(&pred, &rgb(&v.image, black), None, variant, lpips)?);
-        png(&dir.join(format!("{}_pbr.png", v.name)), w, h, r.image.iter().map(|x| x.clamp(0.0, 1.0)).collect())?;
-        png(&dir.join(format!("{}_gt_rgb.png", v.name)), w, h, v.image.composite_over(black).data)?;
-        png(&dir.join(format!("{}_normal.png", v.name)), w, h, r.normal.iter().map(|n| 0.5 + 0.5 * n).collect())?;
-        png(&dir.join(format!("{}_roughness.png", v.name)), w, h, r.roughness.clone())?;
+        picture(sink, format!("test/{}_pbr.png", v.name), w, h, r.image.iter().map(|x| x.clamp(0.0, 1.0)).collect())?;
+        picture(sink, format!("test/{}_gt_rgb.png", v.name), w, h, v.image.composite_over(black).data)?;
+        picture(sink, format!("test/{}_normal.png", v.name), w, h, r.normal.iter().map(|n| 0.5 + 0.5 * n).collect())?;
+        picture(sink, format!("test/{}_roughness.png", v.name), w, h, r.roughness.clone())?;
         // Full-precision material maps for other tools.
-        svgir_io::write_exr(dir.join(format!("{}_albedo.exr", v.name)), &Image::from_data(w, h, 3, r.albedo.clone()))?;
-        svgir_io::write_exr(
-            dir.join(format!("{}_roughness.exr", v.name)),
-            &Image::from_data(w, h, 1, r.roughness.clone()),
-        )?;
-        svgir_io::write_exr(dir.join(format!("{}_normal.exr", v.name)), &Image::from_data(w, h, 3, r.normal.clone()))?;
+        sink.picture(&format!("test/{}_albedo.exr", v.name), Image::from_data(w, h, 3, r.albedo.clone()))?;
+        sink.picture(&format!("test/{}_roughness.exr", v.name), Image::from_data(w, h, 1, r.roughness.clone()))?;
+        sink.picture(&format!("test/{}_normal.exr", v.name), Image::from_data(w, h, 3, r.normal.clone()))?;
         match &v.albedo {
             Some(gt) => scale_acc.add_view(&r.albedo, &gt.data, &mask)?,
             // No truth to scale against: the albedo as learned, for a person to look at.
-            None => png(
-                &dir.join(format!("{}_albedo.png", v.name)),
+            None => picture(
+                sink,
+                format!("test/{}_albedo.png", v.name),
                 w,
                 h,
                 r.albedo.iter().map(|c| svgir_core::color::linear_to_srgb(c.clamp(0.0, 1.0))).collect(),
@@ -105,7 +155,13 @@ pub fn evaluate(
         }
         if let Some(gt) = &v.normal {
             normal_mae.add_view(&r.normal, &gt.data, &mask)?;
-            png(&dir.join(format!("{}_gt_normal.png", v.name)), w, h, gt.data.iter().map(|n| 0.5 + 0.5 * n).collect())?;
+            picture(
+                sink,
+                format!("test/{}_gt_normal.png", v.name),
+                w,
+                h,
+                gt.data.iter().map(|n| 0.5 + 0.5 * n).collect(),
+            )?;
         }
         if let Some(gt) = &v.roughness {
             for (p, (g, m)) in r.roughness.iter().zip(gt.data.iter().zip(&mask)) {
@@ -114,7 +170,7 @@ pub fn evaluate(
                     rough_n += 1;
                 }
             }
-            png(&dir.join(format!("{}_gt_roughness.png", v.name)), w, h, gt.data.clone())?;
+            picture(sink, format!("test/{}_gt_roughness.png", v.name), w, h, gt.data.clone())?;
         }
         renders.push((r, mask));
     }
@@ -140,8 +196,8 @@ pub fn evaluate(
             variant,
             lpips,
         )?);
-        png(&dir.join(format!("{}_albedo.png", v.name)), w, h, pred)?;
-        png(&dir.join(format!("{}_gt_albedo.png", v.name)), w, h, gt_s)?;
+        picture(sink, format!("test/{}_albedo.png", v.name), w, h, pred)?;
+        picture(sink, format!("test/{}_gt_albedo.png", v.name), w, h, gt_s)?;
     }
     if !albedo.is_empty() {
         result["albedo"] = mean_json(&albedo);
@@ -153,10 +209,10 @@ pub fn evaluate(
     let lights: Vec<&LightInfo> = ds.relight_lights.iter().chain(extra_lights).collect();
     let relighter = if lights.iter().any(|l| l.envmap_path.is_some()) {
         let r = Relighter::new(s2, sampling)?;
-        eprintln!(
+        sink.progress(&format!(
             "relighting: traced K = {} directions and {} lights in {:.1} s",
             sampling.directions, sampling.lights, r.trace_seconds
-        );
+        ));
         result["relight_directions"] = json!(sampling.directions);
         result["relight_lights"] = json!(sampling.lights);
         result["relight_bounces"] = json!(sampling.bounces);
@@ -168,19 +224,23 @@ pub fn evaluate(
         let (Some(path), Some(relighter)) = (&light.envmap_path, &relighter) else { continue };
         let t0 = std::time::Instant::now();
         let map = if light.strength.is_nan() {
-            exposure_matched(path, &env, s2.config.env_height)?
+            exposure_matched(path, &env, s2.config.env_height, sink)?
         } else {
             svgir_io::read_envmap(path, light.strength, s2.config.env_height)?
         };
         let lit = relighter.prepare(s2, map)?;
-        eprintln!("relighting: one-bounce light under {} in {:.1} s", light.name, t0.elapsed().as_secs_f64());
+        sink.progress(&format!(
+            "relighting: one-bounce light under {} in {:.1} s",
+            light.name,
+            t0.elapsed().as_secs_f64()
+        ));
         let mut ms = Vec::new();
         for (v, (_, mask)) in ds.test.iter().zip(&renders) {
             let r = relighter.render(s2, &v.camera, black, &lit, scale)?;
             let Some(gt) = v.relit.get(&light.name) else {
                 // No truth (a capture, or a map given with --relight-with): the picture only.
                 let img = r.image.iter().map(|c| c.clamp(0.0, 1.0)).collect();
-                png(&dir.join(format!("{}_relit_{}.png", v.name, light.name)), r.width, r.height, img)?;
+                picture(sink, format!("test/{}_relit_{}.png", v.name, light.name), r.width, r.height, img)?;
                 continue;
             };
             // SPEC 8: the predicted colour and the photo are both composited with the GT mask on
@@ -194,21 +254,21 @@ pub fn evaluate(
                 .zip(mask)
                 .flat_map(|(p, m)| p.iter().map(move |c| (c * m).clamp(0.0, 1.0)))
                 .collect();
-            png(&dir.join(format!("{}_relit_{}.png", v.name, light.name)), r.width, r.height, masked)?;
-            png(
-                &dir.join(format!("{}_gt_relit_{}.png", v.name, light.name)),
+            picture(sink, format!("test/{}_relit_{}.png", v.name, light.name), r.width, r.height, masked)?;
+            picture(
+                sink,
+                format!("test/{}_gt_relit_{}.png", v.name, light.name),
                 r.width,
                 r.height,
                 gt.composite_over(black).data,
             )?;
         }
         if let Some(first) = ds.test.first() {
-            let tdir = out.join("turntable");
-            std::fs::create_dir_all(&tdir)?;
             for (f, cam) in turntable_cameras(ds, &first.camera, turntable).iter().enumerate() {
                 let r = relighter.render(s2, cam, black, &lit, scale)?;
-                png(
-                    &tdir.join(format!("{}_{f:03}.png", light.name)),
+                picture(
+                    sink,
+                    format!("turntable/{}_{f:03}.png", light.name),
                     r.width,
                     r.height,
                     r.image.iter().map(|c| c.clamp(0.0, 1.0)).collect(),
@@ -228,13 +288,21 @@ pub fn evaluate(
 
 /// The map at `path` scaled so that its mean luminance equals `like`'s (a capture's learned
 /// light), so the object relit under it is exposed as in the photos.
-fn exposure_matched(path: &Path, like: &svgir_core::EnvMap, height: u32) -> Result<svgir_core::EnvMap> {
+fn exposure_matched(
+    path: &Path,
+    like: &svgir_core::EnvMap,
+    height: u32,
+    sink: &mut dyn EvalSink,
+) -> Result<svgir_core::EnvMap> {
     let lum = |c: [f32; 3]| 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2];
     let mut map = svgir_io::read_envmap(path, 1.0, height)?;
     let m = lum(map.mean_radiance());
     anyhow::ensure!(m > 0.0 && m.is_finite(), "{}: the map is black", path.display());
     let strength = lum(like.mean_radiance()) / m;
-    eprintln!("relighting: {} at strength {strength:.3} (the learned light's mean luminance)", path.display());
+    sink.progress(&format!(
+        "relighting: {} at strength {strength:.3} (the learned light's mean luminance)",
+        path.display()
+    ));
     // Radiance is strength x map value: scale the map read once at strength 1.
     map.data.iter_mut().flatten().for_each(|c| *c *= strength);
     Ok(map)

@@ -179,8 +179,15 @@ fn run_stage2(args: &EvalArgs, dirs: &[PathBuf]) -> Result<()> {
             let (dataset, _) = svgir_eval::load_run_dataset(&stage1, data.as_deref())?;
             let s2 = svgir_train::checkpoint::load_stage2(&dir.join("checkpoint.bin"))?;
             eprintln!("{}: SPEC 8 evaluation on {} test views", dir.display(), dataset.test.len());
-            let fresh =
-                svgir_eval::evaluate(&s2, &dataset, dir, lpips.as_ref(), 0, sampling, &args.relight.extra_lights())?;
+            let fresh = svgir_eval::evaluate(
+                &s2,
+                &dataset,
+                lpips.as_ref(),
+                0,
+                sampling,
+                &args.relight.extra_lights(),
+                &mut svgir_eval::EvalWriter::new(dir),
+            )?;
             // Keep what `svgir inverse` recorded beside the metrics (timings, sizes).
             let mut merged = read_saved().unwrap_or_else(|_| json!({}));
             for (k, v) in fresh.as_object().into_iter().flatten() {

@@ -650,11 +650,11 @@ pub fn run(args: InverseArgs) -> Result<()> {
     let eval = svgir_eval::evaluate(
         &s2,
         &dataset,
-        &out,
         lpips.as_ref(),
         args.turntable,
         sampling,
         &args.relight.extra_lights(),
+        &mut svgir_eval::EvalWriter::new(&out),
     )?;
     let its = s2.iteration.max(1) as f64;
     let t = &s2.times;
