@@ -9,6 +9,7 @@ pub mod composite;
 pub mod config;
 pub mod coverage;
 pub mod densify;
+pub mod driver;
 pub mod exposure;
 pub mod foreground;
 pub mod gt_materials;

@@ -7,6 +7,7 @@ use std::time::Instant;
 use svgir_core::{Camera, Dataset};
 use svgir_gpu::{AdapterReport, DeviceChoice, GpuStage1};
 use svgir_raster::RenderOutput;
+use svgir_train::driver::DriverError;
 use svgir_train::{Stage1, StepStats};
 
 /// A stage-1 run on its device.
@@ -114,5 +115,32 @@ impl Engine {
             }
             Self::Gpu(_, secs, _) => serde_json::json!({ "gpu_step": 1e3 * secs / its }),
         }
+    }
+}
+
+/// The run loop drives either device alike (`svgir_train::driver`).
+impl svgir_train::driver::Trainer for Engine {
+    type Stats = StepStats;
+    fn iteration(&self) -> u64 {
+        self.host().iteration
+    }
+    fn is_done(&self) -> bool {
+        self.host().is_done()
+    }
+    fn step(&mut self, dataset: &Dataset, read: bool) -> Result<StepStats, DriverError> {
+        Engine::step(self, dataset, read).map_err(DriverError::step)
+    }
+    fn stats_iteration(stats: &StepStats) -> u64 {
+        stats.iteration
+    }
+    fn always_logged(stats: &StepStats) -> bool {
+        stats.densify.is_some()
+    }
+    fn evaluates_before(&self, next: u64) -> bool {
+        self.host().config.resets_opacity_at(next)
+    }
+    fn save(&mut self, path: &std::path::Path) -> Result<(), DriverError> {
+        self.sync().map_err(DriverError::step)?;
+        Ok(svgir_train::checkpoint::save(self.host(), path)?)
     }
 }

@@ -8,11 +8,11 @@ use crate::progress;
 use anyhow::{Context, Result};
 use clap::Args;
 use serde_json::json;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use svgir_core::{Dataset, LightInfo};
 use svgir_pbr::EnvActivation;
 use svgir_shading::Diffuse;
+use svgir_train::driver::{self, Ended, Observer, Periods};
 use svgir_train::stage2::{Coverage, EnvInit, GreyLight, ShadeSets};
 use svgir_train::{checkpoint, Stage2, Stage2Config, Stage2Profile};
 
@@ -550,12 +550,6 @@ pub fn run(args: InverseArgs) -> Result<()> {
         }
         s2
     };
-    let stop = super::train::interrupt_flag();
-    let mut log = std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(out.join("metrics.jsonl"))
-        .context("opening metrics.jsonl")?;
     let pb = progress::bar(s2.config.iterations, "stage 2");
     pb.set_position(s2.iteration);
     let first_iteration = s2.iteration;
@@ -564,33 +558,14 @@ pub fn run(args: InverseArgs) -> Result<()> {
     // this session's, as its wall time.
     let times_before = s2.times.clone();
     let start = std::time::Instant::now();
-    while !s2.is_done() {
-        let st = s2.step(&dataset)?;
-        pb.set_position(st.iteration);
-        if let Some(s) = &st.sun_search {
-            pb.suspend(|| {
-                eprintln!(
-                    "sun search before iteration {}: moved {:.1} deg, photo L1 {:.5} -> {:.5} ({} directions scored)",
-                    st.iteration, s.moved_deg, s.loss_before, s.loss_after, s.evaluations
-                )
-            });
-        }
-        pb.set_message(format!("loss {:.4} PBR PSNR {:.2} dB, rho {:.3}", st.loss, st.psnr_pbr, st.rho));
-        if every(st.iteration, args.log_every) || st.sun_search.is_some() {
-            let mut v = serde_json::to_value(&st)?;
-            v["elapsed_s"] = json!(start.elapsed().as_secs_f64());
-            writeln!(log, "{v}")?;
-        }
-        let interrupted = stop.load(std::sync::atomic::Ordering::SeqCst);
-        if every(st.iteration, args.checkpoint_every) || interrupted {
-            checkpoint::save_stage2(&s2, &ckpt)?;
-        }
-        if interrupted {
-            pb.abandon_with_message("interrupted");
-            eprintln!("interrupted: checkpoint saved at iteration {}; continue with --resume", st.iteration);
-            std::process::exit(130);
-        }
+    let mut watch = Stage2Watch { pb, stop: super::train::interrupt_flag() };
+    let periods = Periods { log_every: args.log_every, eval_every: 0, checkpoint_every: args.checkpoint_every };
+    if let Ended::Interrupted { iteration } = driver::run(&mut s2, &dataset, &out, periods, &mut watch)? {
+        watch.pb.abandon_with_message("interrupted");
+        eprintln!("interrupted: checkpoint saved at iteration {iteration}; continue with --resume");
+        std::process::exit(130);
     }
+    let pb = watch.pb;
     pb.finish();
     {
         // The iteration's phases, and the wall time per iteration including the light updates
@@ -626,7 +601,6 @@ pub fn run(args: InverseArgs) -> Result<()> {
             );
         }
     }
-    checkpoint::save_stage2(&s2, &ckpt)?;
     if args.gt_materials {
         let st = svgir_train::gt_materials::apply(&mut s2, &dataset)?;
         eprintln!(
@@ -685,10 +659,29 @@ pub fn run(args: InverseArgs) -> Result<()> {
     Ok(())
 }
 
-/// Whether iteration `it` falls on a period of `n` iterations; 0 means never, as in stage 1
-/// (`svgir train --log-every 0`), instead of a division by zero.
-fn every(it: u64, n: u64) -> bool {
-    n > 0 && it.is_multiple_of(n)
+/// Stage 2's side of the run loop: the progress bar, the sun searches' messages, and Ctrl-C.
+struct Stage2Watch {
+    pb: indicatif::ProgressBar,
+    stop: std::sync::Arc<std::sync::atomic::AtomicBool>,
+}
+
+impl Observer<Stage2> for Stage2Watch {
+    fn stepped(&mut self, _: &Stage2, st: &svgir_train::stage2::Stage2Step) {
+        self.pb.set_position(st.iteration);
+        if let Some(s) = &st.sun_search {
+            self.pb.suspend(|| {
+                eprintln!(
+                    "sun search before iteration {}: moved {:.1} deg, photo L1 {:.5} -> {:.5} ({} directions scored)",
+                    st.iteration, s.moved_deg, s.loss_before, s.loss_after, s.evaluations
+                )
+            });
+        }
+        self.pb.set_message(format!("loss {:.4} PBR PSNR {:.2} dB, rho {:.3}", st.loss, st.psnr_pbr, st.rho));
+    }
+
+    fn interrupted(&self) -> bool {
+        self.stop.load(std::sync::atomic::Ordering::SeqCst)
+    }
 }
 
 /// Stage 1's mean time per iteration (all its phases) and thread count from `run`'s
@@ -772,12 +765,6 @@ mod tests {
     use super::*;
 
     /// A period of 0 iterations is never due (it divided by zero), others on their multiples.
-    #[test]
-    fn every_zero_is_never() {
-        assert!((1..=1000).all(|it| !every(it, 0)));
-        assert!(every(25, 25) && every(50, 25) && !every(26, 25) && every(7, 1));
-    }
-
     /// The missing-light error names the flag that asked for the light, and the dataset.
     #[test]
     fn true_light_error_names_the_flag_given() {

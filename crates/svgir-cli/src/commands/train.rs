@@ -12,14 +12,13 @@ use anyhow::{bail, ensure, Context, Result};
 use clap::{Args, ValueEnum};
 use rayon::prelude::*;
 use serde_json::json;
-use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
-use std::time::Instant;
 use svgir_core::{Dataset, Image, Rng};
 use svgir_gpu::DeviceChoice;
-use svgir_train::{checkpoint, init, BackgroundMode, Profile, Stage1, Stage1Config, ViewOrder};
+use svgir_train::driver::{self, DriverError, Ended, Observer, Periods};
+use svgir_train::{checkpoint, init, BackgroundMode, Profile, Stage1, Stage1Config, StepStats, ViewOrder};
 
 /// `--profile`: which defaults to start from.
 #[derive(Clone, Copy, Debug, ValueEnum, PartialEq)]
@@ -345,94 +344,53 @@ pub fn interrupt_flag() -> Arc<AtomicBool> {
     .clone()
 }
 
-fn train_loop(trainer: &mut Engine, dataset: &Dataset, args: &TrainArgs) -> Result<()> {
-    let stop = interrupt_flag();
-    let ckpt_path = args.out.join("checkpoint.bin");
-    let mut log = std::fs::OpenOptions::new()
-        .create(true)
-        .append(true)
-        .open(args.out.join("metrics.jsonl"))
-        .context("opening metrics.jsonl")?;
-    let total = trainer.host().config.iterations;
-    let pb = progress::bar(total, "stage 1");
-    pb.set_position(trainer.host().iteration);
-    let start = Instant::now();
-    // Wall time spent in the periodic evaluations, left out of `train_s` (training time alone).
-    let mut eval_s = 0.0f64;
-    let mut ema_loss = None::<f32>;
-    let mut ema_psnr = None::<f32>;
-    let eval_due = |it: u64| args.eval_every > 0 && it.is_multiple_of(args.eval_every);
-    while !trainer.host().is_done() {
-        // An evaluation that falls on an opacity reset would score the model with every
-        // opacity just knocked down (a dip of ~20 dB in the curve): score it before the step.
-        let next = trainer.host().iteration + 1;
-        let eval_before = eval_due(next) && trainer.host().config.resets_opacity_at(next) && next > 1;
-        if eval_before {
-            periodic_eval(trainer, dataset, args.eval_views, start, &mut eval_s, &mut log, &pb)?;
-        }
-        // A GPU run reads its loss back only for the iterations that are logged (and the
-        // progress bar's moving average takes those).
-        let s = trainer.step(dataset, next.is_multiple_of(args.log_every) || next <= 10)?;
+/// Stage 1's side of the run loop: the progress bar (a moving average of the loss and PSNR),
+/// the periodic evaluations on `eval_views` test views, and Ctrl-C.
+struct Stage1Watch {
+    pb: indicatif::ProgressBar,
+    eval_views: usize,
+    stop: Arc<AtomicBool>,
+    ema: Option<(f32, f32)>,
+}
+
+impl Observer<Engine> for Stage1Watch {
+    fn stepped(&mut self, _: &Engine, s: &StepStats) {
         if s.loss.is_finite() {
-            let ema = |e: Option<f32>, v: f32| Some(e.map_or(v, |e| 0.9 * e + 0.1 * v));
-            ema_loss = ema(ema_loss, s.loss);
-            ema_psnr = ema(ema_psnr, s.psnr);
+            self.ema =
+                Some(self.ema.map_or((s.loss, s.psnr), |(l, p)| (0.9 * l + 0.1 * s.loss, 0.9 * p + 0.1 * s.psnr)));
         }
-        pb.set_position(s.iteration);
-        if let (Some(l), Some(p)) = (ema_loss, ema_psnr) {
-            pb.set_message(format!("loss {l:.4} PSNR {p:.2} dB, {} Gaussians", s.num_gaussians));
+        self.pb.set_position(s.iteration);
+        if let Some((l, p)) = self.ema {
+            self.pb.set_message(format!("loss {l:.4} PSNR {p:.2} dB, {} Gaussians", s.num_gaussians));
         }
-        if s.iteration.is_multiple_of(args.log_every) || s.densify.is_some() {
-            let mut v = serde_json::to_value(&s)?;
-            v["elapsed_s"] = json!(start.elapsed().as_secs_f64());
-            v["train_s"] = json!(start.elapsed().as_secs_f64() - eval_s);
-            writeln!(log, "{v}")?;
-        }
-        if eval_due(s.iteration) && !eval_before && !trainer.host().is_done() {
-            periodic_eval(trainer, dataset, args.eval_views, start, &mut eval_s, &mut log, &pb)?;
-        }
-        let interrupted = stop.load(Ordering::SeqCst);
-        // The last iteration's checkpoint is written once, after the loop.
-        if (s.iteration.is_multiple_of(args.checkpoint_every) && !trainer.host().is_done()) || interrupted {
-            trainer.sync()?;
-            checkpoint::save(trainer.host(), &ckpt_path)?;
-        }
-        if interrupted {
-            pb.abandon_with_message("interrupted");
-            eprintln!("interrupted: checkpoint saved at iteration {}; continue with --resume", s.iteration);
+    }
+
+    fn evaluate(&mut self, trainer: &mut Engine, dataset: &Dataset) -> Result<serde_json::Value, DriverError> {
+        trainer.sync().map_err(DriverError::step)?;
+        let m = evaluate(trainer, dataset, self.eval_views, None).map_err(DriverError::step)?;
+        self.pb.println(format!("iteration {}: test PSNR {:.2} dB", trainer.host().iteration, m["psnr"]));
+        Ok(m)
+    }
+
+    fn interrupted(&self) -> bool {
+        self.stop.load(Ordering::SeqCst)
+    }
+}
+
+fn train_loop(trainer: &mut Engine, dataset: &Dataset, args: &TrainArgs) -> Result<()> {
+    let pb = progress::bar(trainer.host().config.iterations, "stage 1");
+    pb.set_position(trainer.host().iteration);
+    let mut watch = Stage1Watch { pb, eval_views: args.eval_views, stop: interrupt_flag(), ema: None };
+    let periods =
+        Periods { log_every: args.log_every, eval_every: args.eval_every, checkpoint_every: args.checkpoint_every };
+    match driver::run(trainer, dataset, &args.out, periods, &mut watch)? {
+        Ended::Finished => watch.pb.finish(),
+        Ended::Interrupted { iteration } => {
+            watch.pb.abandon_with_message("interrupted");
+            eprintln!("interrupted: checkpoint saved at iteration {iteration}; continue with --resume");
             std::process::exit(130);
         }
     }
-    pb.finish();
-    trainer.sync()?;
-    checkpoint::save(trainer.host(), &ckpt_path)?;
-    Ok(())
-}
-
-/// One periodic evaluation on `views` test views at the trainer's current iteration, logged to
-/// `metrics.jsonl` with the training time so far (`eval_s`, the time spent evaluating, is left
-/// out and grows by this evaluation).
-fn periodic_eval(
-    trainer: &mut Engine,
-    dataset: &Dataset,
-    views: usize,
-    start: Instant,
-    eval_s: &mut f64,
-    log: &mut std::fs::File,
-    pb: &indicatif::ProgressBar,
-) -> Result<()> {
-    let train_s = start.elapsed().as_secs_f64() - *eval_s;
-    let t_eval = Instant::now();
-    trainer.sync()?;
-    let m = evaluate(trainer, dataset, views, None)?;
-    *eval_s += t_eval.elapsed().as_secs_f64();
-    let it = trainer.host().iteration;
-    writeln!(
-        log,
-        "{}",
-        json!({"iteration": it, "elapsed_s": start.elapsed().as_secs_f64(), "train_s": train_s, "test": m})
-    )?;
-    pb.println(format!("iteration {it}: test PSNR {:.2} dB", m["psnr"]));
     Ok(())
 }
 
