@@ -5,6 +5,9 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
+/// The statue masks' confidence (svgir_train::mask_check), measured 1.00 on this short run.
+const CONFIDENCE_FLOOR: f64 = 0.9;
+
 fn svgir() -> Command {
     Command::new(env!("CARGO_BIN_EXE_svgir"))
 }
@@ -84,6 +87,10 @@ fn statue_capture_profile_masks_then_object_profile() {
     assert_eq!(m.dimensions(), photo);
     let fg = m.pixels().filter(|p| p.0[0] > 127).count() as f64 / (photo.0 * photo.1) as f64;
     assert!(fg > 0.01 && fg < 0.9, "foreground share {fg}");
+    // The masks' own check passed and says how far they are trusted.
+    let conf = json(&run1.join("foreground.json"))["confidence"].as_f64().expect("confidence recorded");
+    eprintln!("statue masks: confidence {conf:.3}");
+    assert!(log.contains("masks: confidence") && conf > CONFIDENCE_FLOOR, "confidence {conf}");
 
     // With the masks the same command picks the object profile and the mask losses.
     let run2 = tmp.join("object");

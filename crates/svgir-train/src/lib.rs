@@ -15,6 +15,7 @@ pub mod foreground;
 pub mod gt_materials;
 pub mod init;
 pub mod losses;
+pub mod mask_check;
 pub mod orient;
 pub mod relight;
 pub mod stage1;

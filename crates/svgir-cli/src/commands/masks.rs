@@ -16,6 +16,7 @@ use serde_json::json;
 use std::path::PathBuf;
 use svgir_core::{Image, Rng};
 use svgir_train::foreground::{render_share, select_foreground, ForegroundConfig};
+use svgir_train::mask_check::check_masks;
 
 #[derive(Args)]
 pub struct MasksArgs {
@@ -73,32 +74,48 @@ pub fn run(args: MasksArgs) -> Result<()> {
         fg.candidates,
         if fg.support.is_some() { "; support plane removed" } else { "" }
     );
-    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let raster = svgir_raster::RasterConfig {
         near: svgir_train::config::CAPTURE_NEAR_FRACTION * dataset.camera_extent(),
         ..Default::default()
     };
     let views: Vec<_> = dataset.all_views().collect();
     let pb = progress::bar(views.len() as u64, "masks");
-    let mut coverage = Vec::new();
-    let mut thumbs = Vec::new();
+    let mut masks = Vec::new();
     for v in &views {
         let share = render_share(&surfels, &fg.selected, &v.camera, &raster);
         let mask: Vec<f32> = share.iter().map(|&s| if s >= 0.5 { 1.0 } else { 0.0 }).collect();
-        coverage.push(mask.iter().sum::<f32>() / mask.len() as f32);
-        let img = Image::from_data(v.camera.width(), v.camera.height(), 1, mask);
-        svgir_io::write_png(args.out.join(format!("{}.png", v.name)), &img, 8)?;
-        thumbs.push(overlay_thumbnail(&v.image, &img, 240));
+        masks.push(Image::from_data(v.camera.width(), v.camera.height(), 1, mask));
         pb.inc(1);
     }
     pb.finish();
+    let check = check_masks(&masks.iter().map(|m| (m.data.as_slice(), m.width, m.height)).collect::<Vec<_>>());
+    let thumbs: Vec<Image> = views.iter().zip(&masks).map(|(v, m)| overlay_thumbnail(&v.image, m, 240)).collect();
     let sheet = contact_sheet(&thumbs, 6);
     svgir_io::write_png(run.join("masks_overview.png"), &sheet, 8)?;
     let record = json!({
         "data": args.data, "run": run, "out": args.out, "seed": args.seed, "config": cfg, "foreground": fg,
-        "mask_coverage": views.iter().zip(&coverage).map(|(v, c)| json!({"view": v.name, "share": c})).collect::<Vec<_>>(),
+        "confidence": check.confidence, "failure": check.failure.as_ref().map(|f| f.to_string()),
+        "per_view": views.iter().zip(&check.views).map(|(v, c)| json!({"view": v.name, "check": c})).collect::<Vec<_>>(),
     });
     std::fs::write(run.join("foreground.json"), serde_json::to_string_pretty(&record)?)?;
+    let mut worst: Vec<(&str, f32)> =
+        views.iter().zip(&check.views).map(|(v, c)| (v.name.as_str(), c.confidence)).collect();
+    worst.sort_by(|a, b| a.1.total_cmp(&b.1));
+    let listed: Vec<String> = worst.iter().take(3).map(|(n, c)| format!("{n} {c:.2}")).collect();
+    eprintln!("masks: confidence {:.2} (median over the photos; lowest: {})", check.confidence, listed.join(", "));
+    if let Some(f) = &check.failure {
+        bail!(
+            "{}: no masks written: {f}. Give masks of your own with `svgir train --masks DIR` (one PNG per photo, \
+             white on the object), or look at {} and {}",
+            args.data.display(),
+            run.join("masks_overview.png").display(),
+            run.join("foreground.json").display()
+        );
+    }
+    std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
+    for (v, m) in views.iter().zip(&masks) {
+        svgir_io::write_png(args.out.join(format!("{}.png", v.name)), m, 8)?;
+    }
     println!(
         "wrote {} masks to {} (overview: {})",
         views.len(),
