@@ -43,6 +43,9 @@ enum Command {
     Report(commands::report::ReportArgs),
     /// Run the pipeline on the scene shipped in the repository and write a report.
     Demo(commands::demo::DemoArgs),
+    /// Your own photos to a relit object in one command: poses (COLMAP), stage 1, masks, stage 1 on
+    /// the object, stage 2, relighting, exports, viewer and report; each step resumes.
+    Capture(commands::capture::CaptureArgs),
     /// Print performance tables of the kernels (rasterizer, tracer, LPIPS).
     Bench(commands::bench::BenchArgs),
     /// Write an interactive relighting viewer (one HTML file, WebGL2) for a stage-2 run.
@@ -68,6 +71,7 @@ fn main() {
         Command::Export(a) => commands::export::run(a),
         Command::Bench(a) => commands::bench::run(a),
         Command::Report(a) => commands::report::run(a),
+        Command::Capture(a) => commands::capture::run(a),
         Command::Demo(a) => commands::demo::run(a),
         Command::View(a) => commands::view::run(a),
     };

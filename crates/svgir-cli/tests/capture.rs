@@ -106,3 +106,58 @@ fn statue_capture_profile_masks_then_object_profile() {
     assert_eq!(cfg["load"]["masks"], masks.to_str().unwrap());
     let _ = std::fs::remove_dir_all(&tmp);
 }
+
+/// `svgir capture` on the statue at a small size: every step's result, the report with the masks
+/// first, and a second run that finds every step done.
+#[test]
+fn capture_command_runs_every_step_and_resumes() {
+    let Some(data) = statue() else { return };
+    let out = std::env::temp_dir().join(format!("svgir_capture_cmd_{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&out);
+    let cmd = || {
+        let mut c = svgir();
+        c.args(["--threads", "2", "capture"]).arg(&data).arg("--out").arg(&out);
+        c.args(["--downscale", "8", "--iterations", "100", "--stage2-iterations", "10"]);
+        c.args(["--relight-directions", "16", "--turntable", "2", "--device", "cpu"]);
+        c
+    };
+    let log = run(&mut cmd());
+    assert!(log.contains("masks: confidence"), "{log}");
+    for f in [
+        "scene/eval.json",
+        "masks/DSC_5283.png",
+        "object/eval.json",
+        "object/stage2/eval.json",
+        "object/stage2/turntable/sunset_001.png",
+        "export/object.glb",
+        "export/splats.glb",
+        "object/viewer.html",
+        "object/report.html",
+    ] {
+        assert!(out.join(f).is_file(), "{f} not written");
+    }
+    let page = std::fs::read_to_string(out.join("report.html")).unwrap();
+    let at = |s: &str| page.find(s).unwrap_or_else(|| panic!("report lacks {s:?}"));
+    assert!(at("1. Masks") < at("2. Reconstructions") && at("2. Reconstructions") < at("3. Materials"));
+    assert!(page.contains("Confidence") && page.contains("data:image/png;base64,") && page.contains("DSC_"));
+    // Again: every step is found done.
+    let log = run(&mut cmd());
+    assert_eq!(log.matches("(done before)").count(), 5, "{log}");
+    let _ = std::fs::remove_dir_all(&out);
+}
+
+/// A folder of photos without poses needs COLMAP; without it the command says how to get it.
+#[test]
+fn capture_without_poses_or_colmap_says_what_to_install() {
+    if Command::new("colmap").arg("-h").output().is_ok() {
+        eprintln!("colmap is installed: the message for its absence is not shown here");
+        return;
+    }
+    let dir = std::env::temp_dir().join(format!("svgir_capture_nocolmap_{}", std::process::id()));
+    std::fs::create_dir_all(dir.join("photos")).unwrap();
+    image::RgbImage::new(8, 8).save(dir.join("photos/a.png")).unwrap();
+    let res = svgir().arg("capture").arg(dir.join("photos")).arg("--out").arg(dir.join("run")).output().unwrap();
+    let err = String::from_utf8_lossy(&res.stderr);
+    assert!(!res.status.success() && err.contains("apt install colmap") && err.contains("photos"), "{err}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

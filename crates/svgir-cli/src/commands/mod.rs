@@ -7,6 +7,7 @@ pub const ADVANCED: &str = "Advanced (research switches, ablations, diagnostics)
 pub mod bench;
 pub mod bench_stages;
 pub mod bench_train;
+pub mod capture;
 pub mod demo;
 pub mod engine;
 pub mod eval;
