@@ -210,6 +210,24 @@ fn views_profile_train_resume_and_inverse_periods_of_zero() {
     assert_eq!(rows.lines().count(), 1, "{rows}");
     assert!(rows.contains("\"sun_search\":{"), "{rows}");
     assert!(out.join("stage2/checkpoint.bin").exists() && out.join("stage2/eval.json").exists());
+    // Resumed with a longer run and another diffuse lobe: both changes said and made, the rest
+    // from the checkpoint.
+    let res = svgir()
+        .args(["--threads", "2", "inverse", "--run"])
+        .arg(&out)
+        .args(["--resume", "--iterations", "5", "--diffuse", "added", "--log-every", "1", "--turntable", "0"])
+        .output()
+        .expect("runs");
+    let log = String::from_utf8_lossy(&res.stderr);
+    assert!(res.status.success(), "svgir inverse --resume failed: {log}");
+    assert!(log.contains("stage 2: resuming") && log.contains("iterations 3 -> 5"), "{log}");
+    assert!(log.contains("diffuse lobe Layered -> Added"), "{log}");
+    let rows = std::fs::read_to_string(out.join("stage2/metrics.jsonl")).expect("metrics.jsonl");
+    let its: Vec<u64> = rows
+        .lines()
+        .map(|l| serde_json::from_str::<serde_json::Value>(l).unwrap()["iteration"].as_u64().unwrap())
+        .collect();
+    assert_eq!(its[its.len() - 2..], [4, 5], "{rows}");
     let _ = std::fs::remove_dir_all(&out);
 }
 
@@ -243,7 +261,7 @@ fn corrupt_image_in_eval_is_reported_by_name() {
 
 #[test]
 fn everyday_help_fits_on_one_screen() {
-    for cmd in ["train", "inverse"] {
+    for cmd in ["train", "inverse", "capture"] {
         let short = svgir().args([cmd, "-h"]).output().unwrap();
         let long = svgir().args([cmd, "--help"]).output().unwrap();
         let (short, long) = (String::from_utf8_lossy(&short.stdout), String::from_utf8_lossy(&long.stdout));

@@ -2,21 +2,22 @@
 //! `svgir demo` through them, `svgir bench train`): iterate to the trainer's length, append
 //! statistics to `RUN/metrics.jsonl`, run the periodic evaluations, write the checkpoint
 //! atomically on its period and on an interruption, and hand back how the run ended. The front
-//! end only parses flags, builds or resumes the trainer, and watches through an [`Observer`]
-//! (progress bar, evaluation renders, Ctrl-C).
+//! end only parses flags, builds the configuration, opens the run ([`open_stage2`]: new or
+//! resumed, with the changes a resume may make) and watches through an [`Observer`] (progress
+//! bar, evaluation renders, Ctrl-C).
 //!
 //! A [`Trainer`] is stage 1 on the CPU ([`crate::Stage1`]), stage 2 ([`crate::Stage2`]), or any
 //! other engine with the same iteration (the CLI's GPU engine).
 
 use crate::checkpoint::{self, CheckpointError};
 use crate::stage1::{Stage1, StepStats};
-use crate::stage2::{Stage2, Stage2Step};
+use crate::stage2::{Stage2, Stage2Config, Stage2Step};
 use serde::Serialize;
 use serde_json::json;
 use std::io::Write;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-use svgir_core::Dataset;
+use svgir_core::{Dataset, Surfels};
 
 /// What a run loop can fail with.
 #[derive(Debug, thiserror::Error)]
@@ -27,10 +28,10 @@ pub enum DriverError {
     /// Writing the checkpoint failed.
     #[error(transparent)]
     Checkpoint(#[from] CheckpointError),
-    /// Appending to `metrics.jsonl` failed.
+    /// Writing a run file (`metrics.jsonl`, `config.json`) failed.
     #[error("{path}: {err}")]
-    Log {
-        /// The log file.
+    Io {
+        /// The file.
         path: PathBuf,
         /// What went wrong.
         err: std::io::Error,
@@ -145,7 +146,7 @@ pub fn run<T: Trainer>(
 ) -> Result<Ended, DriverError> {
     let log_path = out.join("metrics.jsonl");
     let ckpt = out.join("checkpoint.bin");
-    let log_err = |err| DriverError::Log { path: log_path.clone(), err };
+    let log_err = |err| DriverError::Io { path: log_path.clone(), err };
     let mut log = std::fs::OpenOptions::new().create(true).append(true).open(&log_path).map_err(log_err)?;
     let mut clock = Clock { start: Instant::now(), eval_s: 0.0 };
     let evaluate = |trainer: &mut T, observer: &mut dyn Observer<T>, clock: &mut Clock, log: &mut std::fs::File| {
@@ -187,6 +188,96 @@ pub fn run<T: Trainer>(
     }
     trainer.save(&ckpt)?;
     Ok(Ended::Finished)
+}
+
+/// What a resumed stage-2 run may change; every other setting comes from its checkpoint.
+#[derive(Clone, Debug, Default)]
+pub struct Stage2Changes {
+    /// The run's length (may extend a finished run: stage 2's rates are constant, so this is
+    /// the same as a longer run).
+    pub iterations: Option<u64>,
+    /// The BRDF's diffuse lobe (e.g. to re-evaluate under the other one).
+    pub diffuse: Option<svgir_shading::Diffuse>,
+    /// Where the training views' shaded sets come from.
+    pub shade_sets: Option<crate::stage2::ShadeSets>,
+    /// Until which iteration the direction subsets are shaded.
+    pub shade_directions_until: Option<u64>,
+    /// Directions shaded per iteration.
+    pub shade_directions: Option<usize>,
+    /// Directions the shading's gradients are estimated on.
+    pub gradient_directions: Option<usize>,
+}
+
+/// How stage 2 starts in its run folder.
+pub enum Stage2Start<'a> {
+    /// A new run: `config` on the stage-1 `surfels`; `meta` is written as `config.json`.
+    New {
+        /// The run's configuration.
+        config: Box<Stage2Config>,
+        /// The stage-1 model's Gaussians.
+        surfels: &'a Surfels,
+        /// What `config.json` records (the configuration and the run's provenance).
+        meta: serde_json::Value,
+    },
+    /// The run's checkpoint, with these changes.
+    Resume(Stage2Changes),
+}
+
+/// Opens stage 2 in `out`: a new run (its `config.json` written, an old `metrics.jsonl`
+/// cleared, the micro-buffers traced) or its checkpoint resumed with the changes applied. Each
+/// step and change is told to `note`, for the front end to print.
+pub fn open_stage2(
+    out: &Path,
+    start: Stage2Start,
+    dataset: &Dataset,
+    note: &mut dyn FnMut(String),
+) -> Result<Stage2, DriverError> {
+    let ckpt = out.join("checkpoint.bin");
+    match start {
+        Stage2Start::New { config, surfels, meta } => {
+            let path = out.join("config.json");
+            let text = serde_json::to_string_pretty(&meta).map_err(DriverError::step)?;
+            std::fs::write(&path, text).map_err(|err| DriverError::Io { path, err })?;
+            let _ = std::fs::remove_file(out.join("metrics.jsonl"));
+            note(format!("stage 2: tracing {} Gaussians x {} directions...", surfels.len(), config.directions));
+            let s2 = Stage2::new(*config, surfels.clone(), dataset).map_err(DriverError::step)?;
+            note(format!("micro-buffers traced in {:.1} s", s2.trace_seconds));
+            Ok(s2)
+        }
+        Stage2Start::Resume(c) => {
+            note(format!("stage 2: resuming {}", ckpt.display()));
+            let mut s2 = checkpoint::load_stage2(&ckpt)?;
+            if let Some(n) = c.iterations.filter(|&n| n != s2.config.iterations) {
+                note(format!("stage 2: iterations {} -> {n}", s2.config.iterations));
+                s2.config.iterations = n;
+            }
+            if let Some(d) = c.diffuse.filter(|&d| d != s2.config.diffuse) {
+                note(format!("stage 2: diffuse lobe {:?} -> {d:?}", s2.config.diffuse));
+                s2.config.diffuse = d;
+            }
+            if let Some(sets) = c.shade_sets.filter(|&s| s != s2.config.shade_sets) {
+                note(format!("stage 2: shaded sets {:?} -> {sets:?}", s2.config.shade_sets));
+                s2.config.shade_sets = sets;
+            }
+            if let Some(until) = c.shade_directions_until.filter(|&u| u != s2.config.shade_directions_until) {
+                note(format!(
+                    "stage 2: subsets of the directions until iteration {} -> {until}",
+                    s2.config.shade_directions_until
+                ));
+                s2.config.shade_directions_until = until;
+            }
+            let shade = c.shade_directions.or(s2.config.shade_directions);
+            let grads = c.gradient_directions.or(s2.config.gradient_directions);
+            if (shade, grads) != (s2.config.shade_directions, s2.config.gradient_directions) {
+                note(format!(
+                    "stage 2: directions shaded / for the gradients per iteration {:?} / {:?} -> {shade:?} / {grads:?}",
+                    s2.config.shade_directions, s2.config.gradient_directions
+                ));
+                s2.set_directions(shade, grads).map_err(DriverError::step)?;
+            }
+            Ok(s2)
+        }
+    }
 }
 
 impl Trainer for Stage1 {

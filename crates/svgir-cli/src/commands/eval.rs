@@ -43,7 +43,7 @@ pub struct LpipsArgs {
     /// lpips_alex_v0.1.safetensors, or one such file (default: $SVGIR_LPIPS_DIR, then
     /// ../shared/data/lpips). `python3 tools/lpips_weights.py DIR` fetches them. Without them
     /// LPIPS is "not computed".
-    #[arg(long, value_name = "DIR")]
+    #[arg(hide_short_help = true, long, value_name = "DIR")]
     pub lpips_weights: Option<PathBuf>,
 }
 

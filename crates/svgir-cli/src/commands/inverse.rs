@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use svgir_core::{Dataset, LightInfo};
 use svgir_pbr::EnvActivation;
 use svgir_shading::Diffuse;
-use svgir_train::driver::{self, Ended, Observer, Periods};
+use svgir_train::driver::{self, Ended, Observer, Periods, Stage2Changes, Stage2Start};
 use svgir_train::stage2::{Coverage, EnvInit, GreyLight, ShadeSets};
 use svgir_train::{checkpoint, Stage2, Stage2Config, Stage2Profile};
 
@@ -503,53 +503,23 @@ pub fn run(args: InverseArgs) -> Result<()> {
     if !args.resume {
         config.shade_stride().map_err(|e| anyhow::anyhow!("--shade-directions: {e}"))?;
     }
-    let ckpt = out.join("checkpoint.bin");
-    let mut s2 = if args.resume {
-        eprintln!("stage 2: resuming {}", ckpt.display());
-        let mut s2 = checkpoint::load_stage2(&ckpt)?;
-        // Every other setting comes from the checkpoint; --iterations may extend a finished run
-        // (stage 2's learning rates are constant, so this is the same as a longer run).
-        if args.iterations != s2.config.iterations {
-            eprintln!("stage 2: iterations {} -> {}", s2.config.iterations, args.iterations);
-            s2.config.iterations = args.iterations;
-        }
-        if let Some(d) = args.diffuse.map(DiffuseArg::model).filter(|&d| d != s2.config.diffuse) {
-            eprintln!("stage 2: diffuse lobe {:?} -> {d:?}", s2.config.diffuse);
-            s2.config.diffuse = d;
-        }
-        if let Some(sets) = args.shade_sets.map(ShadeSetsArg::model).filter(|&s| s != s2.config.shade_sets) {
-            eprintln!("stage 2: shaded sets {:?} -> {sets:?}", s2.config.shade_sets);
-            s2.config.shade_sets = sets;
-        }
-        if let Some(until) = args.shade_directions_until.filter(|&u| u != s2.config.shade_directions_until) {
-            eprintln!(
-                "stage 2: subsets of the directions until iteration {} -> {until}",
-                s2.config.shade_directions_until
-            );
-            s2.config.shade_directions_until = until;
-        }
-        let shade = args.shade_directions.or(s2.config.shade_directions);
-        let grads = args.gradient_directions.or(s2.config.gradient_directions);
-        if (shade, grads) != (s2.config.shade_directions, s2.config.gradient_directions) {
-            eprintln!(
-                "stage 2: directions shaded / for the gradients per iteration {:?} / {:?} -> {shade:?} / {grads:?}",
-                s2.config.shade_directions, s2.config.gradient_directions
-            );
-            s2.set_directions(shade, grads)?;
-        }
-        s2
+    let start = if args.resume {
+        Stage2Start::Resume(Stage2Changes {
+            iterations: Some(args.iterations),
+            diffuse: args.diffuse.map(DiffuseArg::model),
+            shade_sets: args.shade_sets.map(ShadeSetsArg::model),
+            shade_directions_until: args.shade_directions_until,
+            shade_directions: args.shade_directions,
+            gradient_directions: args.gradient_directions,
+        })
     } else {
         let meta = json!({"stage2": config, "profile": args.profile, "data": data, "stage1_run": args.run, "command": std::env::args().collect::<Vec<_>>()});
-        std::fs::write(out.join("config.json"), serde_json::to_string_pretty(&meta)?)?;
-        let _ = std::fs::remove_file(out.join("metrics.jsonl"));
-        eprintln!("stage 2: tracing {} Gaussians x {} directions...", stage1.surfels.len(), config.directions);
-        let mut s2 = Stage2::new(config, stage1.surfels.clone(), &dataset)?;
-        eprintln!("micro-buffers traced in {:.1} s", s2.trace_seconds);
-        if args.train_gt_light {
-            set_true_light(&mut s2, &dataset, "--train-gt-light")?;
-        }
-        s2
+        Stage2Start::New { config: Box::new(config), surfels: &stage1.surfels, meta }
     };
+    let mut s2 = driver::open_stage2(&out, start, &dataset, &mut |line| eprintln!("{line}"))?;
+    if args.train_gt_light && !args.resume {
+        set_true_light(&mut s2, &dataset, "--train-gt-light")?;
+    }
     let pb = progress::bar(s2.config.iterations, "stage 2");
     pb.set_position(s2.iteration);
     let first_iteration = s2.iteration;
