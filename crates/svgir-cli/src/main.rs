@@ -43,6 +43,7 @@ enum Command {
     Report(commands::report::ReportArgs),
     /// Run the pipeline on the scene shipped in the repository and write a report.
     Demo(commands::demo::DemoArgs),
+    #[command(after_help = "Seed, relighting samples and turntable length: `svgir capture --help`.")]
     /// Your own photos to a relit object in one command: poses (COLMAP), stage 1, masks, stage 1 on
     /// the object, stage 2, relighting, exports, viewer and report; each step resumes.
     Capture(commands::capture::CaptureArgs),

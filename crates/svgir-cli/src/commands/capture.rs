@@ -42,19 +42,19 @@ pub struct CaptureArgs {
     #[arg(long, default_value_t = 1500)]
     pub stage2_iterations: u64,
     /// Directions of the relighting trace (SPEC 7: 384).
-    #[arg(long, default_value_t = svgir_train::relight::RELIGHT_DIRECTIONS)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = svgir_train::relight::RELIGHT_DIRECTIONS)]
     pub relight_directions: usize,
     /// Also relight under this HDR map (repeatable).
     #[arg(long = "relight-with", value_name = "MAP.hdr")]
     pub relight_with: Vec<PathBuf>,
     /// Relit turntable frames per light.
-    #[arg(long, default_value_t = 24)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 24)]
     pub turntable: usize,
     /// Where stage 1 trains.
     #[arg(long, default_value_t = svgir_gpu::DeviceChoice::Auto)]
     pub device: svgir_gpu::DeviceChoice,
     /// Seed of every random choice.
-    #[arg(long, default_value_t = 0)]
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 0)]
     pub seed: u64,
 }
 
