@@ -2,7 +2,7 @@
 //! `svgir demo` through them, `svgir bench train`): iterate to the trainer's length, append
 //! statistics to `RUN/metrics.jsonl`, run the periodic evaluations, write the checkpoint
 //! atomically on its period and on an interruption, and hand back how the run ended. The front
-//! end only parses flags, builds the configuration, opens the run ([`open_stage2`]: new or
+//! end only parses flags, builds the configuration, opens the run ([`open_stage1`], [`open_stage2`]: new or
 //! resumed, with the changes a resume may make) and watches through an [`Observer`] (progress
 //! bar, evaluation renders, Ctrl-C).
 //!
@@ -10,6 +10,7 @@
 //! other engine with the same iteration (the CLI's GPU engine).
 
 use crate::checkpoint::{self, CheckpointError};
+use crate::config::Stage1Config;
 use crate::stage1::{Stage1, StepStats};
 use crate::stage2::{Stage2, Stage2Config, Stage2Step};
 use serde::Serialize;
@@ -188,6 +189,61 @@ pub fn run<T: Trainer>(
     }
     trainer.save(&ckpt)?;
     Ok(Ended::Finished)
+}
+
+/// How stage 1 starts in its run folder.
+pub enum Stage1Start {
+    /// A new run of `config` from `surfels`; `meta` is written as `config.json`.
+    New {
+        /// The run's configuration.
+        config: Box<Stage1Config>,
+        /// The initial Gaussians.
+        surfels: Surfels,
+        /// What `config.json` records (the configuration and the run's provenance).
+        meta: serde_json::Value,
+    },
+    /// The run's checkpoint; `iterations`, when given, sets the run's length (it may extend a
+    /// finished run).
+    Resume {
+        /// The new length, if the user gave one.
+        iterations: Option<u64>,
+    },
+}
+
+/// Opens stage 1 in `out`: a new run (its `config.json` written, an old `metrics.jsonl`
+/// cleared) or its checkpoint resumed. Each step is told to `note`, for the front end to print.
+pub fn open_stage1(
+    out: &Path,
+    start: Stage1Start,
+    dataset: &Dataset,
+    note: &mut dyn FnMut(String),
+) -> Result<Stage1, DriverError> {
+    match start {
+        Stage1Start::New { config, surfels, meta } => {
+            let path = out.join("config.json");
+            let text = serde_json::to_string_pretty(&meta).map_err(DriverError::step)?;
+            std::fs::write(&path, text).map_err(|err| DriverError::Io { path, err })?;
+            let _ = std::fs::remove_file(out.join("metrics.jsonl"));
+            Ok(Stage1::new(*config, surfels, dataset))
+        }
+        Stage1Start::Resume { iterations } => {
+            let ckpt = out.join("checkpoint.bin");
+            let mut t = checkpoint::load(&ckpt, dataset)?;
+            note(format!("resumed {} at iteration {}", ckpt.display(), t.iteration));
+            match iterations {
+                Some(n) if n != t.config.iterations => {
+                    note(format!(
+                        "stage 1: iterations {} -> {n}: densification and SH upgrades keep the checkpoint's schedule; \
+                         the position learning rate's decay and the depth-normal ramp stretch to the new length",
+                        t.config.iterations
+                    ));
+                    t.config.iterations = n;
+                }
+                _ => note(format!("stage 1: continuing to the checkpoint's {} iterations", t.config.iterations)),
+            }
+            Ok(t)
+        }
+    }
 }
 
 /// What a resumed stage-2 run may change; every other setting comes from its checkpoint.

@@ -14,7 +14,7 @@
 //! 6. the viewer (`RUN/object/viewer.html`), the object's report, and `RUN/report.html`: the
 //!    masks first, then each step's figures, with links to the rest.
 
-use super::{args_of, demo::EMBEDDED_SCENE, export, inverse, masks, report, train, view};
+use super::{args_of, demo::EMBEDDED_SCENE, export, flag_list as flags, inverse, masks, report, train, view};
 use anyhow::{bail, Context, Result};
 use clap::Args;
 use serde_json::Value;
@@ -60,10 +60,6 @@ pub struct CaptureArgs {
 
 fn s(p: &Path) -> String {
     p.display().to_string()
-}
-
-fn flags(pairs: &[(&str, String)]) -> Vec<String> {
-    pairs.iter().flat_map(|(k, v)| [k.to_string(), v.clone()]).collect()
 }
 
 /// Step 0: the dataset to train on, posing a plain folder of photos with COLMAP.

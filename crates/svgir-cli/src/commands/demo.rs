@@ -39,29 +39,24 @@ pub fn run(args: DemoArgs) -> Result<()> {
     eprintln!("svgir demo: stage 1 on {} ({iterations} iterations) -> {}", data.display(), args.out.display());
     let quick = |q: &str, full: &str| if args.quick { q.to_string() } else { full.to_string() };
     let out = args.out.display().to_string();
-    let stage1: Vec<String> = [data.display().to_string(), "--out".into(), out.clone()]
-        .into_iter()
-        .chain(
-            [
-                ("--iterations", iterations.to_string()),
-                ("--seed", args.seed.to_string()),
-                ("--background", "black".into()),
-                ("--init-points", quick("5000", "20000")),
-                ("--max-gaussians", quick("5000", "15000")),
-                ("--eval-every", quick("100", "200")),
-                ("--log-every", "25".into()),
-                ("--device", args.device.to_string()),
-            ]
-            .into_iter()
-            .flat_map(|(k, v)| [k.to_string(), v]),
-        )
-        .collect();
+    let mut stage1 = vec![data.display().to_string()];
+    stage1.extend(super::flag_list(&[
+        ("--out", out.clone()),
+        ("--iterations", iterations.to_string()),
+        ("--seed", args.seed.to_string()),
+        ("--background", "black".into()),
+        ("--init-points", quick("5000", "20000")),
+        ("--max-gaussians", quick("5000", "15000")),
+        ("--eval-every", quick("100", "200")),
+        ("--log-every", "25".into()),
+        ("--device", args.device.to_string()),
+    ]));
     train::run(super::args_of("train", &stage1)?)?;
     eprintln!("svgir demo: stage 2 ({iterations2} iterations, the measured profile)");
     // The quick demo (a CI test) trains and relights with 16 directions; the full demo relights
     // with 128 rather than SPEC 7's 384 (`svgir inverse`'s default) to stay a few minutes long
     // (K is recorded in eval.json).
-    let stage2: Vec<String> = [
+    let stage2 = super::flag_list(&[
         ("--run", out),
         ("--iterations", iterations2.to_string()),
         ("--seed", args.seed.to_string()),
@@ -70,10 +65,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         ("--relight-directions", quick("16", "128")),
         ("--turntable", quick("4", "24")),
         ("--log-every", "10".into()),
-    ]
-    .into_iter()
-    .flat_map(|(k, v)| [k.to_string(), v])
-    .collect();
+    ]);
     inverse::run(super::args_of("inverse", &stage2)?)?;
     // The interactive viewer, from the training micro-buffers' directions (no new trace).
     let directions = if args.quick { 16 } else { 64 };

@@ -71,6 +71,11 @@ pub fn loss_weights_over<W: svgir_train::NamedWeights>(mut weights: W, overrides
     Ok(weights)
 }
 
+/// `(flag, value)` pairs as the argument list `args_of` takes.
+pub fn flag_list(pairs: &[(&str, String)]) -> Vec<String> {
+    pairs.iter().flat_map(|(k, v)| [k.to_string(), v.clone()]).collect()
+}
+
 /// A command's arguments with its own defaults and the given `flags` (as typed after the command
 /// name), for commands that run other commands (`demo`, `bench train`).
 pub fn args_of<T: clap::Args>(command: &str, flags: &[String]) -> anyhow::Result<T> {

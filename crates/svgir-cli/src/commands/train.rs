@@ -17,8 +17,8 @@ use std::sync::atomic::{AtomicBool, Ordering};
 use std::sync::Arc;
 use svgir_core::{Dataset, Image, Rng};
 use svgir_gpu::DeviceChoice;
-use svgir_train::driver::{self, DriverError, Ended, Observer, Periods};
-use svgir_train::{checkpoint, init, BackgroundMode, Profile, Stage1, Stage1Config, StepStats, ViewOrder};
+use svgir_train::driver::{self, DriverError, Ended, Observer, Periods, Stage1Start};
+use svgir_train::{init, BackgroundMode, Profile, Stage1Config, StepStats, ViewOrder};
 
 /// `--profile`: which defaults to start from.
 #[derive(Clone, Copy, Debug, ValueEnum, PartialEq)]
@@ -151,9 +151,7 @@ pub fn run(args: TrainArgs) -> Result<()> {
     let ckpt_path = args.out.join("checkpoint.bin");
     let gpu = open_device(args.device)?;
     let adapter = gpu.as_ref().map(|g| g.report.clone());
-    let trainer = if args.resume {
-        let mut t = checkpoint::load(&ckpt_path, &dataset)?;
-        eprintln!("resumed {} at iteration {}", ckpt_path.display(), t.iteration);
+    let start = if args.resume {
         let ignored = ignored_on_resume(&args)?;
         if !ignored.is_empty() {
             eprintln!(
@@ -164,20 +162,8 @@ pub fn run(args: TrainArgs) -> Result<()> {
         }
         // An --iterations other than its default sets the run's length, which may extend a
         // finished run; without it the run ends where it was meant to.
-        if args.iterations != default_args()?.iterations && args.iterations != t.config.iterations {
-            eprintln!(
-                "stage 1: iterations {} -> {}: densification and SH upgrades keep the checkpoint's schedule; the \
-                 position learning rate's decay and the depth-normal ramp stretch to the new length",
-                t.config.iterations, args.iterations
-            );
-            t.config.iterations = args.iterations;
-        } else if t.config.iterations != args.iterations {
-            eprintln!(
-                "stage 1: continuing to the checkpoint's {} iterations (an --iterations other than {} changes it)",
-                t.config.iterations, args.iterations
-            );
-        }
-        t
+        let given = args.iterations != default_args()?.iterations;
+        Stage1Start::Resume { iterations: given.then_some(args.iterations) }
     } else {
         let (config, why) = make_config(&args, &dataset)?;
         let mut rng = Rng::new(config.seed);
@@ -195,9 +181,7 @@ pub fn run(args: TrainArgs) -> Result<()> {
             init::random_box_points(config.init_points, config.init_half_extent, &mut rng)
         };
         let surfels = init::surfels_from_points(&points, config.max_sh_degree, &mut rng);
-        write_json(
-            &args.out.join("config.json"),
-            &json!({
+        let meta = json!({
                 "stage1": config,
                 "profile": { "name": config.profile.name(), "why": why, "defaults": config.profile.describe() },
                 "data": args.data.data,
@@ -206,11 +190,10 @@ pub fn run(args: TrainArgs) -> Result<()> {
                 "initial_gaussians": surfels.len(),
                 "device": { "choice": args.device, "adapter": adapter },
                 "command": std::env::args().collect::<Vec<_>>(),
-            }),
-        )?;
-        let _ = std::fs::remove_file(args.out.join("metrics.jsonl"));
-        Stage1::new(config, surfels, &dataset)
+        });
+        Stage1Start::New { config: Box::new(config), surfels, meta }
     };
+    let trainer = driver::open_stage1(&args.out, start, &dataset, &mut |line| eprintln!("{line}"))?;
     let mut engine = Engine::new(trainer, gpu, args.device, &dataset)?;
     train_loop(&mut engine, &dataset, &args)?;
     finish(&engine, &dataset, &args.out)
