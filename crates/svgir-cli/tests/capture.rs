@@ -143,7 +143,37 @@ fn capture_command_runs_every_step_and_resumes() {
     // Again: every step is found done.
     let log = run(&mut cmd());
     assert_eq!(log.matches("(done before)").count(), 5, "{log}");
+    report_holds_phone_capture_names(&out.join("object"));
     let _ = std::fs::remove_dir_all(&out);
+}
+
+/// The object's report with photos named as phones name them (long, no spaces): in Chromium at
+/// desktop and phone widths the labels wrap and the page does not scroll sideways (it did:
+/// 1497 px in a 1280 px window).
+fn report_holds_phone_capture_names(object: &Path) {
+    let dir = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../tools/browser"));
+    if !(dir.join("node_modules/playwright-core").exists() && Path::new("/usr/bin/chromium").exists()) {
+        let why = format!("SKIPPED: browser check (run `npm ci` in {} and install Chromium)", dir.display());
+        assert!(std::env::var_os("SVGIR_REQUIRE_DATA").is_none(), "{why}");
+        eprintln!("{why}");
+        return;
+    }
+    let hashed = "PXL_20261201_093412345_MP_3f9a2c7e1b4d4e8f9a0b1c2d3e4f5a6b";
+    for sub in ["test", "stage2/test"] {
+        for e in std::fs::read_dir(object.join(sub)).unwrap().flatten() {
+            let name = e.file_name().to_string_lossy().replace("DSC_", &format!("{hashed}_"));
+            std::fs::rename(e.path(), object.join(sub).join(name)).unwrap();
+        }
+    }
+    run(svgir().arg("report").arg(object));
+    let res = Command::new("node")
+        .arg(dir.join("report_check.mjs"))
+        .arg(object.join("report.html"))
+        .arg(object.join("shots"))
+        .output()
+        .expect("node runs");
+    let stdout = String::from_utf8_lossy(&res.stdout);
+    assert!(res.status.success(), "report check failed: {stdout}{}", String::from_utf8_lossy(&res.stderr));
 }
 
 /// A folder of photos without poses needs COLMAP; without it the command says how to get it.

@@ -279,9 +279,9 @@ pub fn write_report(run: &Path, out: &Path) -> Result<()> {
     let mut html = String::from(
         "<!doctype html><html><head><meta charset=utf-8><meta name=viewport content=\"width=device-width, initial-scale=1\">\
 <title>svgir report</title><style>\
-body{font-family:sans-serif;margin:24px;color:#222;max-width:1400px}table{border-collapse:collapse;margin:8px 0}\
+body{font-family:sans-serif;margin:24px;color:#222;max-width:1400px;overflow-wrap:anywhere}table{border-collapse:collapse;margin:8px 0}\
 td,th{border:1px solid #ccc;padding:4px 10px;text-align:left}figure{display:inline-block;margin:4px;text-align:center;vertical-align:top}\
-img{image-rendering:pixelated;width:192px;max-width:42vw}figcaption{font-size:12px;max-width:192px}\
+img{image-rendering:pixelated;width:192px;max-width:42vw}figcaption{font-size:12px;max-width:192px;overflow-wrap:anywhere}\
 .plot{margin:8px;border:1px solid #eee;max-width:100%;height:auto}.scroll{overflow-x:auto}\
 pre{overflow-x:auto;background:#f6f6f6;padding:8px}\
 .missing{width:192px;max-width:42vw;height:192px;background:#eee}.row{margin-bottom:12px}\
