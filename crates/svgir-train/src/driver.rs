@@ -191,6 +191,15 @@ pub fn run<T: Trainer>(
     Ok(Ended::Finished)
 }
 
+/// A new run's folder: `meta` written as `config.json`, an earlier run's `metrics.jsonl` cleared.
+fn start_run_folder(out: &Path, meta: &serde_json::Value) -> Result<(), DriverError> {
+    let path = out.join("config.json");
+    let text = serde_json::to_string_pretty(meta).map_err(DriverError::step)?;
+    std::fs::write(&path, text).map_err(|err| DriverError::Io { path, err })?;
+    let _ = std::fs::remove_file(out.join("metrics.jsonl"));
+    Ok(())
+}
+
 /// How stage 1 starts in its run folder.
 pub enum Stage1Start {
     /// A new run of `config` from `surfels`; `meta` is written as `config.json`.
@@ -220,10 +229,7 @@ pub fn open_stage1(
 ) -> Result<Stage1, DriverError> {
     match start {
         Stage1Start::New { config, surfels, meta } => {
-            let path = out.join("config.json");
-            let text = serde_json::to_string_pretty(&meta).map_err(DriverError::step)?;
-            std::fs::write(&path, text).map_err(|err| DriverError::Io { path, err })?;
-            let _ = std::fs::remove_file(out.join("metrics.jsonl"));
+            start_run_folder(out, &meta)?;
             Ok(Stage1::new(*config, surfels, dataset))
         }
         Stage1Start::Resume { iterations } => {
@@ -291,10 +297,7 @@ pub fn open_stage2(
     let ckpt = out.join("checkpoint.bin");
     match start {
         Stage2Start::New { config, surfels, meta } => {
-            let path = out.join("config.json");
-            let text = serde_json::to_string_pretty(&meta).map_err(DriverError::step)?;
-            std::fs::write(&path, text).map_err(|err| DriverError::Io { path, err })?;
-            let _ = std::fs::remove_file(out.join("metrics.jsonl"));
+            start_run_folder(out, &meta)?;
             note(format!("stage 2: tracing {} Gaussians x {} directions...", surfels.len(), config.directions));
             let s2 = Stage2::new(*config, surfels.clone(), dataset).map_err(DriverError::step)?;
             note(format!("micro-buffers traced in {:.1} s", s2.trace_seconds));

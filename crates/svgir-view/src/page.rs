@@ -88,7 +88,8 @@ pub fn page(model: &ViewModel, lights: &[PageLight], camera: &Orbit, title: &str
         .replace("__SVGIR_SCRIPT__", &SCRIPTS.join("\n"))
 }
 
-fn html_escape(s: &str) -> String {
+/// `s` with `&`, `<` and `>` escaped for HTML text.
+pub fn html_escape(s: &str) -> String {
     s.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
 }
 

@@ -209,11 +209,7 @@ pub fn run(args: CaptureArgs) -> Result<()> {
 }
 
 fn read_json(path: &Path) -> Option<Value> {
-    serde_json::from_str(&std::fs::read_to_string(path).ok()?).ok()
-}
-
-fn escape(text: &str) -> String {
-    text.replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;")
+    svgir_eval::read_json(path, "").ok()
 }
 
 /// `RUN/report.html`: the masks and their check first (where a capture goes wrong first), each
@@ -254,7 +250,11 @@ fn write_capture_report(out: &Path, scene: &Path, object: &Path, own_masks: bool
         rows.sort_by(|a, b| a.1.total_cmp(&b.1));
         html += "<table><tr><th>photo (least trusted first)</th><th>confidence</th><th>foreground</th></tr>";
         for (name, c, cov) in rows.iter().take(8) {
-            html += &format!("<tr><td>{}</td><td>{c:.2}</td><td>{:.0}%</td></tr>", escape(name), 100.0 * cov);
+            html += &format!(
+                "<tr><td>{}</td><td>{c:.2}</td><td>{:.0}%</td></tr>",
+                svgir_view::page::html_escape(name),
+                100.0 * cov
+            );
         }
         html += "</table>";
     }
@@ -282,8 +282,6 @@ fn write_capture_report(out: &Path, scene: &Path, object: &Path, own_masks: bool
         rel(&out.join("export/object.glb")),
         rel(&out.join("export/splats.glb")),
     );
-    let tmp = page.with_extension("html.tmp");
-    std::fs::write(&tmp, html).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, page).with_context(|| format!("writing {}", page.display()))?;
+    svgir_io::error::write_atomic(page, html.as_bytes())?;
     Ok(())
 }

@@ -319,9 +319,7 @@ change the map, look at albedo, roughness, normals and visibility)</p>";
         let _ = write!(html, "<h3>Stage 2</h3><pre>{}</pre>", serde_json::to_string_pretty(&c2)?);
     }
     html += "</body></html>";
-    let tmp = out.with_extension("html.tmp");
-    std::fs::write(&tmp, html).with_context(|| format!("writing {}", tmp.display()))?;
-    std::fs::rename(&tmp, out).with_context(|| format!("writing {}", out.display()))?;
+    svgir_io::error::write_atomic(out, html.as_bytes())?;
     Ok(())
 }
 
