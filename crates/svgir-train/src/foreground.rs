@@ -31,8 +31,16 @@ pub struct ForegroundConfig {
     pub seen_fraction: f32,
     /// Image border (share of the image side) a candidate must be inside of.
     pub image_margin: f32,
-    /// A support plane must hold at least this share of the opaque Gaussians.
+    /// A support plane must hold at least this share of the seen surface points.
     pub min_plane_share: f32,
+    /// Seen surface points count within this many times the candidates' median distance to the
+    /// focus: what the object stands on, not the far room.
+    pub support_radius: f32,
+    /// Seen points beyond a plane count against it within this many times the candidates'
+    /// median distance to the focus.
+    pub beyond_radius: f32,
+    /// Longer side (pixels) of the renders whose depths give the seen surface points.
+    pub surface_samples_side: u32,
     /// Plane inlier distance, as a share of the candidates' median distance to the focus.
     pub plane_tolerance: f32,
     /// RANSAC plane hypotheses.
@@ -54,6 +62,9 @@ impl Default for ForegroundConfig {
             seen_fraction: 0.9,
             image_margin: 0.02,
             min_plane_share: 0.1,
+            support_radius: 3.0,
+            beyond_radius: 1.5,
+            surface_samples_side: 64,
             plane_tolerance: 0.04,
             ransac_iterations: 500,
             voxel: 0.05,
@@ -135,6 +146,7 @@ fn inside_image(cam: &Camera, p: Vec3, margin: f32) -> bool {
 pub fn select_foreground(
     surfels: &Surfels,
     cameras: &[Camera],
+    raster: &RasterConfig,
     cfg: &ForegroundConfig,
     rng: &mut Rng,
 ) -> Result<Foreground, String> {
@@ -154,10 +166,21 @@ pub fn select_foreground(
     dists.sort_by(f32::total_cmp);
     let scale = dists[dists.len() / 2].max(1e-9);
 
-    // The support is searched among every opaque Gaussian: a table is large, and photos framed
-    // on the object show only part of it.
+    // The support is searched first among every opaque Gaussian's centre (a table is large, and
+    // photos framed on the object show only part of it), then, if none qualifies, among the
+    // surface points the photos see near the focus (each view's median depth, back-projected):
+    // a plain table may be a few large Gaussians, and a capture without sparse points keeps a
+    // random start's floaters where no photo sees them, but every pixel votes the same.
     let tol = cfg.plane_tolerance * scale;
-    let (support, support_inliers) = match support_plane(surfels, &opaque, cameras, focus, tol, cfg, rng) {
+    let centres: Vec<Vec3> = opaque.iter().map(|&i| surfels.positions[i]).collect();
+    let found = support_plane(&centres, cameras, focus, tol, false, cfg, rng).or_else(|| {
+        let seen: Vec<Vec3> = seen_surface(surfels, cameras, raster, cfg.surface_samples_side)
+            .into_iter()
+            .filter(|p| (*p - focus).length() <= cfg.support_radius * scale)
+            .collect();
+        support_plane(&seen, cameras, focus, tol, true, cfg, rng)
+    });
+    let (support, support_inliers) = match found {
         Some((pl, c)) => (Some(pl), c),
         None => (None, 0),
     };
@@ -211,41 +234,94 @@ pub fn select_foreground(
     })
 }
 
-/// RANSAC over the candidates' centres; a plane counts as a support only under the module's
+/// Points on the surfaces each camera sees: its median depth back-projected at the pixels of a
+/// render whose longer side is `side` pixels and whose opacity is at least a half.
+pub fn seen_surface(surfels: &Surfels, cameras: &[Camera], raster: &RasterConfig, side: u32) -> Vec<Vec3> {
+    let feats = vec![0.0f32; 3 * surfels.len()];
+    let raster = RasterConfig { geometry: true, ..*raster };
+    let mut out = Vec::new();
+    for cam in cameras {
+        let f = side as f32 / cam.width().max(cam.height()) as f32;
+        let small = if f < 1.0 {
+            cam.resized(
+                ((cam.width() as f32 * f).round() as u32).max(1),
+                ((cam.height() as f32 * f).round() as u32).max(1),
+            )
+        } else {
+            *cam
+        };
+        let input = RenderInput {
+            surfels,
+            camera: &small,
+            colors: ColorSource::Features(Features { data: &feats, vertices: 1, channels: 3, uniform: 0 }),
+            extra: None,
+            background: Background::Color([0.0; 3]),
+        };
+        let (img, _) = render(&input, &raster);
+        let (w, fwd) = (small.width() as usize, small.forward());
+        for (i, (&a, &z)) in img.alpha.iter().zip(&img.median_depth).enumerate() {
+            if a >= 0.5 && z > 0.0 {
+                let d = small.ray_dir((i % w) as f32 + 0.5, (i / w) as f32 + 0.5);
+                out.push(small.center() + d * (z / d.dot(fwd)));
+            }
+        }
+    }
+    out
+}
+
+/// RANSAC over points on the scene's surfaces; a plane counts as a support only under the module's
 /// conditions (share, every camera and the focus on one side).
 fn support_plane(
-    s: &Surfels,
-    idx: &[usize],
+    pts: &[Vec3],
     cameras: &[Camera],
     focus: Vec3,
     tol: f32,
+    seen_points: bool,
     cfg: &ForegroundConfig,
     rng: &mut Rng,
 ) -> Option<(Plane, usize)> {
-    let pts: Vec<Vec3> = idx.iter().map(|&i| s.positions[i]).collect();
-    let mut best: Option<(usize, Plane)> = None;
+    if pts.len() < 3 {
+        return None;
+    }
+    // Each hypothesis faces the cameras and scores its inliers, less, for `seen_points`, the
+    // points beyond it: a flat part of the object (a saucer, a plinth) fills many pixels too,
+    // but the photos see the table beyond it, while nothing is seen beyond the table. (Centres
+    // beyond a plane are no such evidence: a random start leaves floaters under the table.)
+    // Only what is seen beyond it near the object counts against a plane: under a saucer lies
+    // the table, but past a table's far edge the photos may well see the floor.
+    let mean_cam = cameras.iter().map(|c| c.center()).sum::<Vec3>() / cameras.len() as f32;
+    let near_focus = cfg.beyond_radius * tol / cfg.plane_tolerance;
+    let mut best: Option<(i64, usize, Plane)> = None;
     for _ in 0..cfg.ransac_iterations {
         let (a, b, c) = (pts[rng.below(pts.len())], pts[rng.below(pts.len())], pts[rng.below(pts.len())]);
         let nrm = (b - a).cross(c - a);
         if nrm.length_squared() < 1e-20 {
             continue;
         }
-        let nrm = nrm.normalize();
+        let mut nrm = nrm.normalize();
+        if nrm.dot(mean_cam - a) < 0.0 {
+            nrm = -nrm;
+        }
         let pl = Plane { normal: nrm, d: nrm.dot(a) };
-        let count = pts.iter().filter(|p| pl.signed_distance(**p).abs() < tol).count();
-        if best.as_ref().is_none_or(|(c, _)| count > *c) {
-            best = Some((count, pl));
+        let (mut inliers, mut beyond) = (0usize, 0usize);
+        for p in pts {
+            let h = pl.signed_distance(*p);
+            if h.abs() < tol {
+                inliers += 1;
+            } else if seen_points && h < 0.0 && (*p - focus).length() <= near_focus {
+                beyond += 1;
+            }
+        }
+        let score = inliers as i64 - beyond as i64;
+        if best.as_ref().is_none_or(|(s, _, _)| score > *s) {
+            best = Some((score, inliers, pl));
         }
     }
-    let (count, mut pl) = best?;
+    let (_, count, pl) = best?;
     if (count as f32) < cfg.min_plane_share * pts.len() as f32 {
         return None;
     }
-    // Orient towards the cameras; all of them, and the object's centre, must be on that side.
-    let mean_cam = cameras.iter().map(|c| c.center()).sum::<Vec3>() / cameras.len() as f32;
-    if pl.signed_distance(mean_cam) < 0.0 {
-        pl = Plane { normal: -pl.normal, d: -pl.d };
-    }
+    // All the cameras, and the object's centre, must be on the cameras' side.
     let all_above = cameras.iter().all(|c| pl.signed_distance(c.center()) > tol);
     (all_above && pl.signed_distance(focus) > tol).then_some((pl, count))
 }
@@ -378,7 +454,8 @@ mod tests {
             push(&mut s, Vec3::new(rng.range(-2.0, 2.0), rng.range(-2.0, 2.0), 0.0), 0.05);
         }
         push(&mut s, Vec3::new(0.0, 0.0, 1.2), 0.02);
-        let fg = select_foreground(&s, &cams, &ForegroundConfig::default(), &mut Rng::new(2)).unwrap();
+        let fg = select_foreground(&s, &cams, &RasterConfig::default(), &ForegroundConfig::default(), &mut Rng::new(2))
+            .unwrap();
         let pl = fg.support.expect("the table is found");
         assert!(pl.normal.z > 0.99 && pl.d.abs() < 0.05, "{pl:?}");
         let ball = fg.selected[..table_start].iter().filter(|x| **x).count();

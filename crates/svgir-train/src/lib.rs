@@ -5,6 +5,7 @@
 
 pub mod adam;
 pub mod checkpoint;
+pub mod colour_model;
 pub mod composite;
 pub mod config;
 pub mod coverage;
@@ -12,10 +13,12 @@ pub mod densify;
 pub mod driver;
 pub mod exposure;
 pub mod foreground;
+pub mod grid_cut;
 pub mod gt_materials;
 pub mod init;
 pub mod losses;
 pub mod mask_check;
+pub mod mask_refine;
 pub mod orient;
 pub mod relight;
 pub mod stage1;

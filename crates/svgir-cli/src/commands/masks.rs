@@ -17,6 +17,7 @@ use std::path::PathBuf;
 use svgir_core::{Image, Rng};
 use svgir_train::foreground::{render_share, select_foreground, ForegroundConfig};
 use svgir_train::mask_check::check_masks;
+use svgir_train::mask_refine::{refine, RefineConfig};
 
 #[derive(Args)]
 pub struct MasksArgs {
@@ -37,9 +38,12 @@ pub struct MasksArgs {
     /// Without --run: train on images downscaled by this factor.
     #[arg(long, default_value_t = 4.0)]
     pub downscale: f32,
-    /// Seed of the plane search (and of the stage 1 trained here); recorded in foreground.json.
+    /// Seed of the plane search, the colour models (and of the stage 1 trained here); recorded in foreground.json.
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
+    /// Keep the 3D estimate's edges (no per-photo colour refinement).
+    #[arg(long)]
+    pub no_refine: bool,
 }
 
 pub fn run(args: MasksArgs) -> Result<()> {
@@ -64,8 +68,12 @@ pub fn run(args: MasksArgs) -> Result<()> {
         );
     }
     let cameras: Vec<_> = dataset.train.iter().map(|v| v.camera).collect();
+    let raster = svgir_raster::RasterConfig {
+        near: svgir_train::config::CAPTURE_NEAR_FRACTION * dataset.camera_extent(),
+        ..Default::default()
+    };
     let cfg = ForegroundConfig::default();
-    let fg = select_foreground(&surfels, &cameras, &cfg, &mut Rng::new(args.seed))
+    let fg = select_foreground(&surfels, &cameras, &raster, &cfg, &mut Rng::new(args.seed))
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.data.display()))?;
     eprintln!(
         "foreground: {} of {} Gaussians ({} where every camera looks{})",
@@ -74,17 +82,23 @@ pub fn run(args: MasksArgs) -> Result<()> {
         fg.candidates,
         if fg.support.is_some() { "; support plane removed" } else { "" }
     );
-    let raster = svgir_raster::RasterConfig {
-        near: svgir_train::config::CAPTURE_NEAR_FRACTION * dataset.camera_extent(),
-        ..Default::default()
-    };
     let views: Vec<_> = dataset.all_views().collect();
     let pb = progress::bar(views.len() as u64, "masks");
+    let refine_cfg = RefineConfig::default();
     let mut masks = Vec::new();
-    for v in &views {
+    let mut refined = Vec::new();
+    for (n, v) in views.iter().enumerate() {
         let share = render_share(&surfels, &fg.selected, &v.camera, &raster);
-        let mask: Vec<f32> = share.iter().map(|&s| if s >= 0.5 { 1.0 } else { 0.0 }).collect();
-        masks.push(Image::from_data(v.camera.width(), v.camera.height(), 1, mask));
+        let (w, h) = (v.camera.width() as usize, v.camera.height() as usize);
+        let mask: Vec<f32> = if args.no_refine || v.image.channels < 3 {
+            share.iter().map(|&s| if s >= 0.5 { 1.0 } else { 0.0 }).collect()
+        } else {
+            let mut rng = Rng::new(args.seed).fork(n as u64 + 1);
+            let r = refine(&v.image.data, v.image.channels as usize, &share, w, h, &refine_cfg, &mut rng);
+            refined.push(json!({"view": v.name, "band_px": r.band, "changed_px": r.changed}));
+            r.mask.iter().map(|&m| if m { 1.0 } else { 0.0 }).collect()
+        };
+        masks.push(Image::from_data(w as u32, h as u32, 1, mask));
         pb.inc(1);
     }
     pb.finish();
@@ -94,6 +108,7 @@ pub fn run(args: MasksArgs) -> Result<()> {
     svgir_io::write_png(run.join("masks_overview.png"), &sheet, 8)?;
     let record = json!({
         "data": args.data, "run": run, "out": args.out, "seed": args.seed, "config": cfg, "foreground": fg,
+        "refine": if args.no_refine { serde_json::Value::Null } else { json!({"config": refine_cfg, "per_view": refined}) },
         "confidence": check.confidence, "failure": check.failure.as_ref().map(|f| f.to_string()),
         "per_view": views.iter().zip(&check.views).map(|(v, c)| json!({"view": v.name, "check": c})).collect::<Vec<_>>(),
     });
