@@ -56,6 +56,9 @@ pub struct CaptureArgs {
     /// Seed of every random choice.
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 0)]
     pub seed: u64,
+    /// COLMAP's quality preset for posing a plain folder (low, medium, high, extreme).
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value = "high")]
+    pub colmap_quality: String,
 }
 
 fn s(p: &Path) -> String {
@@ -89,7 +92,18 @@ fn posed_dataset(args: &CaptureArgs) -> Result<PathBuf> {
         Ok(())
     };
     std::fs::create_dir_all(&work).with_context(|| format!("creating {}", work.display()))?;
-    colmap("automatic_reconstructor", &flags(&[("--workspace_path", s(&work)), ("--image_path", s(&args.photos))]))?;
+    // COLMAP's GPU SIFT needs an OpenGL context; without a display it would crash, so it runs
+    // on the CPU there (Debian's build has no CUDA either way).
+    let headless = std::env::var_os("DISPLAY").is_none() && std::env::var_os("WAYLAND_DISPLAY").is_none();
+    colmap(
+        "automatic_reconstructor",
+        &flags(&[
+            ("--workspace_path", s(&work)),
+            ("--image_path", s(&args.photos)),
+            ("--quality", args.colmap_quality.clone()),
+            ("--use_gpu", if headless { "0" } else { "1" }.into()),
+        ]),
+    )?;
     let sparse = work.join("sparse/0");
     anyhow::ensure!(sparse.is_dir(), "{}: COLMAP posed no photos (no sparse/0)", args.photos.display());
     colmap(
