@@ -145,6 +145,65 @@ def surroundings(layout, clutter, objects, rng):
     return out
 
 
+def sample_points(objects, cams, focal, res, photos, n, rng):
+    """SfM-like sparse points: `n` points drawn by area over the surfaces that face a camera and
+    lie inside at least two photos (occlusion is ignored), coloured from the first such photo."""
+    dg = bpy.context.evaluated_depsgraph_get()
+    tris = []
+    for ob in objects:
+        me = ob.evaluated_get(dg).to_mesh()
+        me.calc_loop_triangles()
+        mw = np.array(ob.matrix_world)
+        v = np.array([tuple(x.co) for x in me.vertices], dtype=np.float64)
+        v = v @ mw[:3, :3].T + mw[:3, 3]
+        t = np.array([tuple(x.vertices) for x in me.loop_triangles], dtype=np.int64)
+        tris.append(v[t])
+        ob.evaluated_get(dg).to_mesh_clear()
+    tri = np.concatenate(tris)
+    area = 0.5 * np.linalg.norm(np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]), axis=1)
+    out_p, out_c = [], []
+    while len(out_p) < n:
+        k = rng.choice(len(tri), size=4 * n, p=area / area.sum())
+        a, b = rng.random((2, 4 * n))
+        flip = a + b > 1
+        a[flip], b[flip] = 1 - a[flip], 1 - b[flip]
+        t = tri[k]
+        p = t[:, 0] + a[:, None] * (t[:, 1] - t[:, 0]) + b[:, None] * (t[:, 2] - t[:, 0])
+        nrm = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+        seen = np.zeros(len(p), dtype=np.int64)
+        colour = np.full((len(p), 3), -1.0)
+        for m, photo in zip(cams, photos):
+            rel = p - m[:3, 3]
+            cam = rel @ m[:3, :3]  # camera frame: x right, y up, looking down -z
+            z = -cam[:, 2]
+            ok = (z > 0.05) & (np.einsum("ij,ij->i", nrm, -rel) > 0)
+            u = res / 2 + focal * cam[:, 0] / np.maximum(z, 1e-9)
+            v = res / 2 - focal * cam[:, 1] / np.maximum(z, 1e-9)
+            ok &= (u >= 0) & (u < res) & (v >= 0) & (v < res)
+            seen += ok
+            first = ok & (colour[:, 0] < 0)
+            colour[first] = photo[v[first].astype(int), u[first].astype(int), :3] / 255.0
+        keep = seen >= 2
+        out_p.extend(p[keep])
+        out_c.extend(colour[keep])
+    return np.array(out_p[:n]), np.array(out_c[:n])
+
+
+def write_ply(path, pts, rgb):
+    """Binary little-endian PLY: float x y z, uchar red green blue (what COLMAP's and
+    nerfstudio's point files hold)."""
+    head = ("ply\nformat binary_little_endian 1.0\nelement vertex %d\nproperty float x\nproperty float y\n"
+            "property float z\nproperty uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
+            % len(pts))
+    rec = np.zeros(len(pts), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("r", "u1"), ("g", "u1"), ("b", "u1")])
+    rec["x"], rec["y"], rec["z"] = pts[:, 0], pts[:, 1], pts[:, 2]
+    c = np.clip(np.round(rgb * 255), 0, 255).astype(np.uint8)
+    rec["r"], rec["g"], rec["b"] = c[:, 0], c[:, 1], c[:, 2]
+    with open(path, "wb") as f:
+        f.write(head.encode())
+        f.write(rec.tobytes())
+
+
 def cameras(layout, n, seed):
     """Camera-to-world matrices (Blender convention), looking at the object's centre."""
     rng = np.random.default_rng(seed)
@@ -176,6 +235,9 @@ def main():
     p.add_argument("--light", default="builtin:forest", help="environment map ([NAME=]PATH[@STRENGTH])")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--resume", action="store_true", help="keep the views already rendered")
+    p.add_argument("--points", type=int, default=20000,
+                   help="SfM-like sparse points written to points3D.ply (0: none, as a capture without them)")
     args = p.parse_args()
 
     with g.silence_fd(1):
@@ -211,11 +273,15 @@ def main():
     os.makedirs(os.path.join(args.out, "masks_true"), exist_ok=True)
     focal = 0.5 * args.res / math.tan(0.5 * cam_data.angle)
     frames, t0 = [], time.time()
-    for i, m in enumerate(cameras(args.layout, args.views, args.seed)):
+    cams = cameras(args.layout, args.views, args.seed)
+    for i, m in enumerate(cams):
         name = f"{i:03d}.png"
         cam.matrix_world = Matrix(m.tolist())
         bpy.context.view_layer.update()
         sc.cycles.seed = args.seed * 1000 + i
+        frames.append({"file_path": f"images/{name}", "transform_matrix": np.asarray(cam.matrix_world).tolist()})
+        if args.resume and all(os.path.isfile(os.path.join(args.out, d, name)) for d in ("images", "masks_true")):
+            continue
         # The photo: everything, opaque.
         sc.render.film_transparent = False
         sc.cycles.samples = args.spp
@@ -236,12 +302,19 @@ def main():
         Image.fromarray(np.where(alpha >= 128, 255, 0).astype(np.uint8), "L").save(
             os.path.join(args.out, "masks_true", name))
         os.remove(tmp)
-        frames.append({"file_path": f"images/{name}", "transform_matrix": np.asarray(cam.matrix_world).tolist()})
         g.log(f"[{args.layout}{'+clutter' if args.clutter else ''} {args.scene}] view {i + 1}/{args.views} "
               f"({time.time() - t0:.0f} s)")
+    meta = {"camera_model": "PINHOLE", "fl_x": focal, "fl_y": focal, "cx": args.res / 2, "cy": args.res / 2,
+            "w": args.res, "h": args.res, "frames": frames}
+    if args.points > 0:
+        from PIL import Image
+        photos = [np.asarray(Image.open(os.path.join(args.out, "images", f"{i:03d}.png")).convert("RGB"))
+                  for i in range(len(cams))]
+        pts, rgb = sample_points(objects + rest, cams, focal, args.res, photos, args.points, rng)
+        write_ply(os.path.join(args.out, "points3D.ply"), pts, rgb)
+        meta["ply_file_path"] = "points3D.ply"
     with open(os.path.join(args.out, "transforms.json"), "w") as f:
-        json.dump({"camera_model": "PINHOLE", "fl_x": focal, "fl_y": focal, "cx": args.res / 2, "cy": args.res / 2,
-                   "w": args.res, "h": args.res, "frames": frames}, f, indent=1)
+        json.dump(meta, f, indent=1)
     with open(os.path.join(args.out, "capture.json"), "w") as f:
         json.dump({"scene": args.scene, "description": desc, "layout": args.layout, "clutter": args.clutter,
                    "object": [o.name for o in objects], "surroundings": [o.name for o in rest],

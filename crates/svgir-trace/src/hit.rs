@@ -82,14 +82,19 @@ impl Disk {
         }
     }
 
-    /// Exact axis-aligned bounds of the 3-sigma ellipse, padded by `pad` on every side:
-    /// extent along world axis a is `3 sqrt((s_u t_u.a)^2 + (s_v t_v.a)^2)`.
+    /// Axis-aligned bounds of the part of the disk a ray can hit, padded by `pad` on every side.
+    /// A hit needs `u^2 + v^2 <= 9` and `o exp(-(u^2 + v^2)/2) >= 1/255`, so its radius in sigma
+    /// units is `r = sqrt(min(9, 2 ln(255 o)))`: 3 from opacity 0.35 up, 2.26 at 0.05, none
+    /// below 1/255 (the faint, large floaters of a real capture span far less than their
+    /// 3-sigma ellipse). The extent along world axis a is `r sqrt((s_u t_u.a)^2 + (s_v t_v.a)^2)`,
+    /// with `r` raised by 1e-3 relative so that f32 rounding in the alpha test cannot reach past it.
     pub fn bounds(s: &Surfels, i: usize, pad_rel: f32) -> (Vec3, Vec3) {
         let r = s.rotation_matrix(i);
         let sc = s.scale(i);
         let eu = r.x_axis * sc.x;
         let ev = r.y_axis * sc.y;
-        let ext = 3.0 * (eu * eu + ev * ev).map(f32::sqrt);
+        let reach2 = (2.0 * (s.opacity(i) / ALPHA_MIN).ln()).clamp(0.0, SUPPORT_R2);
+        let ext = reach2.sqrt() * (1.0 + 1e-3) * (eu * eu + ev * ev).map(f32::sqrt);
         let p = s.positions[i];
         // Padding absorbs rounding in the plane-crossing hit point, so box culling can never reject
         // a hit the exact test would accept (BVH results must equal brute force bit for bit).
@@ -175,12 +180,32 @@ mod tests {
         let n = s.normal(0);
         let tangent = n.any_orthonormal_vector();
         assert!(disk.intersect(s.positions[0] + n, tangent).is_none());
-        // Bounds contain the whole support.
+        // Bounds contain the whole support at high opacity, and at low opacity exactly the
+        // radius where alpha reaches 1/255: rays just inside it hit, just outside they miss.
         let (lo, hi) = Disk::bounds(&s, 0, 1e-5);
         for a in 0..64 {
             let ang = a as f32 / 64.0 * std::f32::consts::TAU;
             let p = s.local_to_world(0, 3.0 * ang.cos(), 3.0 * ang.sin());
             assert!(p.cmpge(lo).all() && p.cmple(hi).all());
         }
+        let mut faint = s.clone();
+        faint.opacity_logits[0] = logit(0.05);
+        let reach = (2.0 * (0.05f32 * 255.0).ln()).sqrt();
+        let (lo, hi) = Disk::bounds(&faint, 0, 1e-5);
+        let fd = Disk::from_surfel(&faint, 0);
+        let (mut inside_hits, mut outside_hits) = (0, 0);
+        for a in 0..64 {
+            let ang = a as f32 / 64.0 * std::f32::consts::TAU;
+            let p = faint.local_to_world(0, 0.999 * reach * ang.cos(), 0.999 * reach * ang.sin());
+            assert!(p.cmpge(lo).all() && p.cmple(hi).all());
+            inside_hits += fd.intersect(o, (p - o).normalize()).is_some() as usize;
+            let q = faint.local_to_world(0, 1.001 * reach * ang.cos(), 1.001 * reach * ang.sin());
+            outside_hits += fd.intersect(o, (q - o).normalize()).is_some() as usize;
+        }
+        assert_eq!((inside_hits, outside_hits), (64, 0));
+        let mut invisible = s.clone();
+        invisible.opacity_logits[0] = logit(0.003);
+        let (lo, hi) = Disk::bounds(&invisible, 0, 1e-5);
+        assert!((hi - lo).max_element() < 1e-3, "a disk no ray can hit has a point-sized box");
     }
 }
