@@ -104,6 +104,9 @@ pub struct Foreground {
     pub support: Option<Plane>,
     /// Gaussians within the plane tolerance of the support.
     pub support_inliers: usize,
+    /// Thickness of the slab in front of the support that was removed with it, as a share of
+    /// `scale` (0 without a support).
+    pub support_slab: f32,
     /// Size and radius (from the focus) of the seed cluster.
     pub seed_count: usize,
     /// Radius of the seed cluster from the focus, world units.
@@ -190,7 +193,22 @@ pub fn select_foreground(
         let q = |f: f32| h[((h.len() - 1) as f32 * f) as usize];
         [q(0.1), q(0.5), q(0.9)]
     });
-    let above_support = |p: Vec3| support.is_none_or(|pl| pl.signed_distance(p) >= tol);
+    // The support's own Gaussians scatter about its plane, the more the plainer it is (a white
+    // wall's depth is weakly held by the photos). Nothing lies behind a support, so what lies
+    // within 5 tolerances behind it is that scatter; in front it is as wide, so the slab removed
+    // is its 90th percentile, between 1 and 3 tolerances.
+    let slab = support.map_or(tol, |pl| {
+        let mut behind: Vec<f32> = opaque
+            .iter()
+            .map(|&i| surfels.positions[i])
+            .filter(|p| (*p - focus).length() <= cfg.support_radius * scale)
+            .map(|p| -pl.signed_distance(p))
+            .filter(|&d| d > 0.0 && d < 5.0 * tol)
+            .collect();
+        behind.sort_by(f32::total_cmp);
+        behind.get(behind.len() * 9 / 10).map_or(tol, |&q| q.clamp(tol, 3.0 * tol))
+    });
+    let above_support = |p: Vec3| support.is_none_or(|pl| pl.signed_distance(p) >= slab);
     // The seed: the largest cluster of what every camera sees, above the support.
     let kept: Vec<usize> = idx.iter().copied().filter(|&i| above_support(surfels.positions[i])).collect();
     let voxel = cfg.voxel * scale;
@@ -226,6 +244,7 @@ pub fn select_foreground(
         candidates: idx.len(),
         support,
         support_inliers,
+        support_slab: if support.is_some() { slab / scale } else { 0.0 },
         seed_count: seed_members.iter().filter(|s| **s).count(),
         seed_radius,
         candidate_heights,
