@@ -235,6 +235,7 @@ def main():
     p.add_argument("--light", default="builtin:forest", help="environment map ([NAME=]PATH[@STRENGTH])")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--threads", type=int, default=2)
+    p.add_argument("--jpeg", action="store_true", help="save the photos as JPEG (quality 92), as a camera would")
     p.add_argument("--resume", action="store_true", help="keep the views already rendered")
     p.add_argument("--points", type=int, default=20000,
                    help="SfM-like sparse points written to points3D.ply (0: none, as a capture without them)")
@@ -276,11 +277,13 @@ def main():
     cams = cameras(args.layout, args.views, args.seed)
     for i, m in enumerate(cams):
         name = f"{i:03d}.png"
+        photo = f"{i:03d}.jpg" if args.jpeg else name
         cam.matrix_world = Matrix(m.tolist())
         bpy.context.view_layer.update()
         sc.cycles.seed = args.seed * 1000 + i
-        frames.append({"file_path": f"images/{name}", "transform_matrix": np.asarray(cam.matrix_world).tolist()})
-        if args.resume and all(os.path.isfile(os.path.join(args.out, d, name)) for d in ("images", "masks_true")):
+        frames.append({"file_path": f"images/{photo}", "transform_matrix": np.asarray(cam.matrix_world).tolist()})
+        if args.resume and all(os.path.isfile(os.path.join(args.out, d, f)) for d, f in (("images", photo),
+                                                                                     ("masks_true", name))):
             continue
         # The photo: everything, opaque.
         sc.render.film_transparent = False
@@ -289,6 +292,11 @@ def main():
         for o in rest:
             o.is_holdout = False
         g.render_to(os.path.join(args.out, "images", name))
+        if args.jpeg:
+            from PIL import Image
+            png = os.path.join(args.out, "images", name)
+            Image.open(png).convert("RGB").save(os.path.join(args.out, "images", photo), quality=92)
+            os.remove(png)
         # The truth: the object's coverage, the rest held out (it still occludes).
         sc.render.film_transparent = True
         sc.cycles.samples = 16
@@ -308,8 +316,7 @@ def main():
             "w": args.res, "h": args.res, "frames": frames}
     if args.points > 0:
         from PIL import Image
-        photos = [np.asarray(Image.open(os.path.join(args.out, "images", f"{i:03d}.png")).convert("RGB"))
-                  for i in range(len(cams))]
+        photos = [np.asarray(Image.open(os.path.join(args.out, f["file_path"])).convert("RGB")) for f in frames]
         pts, rgb = sample_points(objects + rest, cams, focal, args.res, photos, args.points, rng)
         write_ply(os.path.join(args.out, "points3D.ply"), pts, rgb)
         meta["ply_file_path"] = "points3D.ply"

@@ -43,7 +43,7 @@ impl Default for RefineConfig {
             min_band_px: 2.0,
             components: 5,
             smoothness: 50.0,
-            prior: 1.0,
+            prior: 3.0,
             iterations: 2,
             max_samples: 20_000,
         }

@@ -44,6 +44,12 @@ pub struct MasksArgs {
     /// Keep the 3D estimate's edges (no per-photo colour refinement).
     #[arg(long)]
     pub no_refine: bool,
+    /// Refinement: half-width of the band where edges may move, as a share of the image diagonal.
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = RefineConfig::default().band)]
+    pub refine_band: f32,
+    /// Refinement: weight of the 3D estimate against the photo's colours.
+    #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = RefineConfig::default().prior)]
+    pub refine_prior: f32,
 }
 
 pub fn run(args: MasksArgs) -> Result<()> {
@@ -84,7 +90,7 @@ pub fn run(args: MasksArgs) -> Result<()> {
     );
     let views: Vec<_> = dataset.all_views().collect();
     let pb = progress::bar(views.len() as u64, "masks");
-    let refine_cfg = RefineConfig::default();
+    let refine_cfg = RefineConfig { band: args.refine_band, prior: args.refine_prior, ..RefineConfig::default() };
     let mut masks = Vec::new();
     let mut refined = Vec::new();
     for (n, v) in views.iter().enumerate() {
