@@ -31,7 +31,8 @@ pub struct ForegroundConfig {
     pub seen_fraction: f32,
     /// Image border (share of the image side) a candidate must be inside of.
     pub image_margin: f32,
-    /// A support plane must hold at least this share of the seen surface points.
+    /// A support plane must hold at least this share of the points searched (the opaque
+    /// Gaussians' centres, or the seen surface points).
     pub min_plane_share: f32,
     /// Seen surface points count within this many times the candidates' median distance to the
     /// focus: what the object stands on, not the far room.
@@ -175,13 +176,12 @@ pub fn select_foreground(
     // a plain table may be a few large Gaussians, and a capture without sparse points keeps a
     // random start's floaters where no photo sees them, but every pixel votes the same.
     let tol = cfg.plane_tolerance * scale;
+    let near_support = |p: &Vec3| (*p - focus).length() <= cfg.support_radius * scale;
     let centres: Vec<Vec3> = opaque.iter().map(|&i| surfels.positions[i]).collect();
-    let found = support_plane(&centres, cameras, focus, tol, false, cfg, rng).or_else(|| {
-        let seen: Vec<Vec3> = seen_surface(surfels, cameras, raster, cfg.surface_samples_side)
-            .into_iter()
-            .filter(|p| (*p - focus).length() <= cfg.support_radius * scale)
-            .collect();
-        support_plane(&seen, cameras, focus, tol, true, cfg, rng)
+    let found = support_plane(&centres, cameras, focus, scale, false, cfg, rng).or_else(|| {
+        let seen: Vec<Vec3> =
+            seen_surface(surfels, cameras, raster, cfg.surface_samples_side).into_iter().filter(near_support).collect();
+        support_plane(&seen, cameras, focus, scale, true, cfg, rng)
     });
     let (support, support_inliers) = match found {
         Some((pl, c)) => (Some(pl), c),
@@ -198,11 +198,10 @@ pub fn select_foreground(
     // within 5 tolerances behind it is that scatter; in front it is as wide, so the slab removed
     // is its 90th percentile, between 1 and 3 tolerances.
     let slab = support.map_or(tol, |pl| {
-        let mut behind: Vec<f32> = opaque
+        let mut behind: Vec<f32> = centres
             .iter()
-            .map(|&i| surfels.positions[i])
-            .filter(|p| (*p - focus).length() <= cfg.support_radius * scale)
-            .map(|p| -pl.signed_distance(p))
+            .filter(|p| near_support(p))
+            .map(|p| -pl.signed_distance(*p))
             .filter(|&d| d > 0.0 && d < 5.0 * tol)
             .collect();
         behind.sort_by(f32::total_cmp);
@@ -288,13 +287,14 @@ pub fn seen_surface(surfels: &Surfels, cameras: &[Camera], raster: &RasterConfig
     out
 }
 
-/// RANSAC over points on the scene's surfaces; a plane counts as a support only under the module's
-/// conditions (share, every camera and the focus on one side).
+/// RANSAC over points on the scene's surfaces, sizes relative to `scale` (the candidates' median
+/// distance to the focus); a plane counts as a support only under the module's conditions
+/// (share, every camera and the focus on one side).
 fn support_plane(
     pts: &[Vec3],
     cameras: &[Camera],
     focus: Vec3,
-    tol: f32,
+    scale: f32,
     seen_points: bool,
     cfg: &ForegroundConfig,
     rng: &mut Rng,
@@ -309,7 +309,8 @@ fn support_plane(
     // Only what is seen beyond it near the object counts against a plane: under a saucer lies
     // the table, but past a table's far edge the photos may well see the floor.
     let mean_cam = cameras.iter().map(|c| c.center()).sum::<Vec3>() / cameras.len() as f32;
-    let near_focus = cfg.beyond_radius * tol / cfg.plane_tolerance;
+    let tol = cfg.plane_tolerance * scale;
+    let near_focus = cfg.beyond_radius * scale;
     let mut best: Option<(i64, usize, Plane)> = None;
     for _ in 0..cfg.ransac_iterations {
         let (a, b, c) = (pts[rng.below(pts.len())], pts[rng.below(pts.len())], pts[rng.below(pts.len())]);

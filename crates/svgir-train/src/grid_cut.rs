@@ -104,8 +104,8 @@ impl GridGraph {
                 if tree[i] != FREE {
                     for k in 0..8 {
                         let Some(j) = self.neighbour(i, k) else { continue };
-                        let open = if tree[i] == S { self.cap[8 * i + k] } else { self.cap[8 * j + 7 - k] } > 0.0;
-                        if !open {
+                        // i would be j's parent, j -> i its direction.
+                        if !self.tree_edge_open(tree[i], i, j, 7 - k) {
                             continue;
                         }
                         if tree[j] == FREE {
