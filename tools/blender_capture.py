@@ -39,6 +39,7 @@ import make_gt_dataset as g  # noqa: E402  (the generator: scenes, materials, re
 
 import bpy  # noqa: E402
 from mathutils import Matrix  # noqa: E402
+from PIL import Image  # noqa: E402
 
 
 def plane(name, size, center, rotation=(0.0, 0.0, 0.0)):
@@ -273,7 +274,7 @@ def main():
     os.makedirs(os.path.join(args.out, "images"), exist_ok=True)
     os.makedirs(os.path.join(args.out, "masks_true"), exist_ok=True)
     focal = 0.5 * args.res / math.tan(0.5 * cam_data.angle)
-    frames, t0 = [], time.time()
+    frames, rendered, t0 = [], {}, time.time()
     cams = cameras(args.layout, args.views, args.seed)
     for i, m in enumerate(cams):
         name = f"{i:03d}.png"
@@ -292,10 +293,11 @@ def main():
         for o in rest:
             o.is_holdout = False
         g.render_to(os.path.join(args.out, "images", name))
+        # The points take their colours from the render itself, not from the JPEG's compression.
+        rendered[i] = np.asarray(Image.open(os.path.join(args.out, "images", name)).convert("RGB"))
         if args.jpeg:
-            from PIL import Image
             png = os.path.join(args.out, "images", name)
-            Image.open(png).convert("RGB").save(os.path.join(args.out, "images", photo), quality=92)
+            Image.fromarray(rendered[i]).save(os.path.join(args.out, "images", photo), quality=92)
             os.remove(png)
         # The truth: the object's coverage, the rest held out (it still occludes).
         sc.render.film_transparent = True
@@ -305,7 +307,6 @@ def main():
             o.is_holdout = True
         tmp = os.path.join(args.out, "masks_true", "_alpha.png")
         g.render_to(tmp)
-        from PIL import Image
         alpha = np.asarray(Image.open(tmp))[..., 3]
         Image.fromarray(np.where(alpha >= 128, 255, 0).astype(np.uint8), "L").save(
             os.path.join(args.out, "masks_true", name))
@@ -315,8 +316,11 @@ def main():
     meta = {"camera_model": "PINHOLE", "fl_x": focal, "fl_y": focal, "cx": args.res / 2, "cy": args.res / 2,
             "w": args.res, "h": args.res, "frames": frames}
     if args.points > 0:
-        from PIL import Image
-        photos = [np.asarray(Image.open(os.path.join(args.out, f["file_path"])).convert("RGB")) for f in frames]
+        def photo_of(i, f):  # a view kept from an earlier --resume run is read back from its file
+            if i in rendered:
+                return rendered[i]
+            return np.asarray(Image.open(os.path.join(args.out, f["file_path"])).convert("RGB"))
+        photos = [photo_of(i, f) for i, f in enumerate(frames)]
         pts, rgb = sample_points(objects + rest, cams, focal, args.res, photos, args.points, rng)
         write_ply(os.path.join(args.out, "points3D.ply"), pts, rgb)
         meta["ply_file_path"] = "points3D.ply"
