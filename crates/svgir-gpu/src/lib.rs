@@ -24,10 +24,12 @@ pub mod loss;
 pub mod raster;
 mod sort;
 pub mod stage1;
+pub mod trace;
 
 pub use device::{open, open_named, AdapterReport, DeviceChoice, Gpu, GpuError, ADAPTER_ENV};
 pub use raster::{Frame, GpuForward, GpuGrads, GpuRaster, SurfelBuffers, TILE};
 pub use stage1::GpuStage1;
+pub use trace::GpuTracer;
 
 /// Test hooks: the scan and the sort alone, on host data.
 pub mod testing {

@@ -5,6 +5,7 @@
 //! - [`hit`]: the ray-disk test (plane crossing, 3-sigma ellipse, alpha rules).
 //! - [`traverse`]: all hits front to back in (t, id) order and the transmittance march (Eqn 12).
 //! - [`microbuffer`]: per-Gaussian K-direction visibility / radiance / first-hit buffers.
+//! - [`tracer`]: where micro-buffers are traced (this crate's CPU march, or a device's).
 //! - [`gather`] / [`gather_backward`]: the one-bounce indirect term (Eqn 13) and its gradients.
 //! - [`reference`](mod@reference): brute-force tracer used by the tests.
 //! - [`bench`](mod@bench): the timing table behind `svgir bench trace`.
@@ -32,6 +33,7 @@ pub mod microbuffer;
 pub mod pack;
 pub mod reference;
 pub mod scenes;
+pub mod tracer;
 pub mod traverse;
 
 pub use bounce::add_bounces;
@@ -47,6 +49,7 @@ pub use gather_backward::{
 pub use hit::{disks_of, Disk, Hit};
 pub use microbuffer::{Interleave, MicroBuffer, NO_HIT};
 pub use reference::BruteForce;
+pub use tracer::{CpuTracer, MicroTracer};
 pub use traverse::{march, march_visibility, HitSource, MarchResult, Occlusion, Ray, TraceParams, NO_ID};
 
 /// Everything the tracer can reject: invalid surfels, bad parameters, mismatched array sizes.
@@ -68,4 +71,7 @@ pub enum TraceError {
         /// Entries it should have.
         want: usize,
     },
+    /// A device backend failed (its message names the adapter and the cause).
+    #[error("{0}")]
+    Device(String),
 }

@@ -140,20 +140,7 @@ impl MicroBuffer {
         p: &TraceParams,
         with_radiance: bool,
     ) -> Result<Self, TraceError> {
-        surfels.check().map_err(TraceError::InvalidSurfels)?;
-        if normals.len() != surfels.len() || normals.iter().any(|n| !n.is_finite()) {
-            return Err(TraceError::InvalidParameter(format!(
-                "{} hemisphere axes for {} Gaussians, or not finite",
-                normals.len(),
-                surfels.len()
-            )));
-        }
-        if k == 0 {
-            return Err(TraceError::InvalidParameter("K must be positive".into()));
-        }
-        if surfels.len() >= NO_HIT as usize {
-            return Err(TraceError::InvalidParameter("too many Gaussians for u32 indices".into()));
-        }
+        Self::check_inputs(surfels, &normals, k)?;
         let n = surfels.len();
         let xi: Vec<f32> = (0..n).map(|j| gaussian_xi(seed, j)).collect();
         let mut vis = vec![0u16; n * k];
@@ -185,6 +172,26 @@ impl MicroBuffer {
                 }
             });
         Ok(Self { k, normals, xi, vis, radiance, first_hit, uv, interleave: Interleave::default() })
+    }
+
+    /// What every tracer of micro-buffers (this crate's, a device's) requires of its inputs:
+    /// valid surfels, one finite hemisphere axis per Gaussian, K > 0 and indices that fit u32.
+    pub fn check_inputs(surfels: &Surfels, normals: &[Vec3], k: usize) -> Result<(), TraceError> {
+        surfels.check().map_err(TraceError::InvalidSurfels)?;
+        if normals.len() != surfels.len() || normals.iter().any(|n| !n.is_finite()) {
+            return Err(TraceError::InvalidParameter(format!(
+                "{} hemisphere axes for {} Gaussians, or not finite",
+                normals.len(),
+                surfels.len()
+            )));
+        }
+        if k == 0 {
+            return Err(TraceError::InvalidParameter("K must be positive".into()));
+        }
+        if surfels.len() >= NO_HIT as usize {
+            return Err(TraceError::InvalidParameter("too many Gaussians for u32 indices".into()));
+        }
+        Ok(())
     }
 
     /// The samples of directions `phase, phase + stride, ..` (copied): a micro-buffer of
