@@ -292,20 +292,27 @@ pub fn open_stage2(
     out: &Path,
     start: Stage2Start,
     dataset: &Dataset,
+    tracer: std::sync::Arc<dyn svgir_trace::MicroTracer>,
     note: &mut dyn FnMut(String),
 ) -> Result<Stage2, DriverError> {
     let ckpt = out.join("checkpoint.bin");
     match start {
         Stage2Start::New { config, surfels, meta } => {
             start_run_folder(out, &meta)?;
-            note(format!("stage 2: tracing {} Gaussians x {} directions...", surfels.len(), config.directions));
-            let s2 = Stage2::new(*config, surfels.clone(), dataset).map_err(DriverError::step)?;
+            note(format!(
+                "stage 2: tracing {} Gaussians x {} directions on {}...",
+                surfels.len(),
+                config.directions,
+                tracer.name()
+            ));
+            let s2 = Stage2::new_on(*config, surfels.clone(), dataset, tracer).map_err(DriverError::step)?;
             note(format!("micro-buffers traced in {:.1} s", s2.trace_seconds));
             Ok(s2)
         }
         Stage2Start::Resume(c) => {
             note(format!("stage 2: resuming {}", ckpt.display()));
             let mut s2 = checkpoint::load_stage2(&ckpt)?;
+            s2.tracer = tracer;
             if let Some(n) = c.iterations.filter(|&n| n != s2.config.iterations) {
                 note(format!("stage 2: iterations {} -> {n}", s2.config.iterations));
                 s2.config.iterations = n;

@@ -190,6 +190,7 @@ pub fn run(args: CaptureArgs) -> Result<()> {
             ("--relight-directions", args.relight_directions.to_string()),
             ("--turntable", args.turntable.to_string()),
             ("--seed", args.seed.to_string()),
+            ("--device", args.device.to_string()),
         ]);
         for map in relight_maps(&args) {
             f.extend(["--relight-with".to_string(), s(&map)]);

@@ -65,6 +65,7 @@ pub fn run(args: DemoArgs) -> Result<()> {
         ("--relight-directions", quick("16", "128")),
         ("--turntable", quick("4", "24")),
         ("--log-every", "10".into()),
+        ("--device", args.device.to_string()),
     ]);
     inverse::run(super::args_of("inverse", &stage2)?)?;
     // The interactive viewer, from the training micro-buffers' directions (no new trace).

@@ -29,6 +29,14 @@ pub fn open_device(choice: DeviceChoice) -> Result<Option<svgir_gpu::Gpu>> {
     Ok(gpu)
 }
 
+/// The micro-buffer tracer of stage 2 and relighting on the device `choice` asks for.
+pub fn tracer(choice: DeviceChoice) -> Result<std::sync::Arc<dyn svgir_trace::MicroTracer>> {
+    Ok(match open_device(choice)? {
+        Some(gpu) => std::sync::Arc::new(svgir_gpu::GpuTracer::new(gpu)),
+        None => std::sync::Arc::new(svgir_trace::CpuTracer),
+    })
+}
+
 impl Engine {
     /// Puts `trainer` on `gpu`, or keeps it on the CPU. A run the GPU kernels cannot take
     /// (the per-photo exposure correction) stays on the CPU under `auto` and is an error under

@@ -27,6 +27,10 @@ pub struct InverseArgs {
     /// Stage-2 iterations (SPEC 6: 20000).
     #[arg(long, default_value_t = 20_000)]
     pub iterations: u64,
+    /// Where to trace the micro-buffers (training's and relighting's): auto (a hardware GPU if
+    /// any), cpu or gpu.
+    #[arg(long, default_value_t = svgir_gpu::DeviceChoice::Auto)]
+    pub device: svgir_gpu::DeviceChoice,
     /// Diagnostic: before the evaluation, replace the learned albedo and roughness by the
     /// ground truth of the training views projected onto each Gaussian (the relighting ceiling
     /// of this geometry and shading with perfect materials). Not a result: it reads ground truth.
@@ -516,7 +520,8 @@ pub fn run(args: InverseArgs) -> Result<()> {
         let meta = json!({"stage2": config, "profile": args.profile, "data": data, "stage1_run": args.run, "command": std::env::args().collect::<Vec<_>>()});
         Stage2Start::New { config: Box::new(config), surfels: &stage1.surfels, meta }
     };
-    let mut s2 = driver::open_stage2(&out, start, &dataset, &mut |line| eprintln!("{line}"))?;
+    let tracer = super::engine::tracer(args.device)?;
+    let mut s2 = driver::open_stage2(&out, start, &dataset, tracer, &mut |line| eprintln!("{line}"))?;
     if args.train_gt_light && !args.resume {
         set_true_light(&mut s2, &dataset, "--train-gt-light")?;
     }

@@ -39,6 +39,9 @@ pub struct RelightArgs {
     /// Diffuse bounces of indirect light added to SPEC 7's one-bounce term (0: Eqn 13 alone).
     #[arg(long, default_value_t = svgir_train::relight::RELIGHT_BOUNCES)]
     pub bounces: usize,
+    /// Where to trace the K directions: auto (a hardware GPU if any), cpu or gpu.
+    #[arg(long, default_value_t = svgir_gpu::DeviceChoice::Auto)]
+    pub device: svgir_gpu::DeviceChoice,
 }
 
 pub fn run(args: RelightArgs) -> Result<()> {
@@ -46,7 +49,8 @@ pub fn run(args: RelightArgs) -> Result<()> {
     let cfg_path = stage2_dir.join("config.json");
     let cfg = svgir_eval::read_json(&cfg_path, "run `svgir inverse` first")?;
     let data = PathBuf::from(cfg["data"].as_str().with_context(|| format!("{}: no data path", cfg_path.display()))?);
-    let s2 = checkpoint::load_stage2(&stage2_dir.join("checkpoint.bin"))?;
+    let mut s2 = checkpoint::load_stage2(&stage2_dir.join("checkpoint.bin"))?;
+    s2.tracer = super::engine::tracer(args.device)?;
     let env = svgir_io::read_envmap(&args.envmap, args.strength, s2.config.env_height)?;
     let relighter = Relighter::new(
         &s2,

@@ -46,6 +46,7 @@ use sh_channels::{join_pass_grads, pass_features, sh_colour_grads, split_pass, P
 pub use shaded_set::ShadeSets;
 pub(crate) use shaded_set::ViewSets;
 use shaded_set::{faint, in_set_of, outside_set, stand_in_colours, visible_of, weighted};
+use std::sync::Arc;
 use std::time::Instant;
 use svgir_core::{Camera, Dataset, Image, Rng, Surfels};
 use svgir_pbr::{
@@ -57,7 +58,9 @@ use svgir_raster::{
     backward, render, Background, ColorSource, Features, ForwardState, OutputGrads, Projected, RasterConfig,
     RenderInput, RenderOutput,
 };
-use svgir_trace::{brightest_texels, concentrate_lobe, BrightLights, Bvh, GatherParams, MicroBuffer};
+use svgir_trace::{
+    brightest_texels, concentrate_lobe, BrightLights, Bvh, CpuTracer, GatherParams, MicroBuffer, MicroTracer,
+};
 
 /// What one stage-2 iteration reports (a line of `metrics.jsonl`).
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -130,6 +133,9 @@ pub struct Stage2 {
     pub sun_schedule: SunSchedule,
     /// Per training view, the Gaussians its last render blended (`config.shade_sets`).
     pub(crate) view_sets: ViewSets,
+    /// Where micro-buffers are traced (the back sides, relighting's): the CPU unless the front
+    /// end chose a device. Not saved: a run resumes on whichever device the front end opens.
+    pub tracer: Arc<dyn MicroTracer>,
 }
 
 /// The back side of every Gaussian for two-sided shading (`svgir_pbr::two_sided`): traced once,
@@ -260,7 +266,17 @@ pub(crate) fn render_after(input: &RenderInput, cfg: &RasterConfig, prior: &Proj
 impl Stage2 {
     /// Set up stage 2 on stage 1's `surfels`: put them in Morton order, orient normals, trace the
     /// micro-buffers, initialise materials and light.
-    pub fn new(config: Stage2Config, mut surfels: Surfels, dataset: &Dataset) -> Result<Self, PbrError> {
+    pub fn new(config: Stage2Config, surfels: Surfels, dataset: &Dataset) -> Result<Self, PbrError> {
+        Self::new_on(config, surfels, dataset, Arc::new(CpuTracer))
+    }
+
+    /// [`Stage2::new`] with the micro-buffers traced by `tracer` (and kept as the run's tracer).
+    pub fn new_on(
+        config: Stage2Config,
+        mut surfels: Surfels,
+        dataset: &Dataset,
+        tracer: Arc<dyn MicroTracer>,
+    ) -> Result<Self, PbrError> {
         // The geometry is frozen from here on: put the Gaussians in Morton order of their
         // centres once, so that the ones a view sees lie in runs of every per-Gaussian array.
         surfels.sort_morton();
@@ -268,10 +284,12 @@ impl Stage2 {
         orient_normals(&mut surfels, &cams, &raster_config());
         let t0 = Instant::now();
         let bvh = Bvh::build(&surfels);
-        let mb = MicroBuffer::trace(&bvh, &surfels, config.directions, config.seed, &config.trace_params())?;
+        let axes = (0..surfels.len()).map(|j| surfels.normal(j)).collect();
+        let mb = tracer.trace(&bvh, &surfels, axes, config.directions, config.seed, &config.trace_params(), true)?;
         let trace_seconds = t0.elapsed().as_secs_f64();
         let mut s2 = Self::from_parts(config, surfels, mb, trace_seconds)?;
         s2.bvh = Some(bvh);
+        s2.tracer = tracer;
         s2.trace_back_side()?;
         Ok(s2)
     }
@@ -287,7 +305,7 @@ impl Stage2 {
         let bvh = self.bvh.get_or_insert_with(|| Bvh::build(&occluders));
         let axes = self.mb.normals.iter().map(|n| -*n).collect();
         let mb =
-            MicroBuffer::trace_about(bvh, &occluders, axes, self.mb.k, self.config.seed, &self.config.trace_params())?;
+            self.tracer.trace(bvh, &occluders, axes, self.mb.k, self.config.seed, &self.config.trace_params(), true)?;
         self.attach_back_side(mb, &occluders)?;
         self.trace_seconds += t0.elapsed().as_secs_f64();
         Ok(())
@@ -413,6 +431,7 @@ impl Stage2 {
             back: None,
             sun_schedule: SunSchedule::default(),
             view_sets: ViewSets::default(),
+            tracer: Arc::new(CpuTracer),
         })
     }
 
