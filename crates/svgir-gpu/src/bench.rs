@@ -62,3 +62,43 @@ pub fn raster_table(gpu: &Gpu, sizes: &[u32], gaussians: &[usize], reps: usize) 
     }
     Ok(s)
 }
+
+/// `svgir bench trace --device gpu`: micro-buffers on svgir-trace's object scene (surfels on
+/// two surfaces, the CPU bench's scene) for each count in `gaussians`: the CPU BVH build, the
+/// K = 64 fill with radiance (stage 2's) and the K = 384 occlusion trace (relighting's), each
+/// the wall clock from host surfels to host samples (upload, trace, read-back), and the GPU
+/// bytes per surfel such a trace holds (its scene, the samples of one read-back batch).
+pub fn trace_table(gpu: Gpu, gaussians: &[usize], reps: usize) -> Result<String, GpuError> {
+    use svgir_trace::{scenes::object_scene, Bvh, TraceParams};
+    let name = gpu.report.to_string();
+    let tracer = crate::trace::GpuTracer::new(gpu);
+    let mut s = format!(
+        "svgir-gpu trace bench on {name}\n| Gaussians | BVH build ms | K = 64 fill s | Mray/s | K = 384 occlusion s | GPU bytes/surfel (K = 64) |\n|---|---|---|---|---|---|\n"
+    );
+    let p = TraceParams::default();
+    for &n in gaussians {
+        let surfels = object_scene(n, 1);
+        let axes: Vec<glam::Vec3> = (0..n).map(|j| surfels.normal(j)).collect();
+        let t0 = Instant::now();
+        let bvh = Bvh::build(&surfels);
+        let build = t0.elapsed().as_secs_f64();
+        let time = |k: usize, radiance: bool| -> Result<f64, GpuError> {
+            tracer.micro_buffer(&bvh, &surfels, axes.clone(), k, 3, &p, radiance)?;
+            let t0 = Instant::now();
+            for _ in 0..reps.max(1) {
+                std::hint::black_box(tracer.micro_buffer(&bvh, &surfels, axes.clone(), k, 3, &p, radiance)?);
+            }
+            Ok(t0.elapsed().as_secs_f64() / reps.max(1) as f64)
+        };
+        let fill = time(64, true)?;
+        let occ = time(384, false)?;
+        let bytes = crate::trace::scene_bytes(&bvh, n) as f64 / n as f64
+            + 64.0 * 16.0 * (crate::trace::BATCH_BYTES as f64 / (64.0 * 16.0 * n as f64)).min(1.0);
+        s += &format!(
+            "| {n} | {:.1} | {fill:.3} | {:.1} | {occ:.3} | {bytes:.0} |\n",
+            build * 1e3,
+            (n * 64) as f64 / fill / 1e6
+        );
+    }
+    Ok(s)
+}

@@ -340,6 +340,12 @@ impl GpuTracer {
     }
 }
 
+/// GPU bytes of a trace's scene: nodes, disks, SH and ray sources (the samples come on top,
+/// 16 bytes each, at most [`BATCH_BYTES`] at a time).
+pub fn scene_bytes(bvh: &Bvh, n: usize) -> u64 {
+    bvh.nodes.len() as u64 * 32 + bvh.disks.len() as u64 * 64 + n as u64 * (192 + 64)
+}
+
 /// Bytes `at .. at + len` of `buffer` as a binding.
 fn bytes(buffer: &wgpu::Buffer, at: u64, len: u64) -> wgpu::BindingResource<'_> {
     wgpu::BindingResource::Buffer(wgpu::BufferBinding { buffer, offset: at, size: std::num::NonZeroU64::new(len) })
