@@ -211,16 +211,22 @@ fn views_profile_train_resume_and_inverse_periods_of_zero() {
     assert!(rows.contains("\"sun_search\":{"), "{rows}");
     assert!(out.join("stage2/checkpoint.bin").exists() && out.join("stage2/eval.json").exists());
     // Resumed with a longer run and another diffuse lobe: both changes said and made, the rest
-    // from the checkpoint.
+    // from the checkpoint. The run began on the CPU and resumes with its tracing on the GPU
+    // (lavapipe): the evaluation's relighting traces its K = 384 directions there.
     let res = svgir()
+        .env("SVGIR_GPU_ADAPTER", "llvmpipe")
         .args(["--threads", "2", "inverse", "--run"])
         .arg(&out)
         .args(["--resume", "--iterations", "5", "--diffuse", "added", "--log-every", "1", "--turntable", "0"])
+        .args(["--device", "gpu"])
         .output()
         .expect("runs");
     let log = String::from_utf8_lossy(&res.stderr);
     assert!(res.status.success(), "svgir inverse --resume failed: {log}");
     assert!(log.contains("stage 2: resuming") && log.contains("iterations 3 -> 5"), "{log}");
+    assert!(log.contains("device: GPU llvmpipe"), "{log}");
+    let eval = std::fs::read_to_string(out.join("stage2/eval.json")).expect("eval.json");
+    assert!(eval.contains("relight"), "{eval}");
     assert!(log.contains("diffuse lobe Layered -> Added"), "{log}");
     let rows = std::fs::read_to_string(out.join("stage2/metrics.jsonl")).expect("metrics.jsonl");
     let its: Vec<u64> = rows
