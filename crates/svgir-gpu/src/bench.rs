@@ -92,8 +92,9 @@ pub fn trace_table(gpu: Gpu, gaussians: &[usize], reps: usize) -> Result<String,
         };
         let fill = time(64, true)?;
         let occ = time(384, false)?;
+        // The scene, and the samples of one read-back batch (K = 64 x 16 bytes while they fit).
         let bytes = crate::trace::scene_bytes(&bvh, n) as f64 / n as f64
-            + 64.0 * 16.0 * (crate::trace::BATCH_BYTES as f64 / (64.0 * 16.0 * n as f64)).min(1.0);
+            + (64.0 * 16.0f64).min(crate::trace::BATCH_BYTES as f64 / n as f64);
         s += &format!(
             "| {n} | {:.1} | {fill:.3} | {:.1} | {occ:.3} | {bytes:.0} |\n",
             build * 1e3,

@@ -105,6 +105,8 @@ struct Scene {
     fib: wgpu::Buffer,
     uniform: Uniform,
     rays: u64,
+    /// The azimuth offsets the sources were made with (`gaussian_xi`), for the micro-buffer.
+    xi: Vec<f32>,
 }
 
 impl GpuTracer {
@@ -133,14 +135,13 @@ impl GpuTracer {
         p: &TraceParams,
         with_radiance: bool,
     ) -> Result<MicroBuffer, GpuError> {
-        let xi: Vec<f32> = (0..surfels.len()).map(|j| gaussian_xi(seed, j)).collect();
-        let scene = self.scene(bvh, surfels, &normals, &xi, k, p, with_radiance)?;
+        let scene = self.scene(bvh, surfels, &normals, seed, k, p, with_radiance)?;
         let words = self.run(&scene, None)?.0;
         let n = words.len();
         let mut mb = MicroBuffer {
             k,
             normals,
-            xi,
+            xi: scene.xi,
             vis: Vec::with_capacity(n),
             radiance: Vec::with_capacity(n),
             first_hit: Vec::with_capacity(n),
@@ -172,8 +173,7 @@ impl GpuTracer {
         record_max: u32,
     ) -> Result<Vec<RecordedRay>, GpuError> {
         let normals: Vec<Vec3> = (0..surfels.len()).map(|j| surfels.normal(j)).collect();
-        let xi: Vec<f32> = (0..surfels.len()).map(|j| gaussian_xi(seed, j)).collect();
-        let scene = self.scene(bvh, surfels, &normals, &xi, k, p, with_radiance)?;
+        let scene = self.scene(bvh, surfels, &normals, seed, k, p, with_radiance)?;
         let rec = self.run(&scene, Some(record_max))?.1;
         let per = 1 + 2 * record_max as usize;
         Ok(rec
@@ -197,7 +197,7 @@ impl GpuTracer {
         bvh: &Bvh,
         surfels: &Surfels,
         normals: &[Vec3],
-        xi: &[f32],
+        seed: u64,
         k: usize,
         p: &TraceParams,
         with_radiance: bool,
@@ -215,16 +215,13 @@ impl GpuTracer {
             return Err(GpuError::Runtime(format!("{rays} rays: over the kernel's u32 ray index")));
         }
         let limit = self.gpu.report.max_storage_binding;
-        for (what, bytes) in [
-            ("the BVH's disks", bvh.disks.len() as u64 * 64),
-            ("the SH coefficients", surfels.len() as u64 * 192),
-            ("the ray sources", surfels.len() as u64 * 64),
-        ] {
+        for (what, bytes) in scene_buffers(bvh, surfels.len()) {
             if bytes > limit {
                 return Err(GpuError::TooLarge { what, bytes, limit });
             }
         }
         let d = &self.gpu.device;
+        let xi: Vec<f32> = (0..surfels.len()).map(|j| gaussian_xi(seed, j)).collect();
         // Ray::from_gaussian's start and HemiFrame's parts, per Gaussian.
         let sources: Vec<[f32; 4]> = (0..surfels.len())
             .flat_map(|j| {
@@ -268,6 +265,7 @@ impl GpuTracer {
             fib: upload(d, "fibonacci table", &fib),
             uniform,
             rays,
+            xi,
         })
     }
 
@@ -340,10 +338,21 @@ impl GpuTracer {
     }
 }
 
-/// GPU bytes of a trace's scene: nodes, disks, SH and ray sources (the samples come on top,
-/// 16 bytes each, at most [`BATCH_BYTES`] at a time).
+/// The buffers of a trace's scene over `n` Gaussians and their bytes: nodes, disks, SH and
+/// ray sources (the Fibonacci table is K x 16 bytes).
+fn scene_buffers(bvh: &Bvh, n: usize) -> [(&'static str, u64); 4] {
+    [
+        ("the BVH's nodes", bvh.nodes.len() as u64 * 32),
+        ("the BVH's disks", bvh.disks.len() as u64 * 64),
+        ("the SH coefficients", n as u64 * 192),
+        ("the ray sources", n as u64 * 64),
+    ]
+}
+
+/// GPU bytes of a trace's scene (the samples come on top, 16 bytes each, at most
+/// [`BATCH_BYTES`] at a time).
 pub fn scene_bytes(bvh: &Bvh, n: usize) -> u64 {
-    bvh.nodes.len() as u64 * 32 + bvh.disks.len() as u64 * 64 + n as u64 * (192 + 64)
+    scene_buffers(bvh, n).iter().map(|(_, b)| b).sum()
 }
 
 /// Bytes `at .. at + len` of `buffer` as a binding.
