@@ -129,6 +129,7 @@ pub enum GpuError {
 }
 
 /// An open GPU: device, queue and what was recorded about the adapter.
+#[derive(Clone)]
 pub struct Gpu {
     /// The wgpu device.
     pub device: wgpu::Device,

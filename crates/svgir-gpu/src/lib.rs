@@ -22,12 +22,15 @@ pub mod buffers;
 pub mod device;
 pub mod loss;
 pub mod raster;
+pub mod samples;
+pub mod shade;
 mod sort;
 pub mod stage1;
 pub mod trace;
 
 pub use device::{open, open_named, AdapterReport, DeviceChoice, Gpu, GpuError, ADAPTER_ENV};
 pub use raster::{Frame, GpuForward, GpuGrads, GpuRaster, SurfelBuffers, TILE};
+pub use shade::GpuShader;
 pub use stage1::GpuStage1;
 pub use trace::GpuTracer;
 

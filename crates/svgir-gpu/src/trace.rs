@@ -32,7 +32,7 @@ pub const CHUNK: u32 = 1 << 20;
 /// Most bytes of samples per read-back.
 pub const BATCH_BYTES: u64 = 256 << 20;
 /// Bytes per packed sample on the GPU (`samples` in trace.wgsl).
-const SAMPLE: u64 = 16;
+const SAMPLE: u64 = crate::samples::SAMPLE_BYTES;
 
 /// The kernel's uniform (`TraceParams` in trace.wgsl).
 #[repr(C)]
@@ -148,14 +148,7 @@ impl GpuTracer {
             uv: Vec::with_capacity(n),
             interleave: Interleave::default(),
         };
-        for w in words {
-            let lo = |x: u32| (x & 0xffff) as u16;
-            let hi = |x: u32| (x >> 16) as u16;
-            mb.vis.push(lo(w[0]));
-            mb.radiance.push([hi(w[0]), lo(w[1]), hi(w[1])]);
-            mb.first_hit.push(w[2]);
-            mb.uv.push([lo(w[3]), hi(w[3])]);
-        }
+        crate::samples::unpack_into(&words, &mut mb);
         Ok(mb)
     }
 

@@ -7,6 +7,7 @@
 //!   equation with visibility and indirect light from the micro-buffers (SPEC 4, 5) and its
 //!   gradients.
 //! - [`two_sided`]: shading each Gaussian on the side its camera sees (our option).
+//! - [`shader`]: where the shading runs (the CPU kernels, or a device backend's).
 //! - [`DirectionCache`] (from `svgir_trace`): the frozen micro-buffer directions' env-map
 //!   lookups, computed once per stage 2 (`shade_into_cached` / `shade_backward_cached`;
 //!   bit-identical, ~8 B / sample).
@@ -48,6 +49,7 @@ pub mod shade;
 pub mod shade_backward;
 #[cfg(target_arch = "x86_64")]
 mod shade_simd;
+pub mod shader;
 pub mod two_sided;
 
 pub use consistency::{
@@ -60,6 +62,7 @@ pub use grads::PbrGrads;
 pub use material::{activate, activate_backward, ActivatedMaterials, MaterialGrads, SvgMaterials};
 pub use shade::{shade, shade_into, shade_into_cached, Indirect, ShadeInputs, ShadeOutput, ShadeParams, ENV_MAX};
 pub use shade_backward::{shade_backward, shade_backward_cached};
+pub use shader::{check_sides, CpuShader, VertexShader};
 pub use svgir_core::Float;
 pub use svgir_trace::DirectionCache;
 pub use two_sided::{
@@ -85,6 +88,9 @@ pub enum PbrError {
     /// An error of the tracer (micro-buffers, gather).
     #[error(transparent)]
     Trace(#[from] svgir_trace::TraceError),
+    /// A device backend failed (the GPU's error, in words).
+    #[error("device: {0}")]
+    Device(String),
 }
 
 /// `Err(SizeMismatch)` unless `got == want`.

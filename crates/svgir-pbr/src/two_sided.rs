@@ -100,7 +100,10 @@ pub fn shade_sides_backward_into<F: Float>(
 
 /// The sides the one-pass kernels take: the front, then the back if any. No Gaussian may be
 /// shaded on both.
-fn sides<'s, F>(front: &'s Side<'s, F>, back: Option<&'s Side<'s, F>>) -> Result<Vec<SideRef<'s, F>>, PbrError> {
+pub(crate) fn sides<'s, F>(
+    front: &'s Side<'s, F>,
+    back: Option<&'s Side<'s, F>>,
+) -> Result<Vec<SideRef<'s, F>>, PbrError> {
     let mut sides = vec![(&front.inputs, front.cache)];
     if let Some(back) = back {
         let (f, b) = (front.inputs.visible, back.inputs.visible);

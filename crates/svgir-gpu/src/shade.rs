@@ -1,0 +1,262 @@
+//! Vertex shading on the GPU (SPEC 4, 5): svgir_pbr's `shade_sides_into` in
+//! `shaders/shade.wgsl`, one thread per visible Gaussian summing its K micro-buffer samples and
+//! its directional lights for each of its M vertices.
+//!
+//! The host checks the inputs as the CPU does (`svgir_pbr::check_sides`, so both reject the same
+//! calls with the same errors) and prepares what does not depend on the sample: each Gaussian's
+//! hemisphere frame, the Fibonacci rows of the micro-buffer's own table (interleaved subsets
+//! included), the env texels with the lights' mask, the lights, and per vertex the diffuse
+//! weight (`Diffuse::weight`, a table lookup that depends on the view only). Samples are packed
+//! at 16 bytes (`crate::samples`), as the tracer writes them, and bound in batches of Gaussians
+//! of at most [`BATCH_BYTES`], so a K = 384 relighting of a large scene never needs its samples
+//! on the GPU at once.
+//!
+//! The sums run in the CPU's order (directions, then lights; per sample the vertices), so the
+//! colours differ from the CPU's only by f32 rounding: the driver may fuse multiply-adds, and
+//! the env lookups' acos / atan2 are the driver's (the tests bound both).
+//!
+//! Each call uploads its inputs and reads the colours back: the renders of the evaluation and
+//! of relighting shade on the GPU, and the CPU splats the colours. Keeping the samples resident
+//! across calls comes with the GPU stage-2 iteration.
+
+use crate::buffers::{grid, kernel_of, read_back, storage, upload};
+use crate::device::{Gpu, GpuError};
+use crate::samples::{pack, SAMPLE_BYTES};
+use bytemuck::{Pod, Zeroable};
+use svgir_pbr::{check_sides, Indirect, PbrError, ShadeInputs, ShadeOutput, Side, VertexShader};
+use svgir_shading::hemisphere::HemiFrame;
+
+/// Most bytes of samples (and given indirect light) bound per dispatch.
+pub const BATCH_BYTES: u64 = 256 << 20;
+
+/// The kernel's uniform (`ShadeParams` in shade.wgsl).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Pod, Zeroable)]
+struct Uniform {
+    camera: [f32; 3],
+    env_max: f32,
+    k: u32,
+    m: u32,
+    flags: u32,
+    count: u32,
+    env_w: u32,
+    env_h: u32,
+    lights: u32,
+    n: u32,
+    rho: f32,
+    scale: f32,
+    env_at: u32,
+    lights_at: u32,
+    base: u32,
+    span: u32,
+    _pad: [u32; 2],
+}
+
+const F_VIS: u32 = 1;
+const F_TRACED: u32 = 2;
+const F_GIVEN: u32 = 4;
+const F_SPLIT: u32 = 8;
+
+/// The vertex shader on a GPU.
+pub struct GpuShader {
+    gpu: Gpu,
+    kernel: wgpu::ComputePipeline,
+    /// Most bytes of samples bound per dispatch ([`BATCH_BYTES`]; the tests lower it to
+    /// split small scenes into several batches).
+    pub batch_bytes: u64,
+}
+
+impl GpuShader {
+    /// The shader on `gpu` (compiles its kernel).
+    pub fn new(gpu: Gpu) -> Self {
+        let kernel = kernel_of(&gpu.device, "shade", &[include_str!("shaders/shade.wgsl")]);
+        Self { gpu, kernel, batch_bytes: BATCH_BYTES }
+    }
+
+    /// The device it runs on.
+    pub fn gpu(&self) -> &Gpu {
+        &self.gpu
+    }
+
+    /// `svgir_pbr::shade_sides_into` on the GPU.
+    pub fn shade(&self, front: &Side<f32>, back: Option<&Side<f32>>, out: &mut ShadeOutput) -> Result<(), PbrError> {
+        check_sides(front, back)?;
+        let inp = &front.inputs;
+        let (n, m) = (inp.mb.len(), inp.mats.m);
+        let parts = if out.split { 3 } else { 1 };
+        let len = n * m * 3;
+        if (len * parts) as u64 > u32::MAX as u64 {
+            return Err(device_error(GpuError::Runtime(format!(
+                "{n} Gaussians x {m} vertices: over the kernel's u32 index"
+            ))));
+        }
+        let d = &self.gpu.device;
+        let out_buf = storage(d, "shade out", (len * parts * 4) as u64);
+        for side in std::iter::once(front).chain(back) {
+            self.shade_side(&side.inputs, out.split, &out_buf).map_err(device_error)?;
+        }
+        let mut r = read_back::<f32>(d, &self.gpu.queue, &[(&out_buf, len * parts)]).map_err(device_error)?;
+        self.gpu.check().map_err(device_error)?;
+        let all = r.remove(0);
+        out.m = m;
+        out.color = all[..len].to_vec();
+        if out.split {
+            out.direct = all[len..2 * len].to_vec();
+            out.indirect = all[2 * len..].to_vec();
+        } else {
+            out.direct.clear();
+            out.indirect.clear();
+        }
+        Ok(())
+    }
+
+    /// One side's dispatches into `out` (its visible Gaussians' entries).
+    fn shade_side(&self, inp: &ShadeInputs<f32>, split: bool, out: &wgpu::Buffer) -> Result<(), GpuError> {
+        let mb = inp.mb;
+        let (n, m, k) = (mb.len(), inp.mats.m, mb.k);
+        let list: Vec<u32> = (0..n).filter(|&j| inp.visible[j]).map(|j| j as u32).collect();
+        if list.is_empty() {
+            return Ok(());
+        }
+        let d = &self.gpu.device;
+        let frames: Vec<[f32; 4]> = (0..n)
+            .flat_map(|j| {
+                let (b1, b2, nf, cx, sx) = HemiFrame::new(mb.normals[j], mb.xi[j]).parts();
+                let p = inp.positions[j];
+                [[b1.x, b1.y, b1.z, cx], [b2.x, b2.y, b2.z, sx], [nf.x, nf.y, nf.z, 0.0], [p.x, p.y, p.z, 0.0]]
+            })
+            .collect();
+        let mut tables: Vec<[f32; 4]> = {
+            let table = mb.table();
+            let [c, s, r, z] = table.rows();
+            (0..k).map(|i| [c[i], s[i], r[i], z[i]]).collect()
+        };
+        let env_at = tables.len();
+        let mask = inp.lights.map(|l| l.mask());
+        tables.extend(inp.env.iter().enumerate().map(|(t, c)| {
+            let light = mask.is_some_and(|mask| mask[t]);
+            [c[0], c[1], c[2], if light { 1.0 } else { 0.0 }]
+        }));
+        let lights_at = tables.len();
+        let lights = inp.lights.filter(|l| !l.is_empty());
+        let mut light_vis = Vec::new();
+        if let Some(l) = lights {
+            for b in 0..l.len() {
+                let dir = l.dirs[b];
+                tables.push([dir.x, dir.y, dir.z, l.sample_scale(b, k)]);
+                // The index as a float value (exact below 2^24), not its bits: a small integer's bits
+                // are a subnormal float, which a driver may flush to zero.
+                tables.push([l.texels[b] as f32, 0.0, 0.0, 0.0]);
+                light_vis.extend((0..n).map(|j| l.visibility(j, b)));
+            }
+        }
+        // Per vertex: (normal, roughness), (albedo, diffuse weight), the weight at the view of
+        // the listed Gaussians (as svgir_pbr::shade's `diffuse_weights`).
+        let mats = &inp.mats;
+        let mut verts = vec![[0.0f32; 4]; n * m * 2];
+        for &j in &list {
+            let j = j as usize;
+            let wo = (inp.camera_center - inp.positions[j]).normalize_or(glam::Vec3::Z).to_array();
+            for v in 0..m {
+                let (b, i) = ((j * m + v) * 3, j * m + v);
+                let nrm = [mats.normals[b], mats.normals[b + 1], mats.normals[b + 2]];
+                let r = mats.roughness[i];
+                let nv = nrm[0] * wo[0] + nrm[1] * wo[1] + nrm[2] * wo[2];
+                let t = inp.params.diffuse.weight(nv, r).value;
+                verts[2 * i] = [nrm[0], nrm[1], nrm[2], r];
+                verts[2 * i + 1] = [mats.albedo[b], mats.albedo[b + 1], mats.albedo[b + 2], t];
+            }
+        }
+        let (indirect_flag, rho, given) = match inp.indirect {
+            Indirect::Off => (0, 0.0, None),
+            Indirect::Traced { rho } => (F_TRACED, rho, None),
+            Indirect::Given(g) => (F_GIVEN, 0.0, Some(g)),
+        };
+        let flags = if inp.params.visibility { F_VIS } else { 0 } | indirect_flag | if split { F_SPLIT } else { 0 };
+        let c = inp.camera_center;
+        let base_uniform = Uniform {
+            camera: [c.x, c.y, c.z],
+            // Uniforms hold no infinity: the largest f32 clamps nothing finite.
+            env_max: inp.params.env_max.min(f32::MAX),
+            k: k as u32,
+            m: m as u32,
+            flags,
+            count: 0,
+            env_w: inp.env_geom.width,
+            env_h: inp.env_geom.height,
+            lights: lights.map_or(0, |l| l.len() as u32),
+            n: n as u32,
+            rho,
+            scale: (std::f64::consts::TAU / k as f64) as f32,
+            env_at: env_at as u32,
+            lights_at: lights_at as u32,
+            base: 0,
+            span: 0,
+            _pad: [0; 2],
+        };
+        let limit = self.gpu.report.max_storage_binding;
+        for (what, bytes) in [
+            ("the shading's frames", frames.len() as u64 * 16),
+            ("the shading's tables", tables.len() as u64 * 16),
+            ("the vertex materials", verts.len() as u64 * 16),
+            ("the light visibility", light_vis.len() as u64 * 4),
+        ] {
+            if bytes > limit {
+                return Err(GpuError::TooLarge { what, bytes, limit });
+            }
+        }
+        let per_gaussian = k as u64 * (SAMPLE_BYTES + if given.is_some() { 12 } else { 0 });
+        if per_gaussian > limit {
+            return Err(GpuError::TooLarge { what: "one Gaussian's samples", bytes: per_gaussian, limit });
+        }
+        let batch = (self.batch_bytes.min(limit) / per_gaussian).max(1) as usize;
+        let frames = upload(d, "shade frames", &frames);
+        let tables = upload(d, "shade tables", &tables);
+        let verts = upload(d, "shade vertices", &verts);
+        let light_vis = upload(d, "shade light visibility", &light_vis);
+        let mut from = 0;
+        for g0 in (0..n).step_by(batch) {
+            let g1 = (g0 + batch).min(n);
+            let to = from + list[from..].partition_point(|&j| (j as usize) < g1);
+            if to > from {
+                let samples = upload(d, "shade samples", &pack(mb, g0..g1));
+                let given = match given {
+                    Some(g) => upload(d, "shade indirect", &g[g0 * k..g1 * k]),
+                    None => storage(d, "shade indirect (none)", 16),
+                };
+                let sub = upload(d, "shade list", &list[from..to]);
+                let u = Uniform { count: (to - from) as u32, base: g0 as u32, span: (g1 - g0) as u32, ..base_uniform };
+                let ub = crate::buffers::uniform(d, "shade params", &u);
+                let bg = crate::buffers::bind(
+                    d,
+                    &self.kernel,
+                    &[&ub, &frames, &tables, &samples, &verts, &given, &light_vis, &sub, out],
+                );
+                let mut enc = d.create_command_encoder(&Default::default());
+                let (x, y) = grid(((to - from) as u32).div_ceil(64));
+                let mut pass = enc.begin_compute_pass(&Default::default());
+                pass.set_pipeline(&self.kernel);
+                pass.set_bind_group(0, &bg, &[]);
+                pass.dispatch_workgroups(x, y, 1);
+                drop(pass);
+                self.gpu.queue.submit([enc.finish()]);
+            }
+            from = to;
+        }
+        self.gpu.check()
+    }
+}
+
+fn device_error(e: GpuError) -> PbrError {
+    PbrError::Device(e.to_string())
+}
+
+impl VertexShader for GpuShader {
+    fn name(&self) -> String {
+        self.gpu.report.name.clone()
+    }
+
+    fn shade_sides(&self, front: &Side<f32>, back: Option<&Side<f32>>, out: &mut ShadeOutput) -> Result<(), PbrError> {
+        self.shade(front, back, out)
+    }
+}

@@ -1,0 +1,215 @@
+//! The GPU vertex shading against the CPU's scalar kernel (svgir_pbr::shade, itself checked
+//! against f64), on lavapipe in CI: colour, direct and indirect parts vertex by vertex, over
+//! vertex counts, K, indirect modes, the visibility switch, clamps, layered diffuse,
+//! directional lights, interleaved subsets, two sides and batches; and the same refusals.
+
+mod common;
+
+use glam::Vec3;
+use svgir_core::{EnvMap, Rng};
+use svgir_gpu::GpuShader;
+use svgir_pbr::fixtures::{synthetic_materials, synthetic_microbuffer, synthetic_positions};
+use svgir_pbr::{negated, shade_sides_into, EnvLight, Indirect, ShadeInputs, ShadeOutput, ShadeParams, Side};
+use svgir_shading::Diffuse;
+use svgir_trace::{brightest_texels, BrightLights, MicroBuffer, VertexMaterials};
+
+struct Case {
+    mb: MicroBuffer,
+    back_mb: MicroBuffer,
+    positions: Vec<Vec3>,
+    front: Vec<bool>,
+    back: Vec<bool>,
+    env: EnvMap,
+    given: Vec<[f32; 3]>,
+    albedo: Vec<f32>,
+    rough: Vec<f32>,
+    normals: Vec<f32>,
+    lights: Option<BrightLights>,
+    back_lights: Option<BrightLights>,
+}
+
+/// The shipped fixtures' random micro-buffers, materials and map; `lights` of the map's
+/// brightest texels with random visibility; a seventh of the Gaussians unseen and, for two
+/// sides, a third of the rest shaded from behind.
+fn case(n: usize, m: usize, k: usize, lights: usize, two_sided: bool, seed: u64) -> Case {
+    let mb = synthetic_microbuffer(n, k, seed);
+    let mut back_mb = synthetic_microbuffer(n, k, seed + 100);
+    back_mb.normals = mb.normals.iter().map(|n| -*n).collect();
+    let positions = synthetic_positions(&mb, seed);
+    let env = EnvLight::new(8, seed).unwrap().radiance();
+    let act = synthetic_materials(n, m, seed).activated(&mb.normals).unwrap();
+    let mut rng = Rng::new(seed + 1);
+    let given = (0..n * k).map(|_| [rng.uniform(), rng.uniform(), rng.uniform()]).collect();
+    let mut random_lights = || {
+        (lights > 0).then(|| {
+            let texels = brightest_texels(&env, lights);
+            let cols: Vec<Vec<f32>> = texels
+                .iter()
+                .map(|_| (0..n).map(|_| if rng.uniform() < 0.25 { 0.0 } else { rng.range(0.3, 1.0) }).collect())
+                .collect();
+            BrightLights::from_visibility(&env, &texels, &cols).unwrap()
+        })
+    };
+    let (lights, back_lights) = (random_lights(), random_lights());
+    let seen: Vec<bool> = (0..n).map(|i| i % 7 != 3).collect();
+    let behind: Vec<bool> = (0..n).map(|i| two_sided && i % 3 == 1).collect();
+    Case {
+        front: seen.iter().zip(&behind).map(|(s, b)| *s && !b).collect(),
+        back: seen.iter().zip(&behind).map(|(s, b)| *s && *b).collect(),
+        given,
+        albedo: act.albedo.clone(),
+        rough: act.roughness.clone(),
+        normals: act.normals.clone(),
+        lights,
+        back_lights,
+        positions,
+        env,
+        mb,
+        back_mb,
+    }
+}
+
+#[derive(Clone, Copy, Debug)]
+enum Mode {
+    Off,
+    Traced,
+    Given,
+}
+
+/// One side's inputs in F.
+#[allow(clippy::too_many_arguments)]
+fn inputs<'a, F>(
+    c: &'a Case,
+    mb: &'a MicroBuffer,
+    visible: &'a [bool],
+    mats: VertexMaterials<'a, F>,
+    env: &'a [[F; 3]],
+    mode: Mode,
+    rho: F,
+    params: ShadeParams,
+    lights: Option<&'a BrightLights>,
+) -> ShadeInputs<'a, F> {
+    ShadeInputs {
+        mb,
+        positions: &c.positions,
+        camera_center: Vec3::new(0.3, -2.5, 1.2),
+        visible,
+        mats,
+        env_geom: &c.env,
+        env,
+        indirect: match mode {
+            Mode::Off => Indirect::Off,
+            Mode::Traced => Indirect::Traced { rho },
+            Mode::Given => Indirect::Given(&c.given),
+        },
+        params,
+        lights,
+    }
+}
+
+#[test]
+fn gpu_shading_matches_the_cpu_vertex_by_vertex() {
+    let Some(gpu) = common::gpu() else { return };
+    let mut shader = GpuShader::new(gpu);
+    let configs = [
+        // (N, M, K, lights, mode, visibility, env_max, diffuse, two-sided, interleave, batch bytes)
+        (300usize, 4usize, 64usize, 0usize, Mode::Traced, true, 64.0f32, Diffuse::Added, false, 1usize, 0u64),
+        (300, 6, 37, 8, Mode::Given, true, f32::INFINITY, Diffuse::Layered, false, 1, 0),
+        (300, 1, 16, 0, Mode::Off, false, 0.6, Diffuse::Added, false, 1, 0),
+        (300, 2, 64, 8, Mode::Traced, false, 64.0, Diffuse::Layered, true, 4, 0),
+        (500, 4, 64, 4, Mode::Given, true, 64.0, Diffuse::Added, true, 1, 40 * 64 * 28),
+    ];
+    let mut worst = 0.0f32;
+    for (ci, &(n, m, k, lights, mode, visibility, env_max, diffuse, two_sided, stride, batch)) in
+        configs.iter().enumerate()
+    {
+        let mut c = case(n, m, k, lights, two_sided, 40 + ci as u64);
+        if stride > 1 {
+            c.mb = c.mb.interleaved(stride, 1).unwrap();
+            c.back_mb = c.back_mb.interleaved(stride, 2).unwrap();
+            c.given.truncate(n * c.mb.k);
+        }
+        shader.batch_bytes = if batch > 0 { batch } else { svgir_gpu::shade::BATCH_BYTES };
+        let params = ShadeParams { visibility, env_max, diffuse, simd: svgir_core::simd::Simd::Scalar };
+        let back_normals = negated(&c.normals);
+        let mats32 = VertexMaterials { m, albedo: &c.albedo[..], roughness: &c.rough[..], normals: &c.normals[..] };
+        let back32 = VertexMaterials { normals: &back_normals[..], ..mats32 };
+        let side = |mb, visible, mats, lights| Side {
+            inputs: inputs(&c, mb, visible, mats, &c.env.data, mode, 0.7f32, params, lights),
+            cache: None,
+        };
+        let front = side(&c.mb, &c.front[..], mats32, c.lights.as_ref());
+        let back = two_sided.then(|| side(&c.back_mb, &c.back[..], back32, c.back_lights.as_ref()));
+        let mut cpu = ShadeOutput::new();
+        shade_sides_into(&front, back.as_ref(), &mut cpu).unwrap();
+        let mut gpu = ShadeOutput::new();
+        shader.shade(&front, back.as_ref(), &mut gpu).unwrap();
+        let mut gpu_colour = ShadeOutput::colour_only();
+        shader.shade(&front, back.as_ref(), &mut gpu_colour).unwrap();
+        assert!(gpu_colour.direct.is_empty() && gpu_colour.indirect.is_empty(), "config {ci}");
+        assert_eq!(gpu_colour.color, gpu.color, "config {ci}: colour alone vs split");
+
+        // Against the CPU's scalar kernel, vertex by vertex (relative to max(|c|, 1)). The two
+        // round each direction differently (the driver fuses multiply-adds), and at a vertex of
+        // low roughness a direction near its mirror direction meets GGX's peak, where
+        // q = 1 - (n.h)^2 (1 - a^2) cancels: there 1 ulp of direction is 1e-4 of the colour.
+        // So: every vertex within 5e-4 (seen: 1.7e-4), at most 1% of the Gaussians with a vertex
+        // past 2e-5, and each such vertex of roughness under 0.3.
+        let parts = [(&gpu.color, &cpu.color), (&gpu.direct, &cpu.direct), (&gpu.indirect, &cpu.indirect)];
+        let mut outliers = std::collections::BTreeSet::new();
+        for (name, (g, cp)) in ["colour", "direct", "indirect"].iter().zip(parts) {
+            for (i, (&a, &b)) in g.iter().zip(cp.iter()).enumerate() {
+                let e = (a - b).abs() / b.abs().max(1.0);
+                worst = worst.max(e);
+                assert!(e <= 5e-4, "config {ci} {name} {i}: GPU {a}, CPU {b}");
+                if e > 2e-5 {
+                    let vertex = i / 3;
+                    assert!(
+                        c.rough[vertex] < 0.3,
+                        "config {ci} {name} {i}: GPU {a}, CPU {b} at roughness {}",
+                        c.rough[vertex]
+                    );
+                    outliers.insert(vertex / m);
+                }
+            }
+        }
+        eprintln!("config {ci}: {} of {n} Gaussians past 2e-5", outliers.len());
+        assert!(outliers.len() * 100 <= n, "config {ci}: {} of {n} Gaussians past 2e-5", outliers.len());
+        // What neither side shades stays zero, and something was shaded.
+        for i in 0..n {
+            let px = &gpu.color[i * m * 3..(i + 1) * m * 3];
+            if !c.front[i] && !c.back[i] {
+                assert!(px.iter().all(|&x| x == 0.0), "config {ci}: unseen Gaussian {i} shaded");
+            }
+        }
+        assert!(gpu.color.iter().filter(|&&x| x > 0.0).count() > n * m, "config {ci}: too little light");
+    }
+    eprintln!("worst GPU difference from the CPU: {worst:.2e}");
+}
+
+#[test]
+fn gpu_shading_refuses_what_the_cpu_refuses() {
+    let Some(gpu) = common::gpu() else { return };
+    let shader = GpuShader::new(gpu);
+    let (n, m, k) = (40, 4, 16);
+    let c = case(n, m, k, 0, true, 9);
+    let mats = VertexMaterials { m, albedo: &c.albedo[..], roughness: &c.rough[..], normals: &c.normals[..] };
+    let p = ShadeParams::default();
+    let front = Side { inputs: inputs(&c, &c.mb, &c.front, mats, &c.env.data, Mode::Off, 1.0, p, None), cache: None };
+    // A Gaussian on both sides, a short visible list, a bad clamp: the CPU's errors, word for word.
+    let all = vec![true; n];
+    let both = Side { inputs: ShadeInputs { visible: &all, ..front.inputs }, cache: None };
+    let short = Side { inputs: ShadeInputs { visible: &all[1..], ..front.inputs }, cache: None };
+    let bad = Side { inputs: ShadeInputs { params: ShadeParams { env_max: -1.0, ..p }, ..front.inputs }, cache: None };
+    for (what, f, b) in [("both sides", &front, Some(&both)), ("short", &short, None), ("clamp", &bad, None)] {
+        let cpu = shade_sides_into(f, b, &mut ShadeOutput::new()).expect_err(what).to_string();
+        let gpu = shader.shade(f, b, &mut ShadeOutput::new()).expect_err(what).to_string();
+        assert_eq!(gpu, cpu, "{what}");
+    }
+    // Nothing visible: all zero, no dispatch needed.
+    let none = vec![false; n];
+    let empty = Side { inputs: ShadeInputs { visible: &none, ..front.inputs }, cache: None };
+    let mut out = ShadeOutput::new();
+    shader.shade(&empty, None, &mut out).unwrap();
+    assert!(out.color.len() == n * m * 3 && out.color.iter().all(|&x| x == 0.0));
+}

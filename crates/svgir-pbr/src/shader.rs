@@ -1,0 +1,43 @@
+//! Where the vertex shading runs: [`CpuShader`] is this crate's kernels
+//! ([`crate::shade_sides_into`], rayon and the lane kernels); a device backend (svgir-gpu's
+//! `GpuShader`) evaluates the same sums in its own kernels. Stage 2's renders take a
+//! `&dyn VertexShader`, so the device is chosen once, by the front end, and the crates below
+//! it never depend on a GPU crate (as `svgir_trace::MicroTracer` does for the tracing).
+
+use crate::shade::{ShadeOutput, SideRef};
+use crate::two_sided::Side;
+use crate::PbrError;
+
+/// A backend that shades every visible Gaussian's vertices (SPEC 4, with SPEC 5's visibility
+/// and indirect light), one side or two.
+pub trait VertexShader: Send + Sync {
+    /// A short name for logs: "cpu", or the adapter.
+    fn name(&self) -> String;
+
+    /// [`crate::shade_sides_into`]: each Gaussian shaded on the side whose `visible` holds it
+    /// (the sides' sets disjoint), the others 0; `out.split` asks for the direct and indirect
+    /// parts too.
+    fn shade_sides(&self, front: &Side<f32>, back: Option<&Side<f32>>, out: &mut ShadeOutput) -> Result<(), PbrError>;
+}
+
+/// The CPU kernels.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct CpuShader;
+
+impl VertexShader for CpuShader {
+    fn name(&self) -> String {
+        "cpu".into()
+    }
+
+    fn shade_sides(&self, front: &Side<f32>, back: Option<&Side<f32>>, out: &mut ShadeOutput) -> Result<(), PbrError> {
+        crate::shade_sides_into(front, back, out)
+    }
+}
+
+/// Every check [`crate::shade_sides_into`] makes before it shades: each side's inputs and
+/// cache, the sides' sizes against each other, and that no Gaussian is on both sides. A device
+/// backend calls it so that it rejects what the CPU rejects, with the same errors.
+pub fn check_sides(front: &Side<f32>, back: Option<&Side<f32>>) -> Result<(), PbrError> {
+    let sides: Vec<SideRef<f32>> = crate::two_sided::sides(front, back)?;
+    crate::shade::check_sides(&sides)
+}
