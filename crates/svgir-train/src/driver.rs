@@ -292,7 +292,7 @@ pub fn open_stage2(
     out: &Path,
     start: Stage2Start,
     dataset: &Dataset,
-    tracer: std::sync::Arc<dyn svgir_trace::MicroTracer>,
+    kernels: crate::stage2::Kernels,
     note: &mut dyn FnMut(String),
 ) -> Result<Stage2, DriverError> {
     let ckpt = out.join("checkpoint.bin");
@@ -303,16 +303,16 @@ pub fn open_stage2(
                 "stage 2: tracing {} Gaussians x {} directions on {}...",
                 surfels.len(),
                 config.directions,
-                tracer.name()
+                kernels.name()
             ));
-            let s2 = Stage2::new_on(*config, surfels.clone(), dataset, tracer).map_err(DriverError::step)?;
+            let s2 = Stage2::new_on(*config, surfels.clone(), dataset, kernels).map_err(DriverError::step)?;
             note(format!("micro-buffers traced in {:.1} s", s2.trace_seconds));
             Ok(s2)
         }
         Stage2Start::Resume(c) => {
             note(format!("stage 2: resuming {}", ckpt.display()));
             let mut s2 = checkpoint::load_stage2(&ckpt)?;
-            s2.tracer = tracer;
+            s2.kernels = kernels;
             if let Some(n) = c.iterations.filter(|&n| n != s2.config.iterations) {
                 note(format!("stage 2: iterations {} -> {n}", s2.config.iterations));
                 s2.config.iterations = n;

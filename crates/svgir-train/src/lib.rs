@@ -26,4 +26,4 @@ pub mod stage2;
 
 pub use config::{BackgroundMode, NamedWeights, Profile, Stage1Config, ViewOrder};
 pub use stage1::{Stage1, StepStats};
-pub use stage2::{Stage2, Stage2Config, Stage2Profile};
+pub use stage2::{Kernels, Stage2, Stage2Config, Stage2Profile};

@@ -92,7 +92,7 @@ impl Relighter {
         let mb = match &bvh {
             Some(bvh) if directions != s2.mb.k => {
                 let axes = (0..s2.surfels.len()).map(|j| s2.surfels.normal(j)).collect();
-                s2.tracer.trace(bvh, &s2.surfels, axes, directions, s2.config.seed, &p, false)?
+                s2.kernels.tracer.trace(bvh, &s2.surfels, axes, directions, s2.config.seed, &p, false)?
             }
             _ => s2.mb.clone(),
         };
@@ -101,7 +101,7 @@ impl Relighter {
             (None, _) => None,
             (Some(b), Some(bvh)) if directions != b.mb.k => {
                 let axes = mb.normals.iter().map(|n| -*n).collect();
-                let back = s2.tracer.trace(bvh, &s2.surfels, axes, directions, s2.config.seed, &p, false)?;
+                let back = s2.kernels.tracer.trace(bvh, &s2.surfels, axes, directions, s2.config.seed, &p, false)?;
                 let cache = DirectionCache::new(&back, &s2.env.radiance())?;
                 Some((back, cache))
             }

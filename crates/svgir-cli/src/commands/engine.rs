@@ -29,11 +29,14 @@ pub fn open_device(choice: DeviceChoice) -> Result<Option<svgir_gpu::Gpu>> {
     Ok(gpu)
 }
 
-/// The micro-buffer tracer of stage 2 and relighting on the device `choice` asks for.
-pub fn tracer(choice: DeviceChoice) -> Result<std::sync::Arc<dyn svgir_trace::MicroTracer>> {
+/// Stage 2's and relighting's tracer and vertex shader on the device `choice` asks for.
+pub fn stage2_kernels(choice: DeviceChoice) -> Result<svgir_train::Kernels> {
     Ok(match open_device(choice)? {
-        Some(gpu) => std::sync::Arc::new(svgir_gpu::GpuTracer::new(gpu)),
-        None => std::sync::Arc::new(svgir_trace::CpuTracer),
+        Some(gpu) => svgir_train::Kernels {
+            tracer: std::sync::Arc::new(svgir_gpu::GpuTracer::new(gpu.clone())),
+            shader: std::sync::Arc::new(svgir_gpu::GpuShader::new(gpu)),
+        },
+        None => svgir_train::Kernels::cpu(),
     })
 }
 

@@ -520,8 +520,8 @@ pub fn run(args: InverseArgs) -> Result<()> {
         let meta = json!({"stage2": config, "profile": args.profile, "data": data, "stage1_run": args.run, "command": std::env::args().collect::<Vec<_>>()});
         Stage2Start::New { config: Box::new(config), surfels: &stage1.surfels, meta }
     };
-    let tracer = super::engine::tracer(args.device)?;
-    let mut s2 = driver::open_stage2(&out, start, &dataset, tracer, &mut |line| eprintln!("{line}"))?;
+    let kernels = super::engine::stage2_kernels(args.device)?;
+    let mut s2 = driver::open_stage2(&out, start, &dataset, kernels, &mut |line| eprintln!("{line}"))?;
     if args.train_gt_light && !args.resume {
         set_true_light(&mut s2, &dataset, "--train-gt-light")?;
     }

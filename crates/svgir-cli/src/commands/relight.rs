@@ -50,7 +50,7 @@ pub fn run(args: RelightArgs) -> Result<()> {
     let cfg = svgir_eval::read_json(&cfg_path, "run `svgir inverse` first")?;
     let data = PathBuf::from(cfg["data"].as_str().with_context(|| format!("{}: no data path", cfg_path.display()))?);
     let mut s2 = checkpoint::load_stage2(&stage2_dir.join("checkpoint.bin"))?;
-    s2.tracer = super::engine::tracer(args.device)?;
+    s2.kernels = super::engine::stage2_kernels(args.device)?;
     let env = svgir_io::read_envmap(&args.envmap, args.strength, s2.config.env_height)?;
     let relighter = Relighter::new(
         &s2,

@@ -50,9 +50,9 @@ use std::sync::Arc;
 use std::time::Instant;
 use svgir_core::{Camera, Dataset, Image, Rng, Surfels};
 use svgir_pbr::{
-    negated, radiance_consistency_with_grad, shade_sides_backward_into, shade_sides_into, split_by_side,
-    ColourProjector, ConsistencyInputs, DirectionCache, EnvLight, Indirect, PbrError, PbrGrads, ShadeInputs,
-    ShadeOutput, ShadeParams, Side, SvgMaterials,
+    negated, radiance_consistency_with_grad, shade_sides_backward_into, split_by_side, ColourProjector,
+    ConsistencyInputs, CpuShader, DirectionCache, EnvLight, Indirect, PbrError, PbrGrads, ShadeInputs, ShadeOutput,
+    ShadeParams, Side, SvgMaterials, VertexShader,
 };
 use svgir_raster::{
     backward, render, Background, ColorSource, Features, ForwardState, OutputGrads, Projected, RasterConfig,
@@ -133,9 +133,45 @@ pub struct Stage2 {
     pub sun_schedule: SunSchedule,
     /// Per training view, the Gaussians its last render blended (`config.shade_sets`).
     pub(crate) view_sets: ViewSets,
-    /// Where micro-buffers are traced (the back sides, relighting's): the CPU unless the front
-    /// end chose a device. Not saved: a run resumes on whichever device the front end opens.
+    /// Where micro-buffers are traced (the back sides, relighting's) and the renders' vertices
+    /// shaded: the CPU unless the front end chose a device. Not saved: a run resumes on
+    /// whichever device the front end opens.
+    pub kernels: Kernels,
+}
+
+/// Where stage 2's device kernels run: the micro-buffer tracer and the vertex shader of the
+/// renders (evaluation, relighting, and training's forward shading). The CPU's by default; the
+/// front end swaps in a device's (svgir-gpu), so this crate never depends on a GPU crate.
+#[derive(Clone)]
+pub struct Kernels {
+    /// Traces micro-buffers (SPEC 5).
     pub tracer: Arc<dyn MicroTracer>,
+    /// Shades the vertices (SPEC 4).
+    pub shader: Arc<dyn VertexShader>,
+}
+
+impl Kernels {
+    /// The CPU kernels.
+    pub fn cpu() -> Self {
+        Self { tracer: Arc::new(CpuTracer), shader: Arc::new(CpuShader) }
+    }
+
+    /// What runs them, for logs: "cpu", or the adapter.
+    pub fn name(&self) -> String {
+        self.tracer.name()
+    }
+}
+
+impl Default for Kernels {
+    fn default() -> Self {
+        Self::cpu()
+    }
+}
+
+impl std::fmt::Debug for Kernels {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Kernels(tracer {}, shader {})", self.tracer.name(), self.shader.name())
+    }
 }
 
 /// The back side of every Gaussian for two-sided shading (`svgir_pbr::two_sided`): traced once,
@@ -267,15 +303,15 @@ impl Stage2 {
     /// Set up stage 2 on stage 1's `surfels`: put them in Morton order, orient normals, trace the
     /// micro-buffers, initialise materials and light.
     pub fn new(config: Stage2Config, surfels: Surfels, dataset: &Dataset) -> Result<Self, PbrError> {
-        Self::new_on(config, surfels, dataset, Arc::new(CpuTracer))
+        Self::new_on(config, surfels, dataset, Kernels::cpu())
     }
 
-    /// [`Stage2::new`] with the micro-buffers traced by `tracer` (and kept as the run's tracer).
+    /// [`Stage2::new`] with the micro-buffers traced by `kernels` (kept as the run's kernels).
     pub fn new_on(
         config: Stage2Config,
         mut surfels: Surfels,
         dataset: &Dataset,
-        tracer: Arc<dyn MicroTracer>,
+        kernels: Kernels,
     ) -> Result<Self, PbrError> {
         // The geometry is frozen from here on: put the Gaussians in Morton order of their
         // centres once, so that the ones a view sees lie in runs of every per-Gaussian array.
@@ -285,11 +321,12 @@ impl Stage2 {
         let t0 = Instant::now();
         let bvh = Bvh::build(&surfels);
         let axes = (0..surfels.len()).map(|j| surfels.normal(j)).collect();
-        let mb = tracer.trace(&bvh, &surfels, axes, config.directions, config.seed, &config.trace_params(), true)?;
+        let mb =
+            kernels.tracer.trace(&bvh, &surfels, axes, config.directions, config.seed, &config.trace_params(), true)?;
         let trace_seconds = t0.elapsed().as_secs_f64();
         let mut s2 = Self::from_parts(config, surfels, mb, trace_seconds)?;
         s2.bvh = Some(bvh);
-        s2.tracer = tracer;
+        s2.kernels = kernels;
         s2.trace_back_side()?;
         Ok(s2)
     }
@@ -304,8 +341,15 @@ impl Stage2 {
         let occluders = self.occluders();
         let bvh = self.bvh.get_or_insert_with(|| Bvh::build(&occluders));
         let axes = self.mb.normals.iter().map(|n| -*n).collect();
-        let mb =
-            self.tracer.trace(bvh, &occluders, axes, self.mb.k, self.config.seed, &self.config.trace_params(), true)?;
+        let mb = self.kernels.tracer.trace(
+            bvh,
+            &occluders,
+            axes,
+            self.mb.k,
+            self.config.seed,
+            &self.config.trace_params(),
+            true,
+        )?;
         self.attach_back_side(mb, &occluders)?;
         self.trace_seconds += t0.elapsed().as_secs_f64();
         Ok(())
@@ -431,7 +475,7 @@ impl Stage2 {
             back: None,
             sun_schedule: SunSchedule::default(),
             view_sets: ViewSets::default(),
-            tracer: Arc::new(CpuTracer),
+            kernels: Kernels::cpu(),
         })
     }
 

@@ -9,9 +9,7 @@ use super::Stage2;
 use crate::composite::pbr_composite;
 use glam::Vec3;
 use svgir_core::Camera;
-use svgir_pbr::{
-    negated, shade_sides_into, DirectionCache, Indirect, PbrError, ShadeInputs, ShadeOutput, ShadeParams, Side,
-};
+use svgir_pbr::{negated, DirectionCache, Indirect, PbrError, ShadeInputs, ShadeOutput, ShadeParams, Side};
 use svgir_raster::{render, Background, ColorSource, Features, RasterConfig, RenderInput};
 use svgir_trace::VertexMaterials;
 use svgir_trace::{BrightLights, MicroBuffer};
@@ -152,7 +150,7 @@ impl Stage2 {
         };
         let back = back_side(&front, shading.back.as_ref(), &back_vis, back_normals.as_deref());
         let mut shaded = ShadeOutput::new();
-        shade_sides_into(&front, back.as_ref(), &mut shaded)?;
+        self.kernels.shader.shade_sides(&front, back.as_ref(), &mut shaded)?;
         let extra = extra_features(&act, &self.facing(camera));
         let input = RenderInput {
             surfels: &self.surfels,

@@ -136,7 +136,7 @@ impl Stage2 {
         // The extra channels (materials, facing normals and the SH colour, `sh_channels`) do
         // not depend on the shading.
         let (shading, (facing, extra)) = rayon::join(
-            || shade_sides_into(&front, back.as_ref(), &mut shaded),
+            || self.kernels.shader.shade_sides(&front, back.as_ref(), &mut shaded),
             || {
                 let facing = self.facing(cam);
                 let extra = pass_features(&act, &facing, sh_proj.sh_colors());
