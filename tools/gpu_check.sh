@@ -6,9 +6,10 @@
 #   bash tools/gpu_check.sh           # there, from the repository root, with .gpubin, .gpudata
 #                                     # (and .gl, the Vulkan loader) carried: no build there
 #
-# The run: the GPU kernel tests (svgir-gpu's raster, stage-1 and trace tests on the adapter), the
-# raster line (400 x 400, 100k Gaussians, forward and forward + backward), the trace line (K = 64
-# and K = 384 micro-buffers of 100k surfels), lego_400's 30k-iteration
+# The run: the GPU kernel tests (svgir-gpu's raster, stage-1, trace, shade and stage-2 tests on the
+# adapter), the raster line (400 x 400, 100k Gaussians, forward and forward + backward), the trace
+# line (K = 64 and K = 384 micro-buffers of 100k surfels), the shade line (K = 64 and 384 beside
+# the CPU), lego_400's 30k-iteration
 # stage 1 on the GPU against its 35 dB target, and one stage-1 iteration timing of the GPU beside
 # the machine's CPU path on the shipped scene. Each step is time-boxed so the whole stays under
 # 8 minutes; the summary goes to stdout and $OUT/gpu_check.txt when OUT is set.
@@ -26,7 +27,7 @@ if [ "${1:-}" = prepare ]; then
   grep -qx '/.gpudata/' .git/info/exclude 2>/dev/null || echo '/.gpudata/' >>.git/info/exclude
   cargo build --release -p svgir-cli
   strip -o "$BIN/svgir" target/release/svgir
-  for t in raster stage1 trace; do
+  for t in raster stage1 trace shade stage2; do
     exe=$(cargo test --release -p svgir-gpu --test "$t" --no-run --message-format=json 2>/dev/null |
       python3 -c 'import json,sys
 for l in sys.stdin:
@@ -83,9 +84,10 @@ step() { # name, seconds, command...
   return $rc
 }
 "$BIN/svgir" --version >/dev/null 2>&1 || { echo "no $BIN/svgir: run 'bash tools/gpu_check.sh prepare' first" >&2; exit 2; }
-step tests 150 sh -c "$BIN/test-raster && $BIN/test-stage1 && $BIN/test-trace"
+step tests 180 sh -c "$BIN/test-raster && $BIN/test-stage1 && $BIN/test-trace && $BIN/test-shade && $BIN/test-stage2"
 step raster 60 "$BIN/svgir" bench raster --device gpu --size "$size" --gaussians "$n" --reps "$reps"
 step trace 60 "$BIN/svgir" bench trace --device gpu --gaussians "$n" --reps 3
+step shade 60 "$BIN/svgir" bench pbr --device gpu --gaussians "$n" --reps 3
 if [ -d "$DATA/lego_400" ]; then
   step lego 240 "$BIN/svgir" train "$DATA/lego_400" --out "$log/lego" --profile views --iterations "$iters" \
     --densify-grad 1.5e-4 --device gpu
@@ -102,6 +104,7 @@ step side 120 "$BIN/svgir" bench train --device cpu,gpu --scene scenes/bowl_frui
   echo "--- tests"; grep -h "test result\|panicked\|FAILED" "$log/tests.txt" | head -8
   echo "--- raster (target at 400 x 400 / 100k: forward+backward <= 1 ms)"; grep "^|" "$log/raster.txt"
   echo "--- trace (target: K = 64 micro-buffers of 100k surfels <= 0.2 s)"; grep "^|" "$log/trace.txt"
+  echo "--- shade (GPU beside the CPU, upload and read-back included)"; grep -A6 "shade bench" "$log/shade.txt" | grep "^|"
   if [ -f "$log/lego/eval.json" ]; then
     echo "--- lego_400 ($iters iterations; target >= 35 dB in <= 3 min)"
     python3 -c "import json; e=json.load(open('$log/lego/eval.json')); t=json.load(open('$log/lego/timings.json')); print('test PSNR %.2f dB on %d views, %.2f ms per iteration, %.1f min of steps' % (e['psnr'], e['views'], t['ms_per_iteration']['gpu_step'], t['ms_per_iteration']['gpu_step'] * t['iterations'] / 6e4))"

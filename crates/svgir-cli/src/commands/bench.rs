@@ -45,8 +45,8 @@ pub struct BenchArgs {
     /// raster: image sides of the random-scene table (comma-separated; default 256,400,800).
     #[arg(long, value_delimiter = ',')]
     pub size: Vec<u32>,
-    /// raster, trace on a GPU: Gaussian counts of the random-scene table (raster default
-    /// 10000,100000,300000; trace 10000,100000).
+    /// raster, trace, pbr on a GPU: Gaussian counts of the random-scene table (raster default
+    /// 10000,100000,300000; trace and pbr 10000,100000).
     #[arg(long, value_delimiter = ',')]
     pub gaussians: Vec<usize>,
     /// raster: kernel paths to compare, interleaved call by call: scalar, avx2, avx512, auto
@@ -56,7 +56,7 @@ pub struct BenchArgs {
     /// raster: timed calls per path and case.
     #[arg(long, default_value_t = 5)]
     pub reps: usize,
-    /// raster, trace, train: the devices to time, side by side in one run (e.g. `cpu,gpu`; `gpu` takes
+    /// raster, trace, pbr, train: the devices to time, side by side in one run (e.g. `cpu,gpu`; `gpu` takes
     /// the adapter `--device` of `svgir train` takes).
     #[arg(long, value_delimiter = ',', default_value = "cpu")]
     pub device: Vec<svgir_gpu::DeviceChoice>,
@@ -121,6 +121,16 @@ pub fn run(args: BenchArgs) -> Result<()> {
             let Some(gpu) = super::engine::open_device(d)? else { continue };
             let ns = if args.gaussians.is_empty() { vec![10_000, 100_000] } else { args.gaussians.clone() };
             println!("{}", svgir_gpu::bench::trace_table(gpu, &ns, args.reps.max(1))?);
+        }
+        if !on_cpu {
+            return Ok(());
+        }
+    }
+    if matches!(args.kernel, Kernel::Pbr) {
+        for &d in args.device.iter().filter(|&&d| d != svgir_gpu::DeviceChoice::Cpu) {
+            let Some(gpu) = super::engine::open_device(d)? else { continue };
+            let ns = if args.gaussians.is_empty() { vec![10_000, 100_000] } else { args.gaussians.clone() };
+            println!("{}", svgir_gpu::bench::shade_table(gpu, &ns, args.reps.max(1), threads)?);
         }
         if !on_cpu {
             return Ok(());
