@@ -23,7 +23,7 @@ use crate::buffers::{grid, kernel_of, read_back, storage, upload};
 use crate::device::{Gpu, GpuError};
 use crate::samples::{pack, SAMPLE_BYTES};
 use bytemuck::{Pod, Zeroable};
-use svgir_pbr::{check_sides, Indirect, PbrError, ShadeInputs, ShadeOutput, Side, VertexShader};
+use svgir_pbr::{check_sides, Indirect, PbrError, PbrGrads, ShadeInputs, ShadeOutput, Side, VertexShader};
 use svgir_shading::hemisphere::HemiFrame;
 
 /// Most bytes of samples (and given indirect light) bound per dispatch.
@@ -56,11 +56,13 @@ const F_VIS: u32 = 1;
 const F_TRACED: u32 = 2;
 const F_GIVEN: u32 = 4;
 const F_SPLIT: u32 = 8;
+const F_BACK: u32 = 16;
 
 /// The vertex shader on a GPU.
 pub struct GpuShader {
     gpu: Gpu,
     kernel: wgpu::ComputePipeline,
+    backward_kernel: wgpu::ComputePipeline,
     /// Most bytes of samples bound per dispatch ([`BATCH_BYTES`]; the tests lower it to
     /// split small scenes into several batches).
     pub batch_bytes: u64,
@@ -69,8 +71,11 @@ pub struct GpuShader {
 impl GpuShader {
     /// The shader on `gpu` (compiles its kernel).
     pub fn new(gpu: Gpu) -> Self {
-        let kernel = kernel_of(&gpu.device, "shade", &[include_str!("shaders/shade.wgsl")]);
-        Self { gpu, kernel, batch_bytes: BATCH_BYTES }
+        let common = include_str!("shaders/shade_common.wgsl");
+        let kernel = kernel_of(&gpu.device, "shade", &[common, include_str!("shaders/shade.wgsl")]);
+        let backward_kernel =
+            kernel_of(&gpu.device, "shade backward", &[common, include_str!("shaders/shade_bwd.wgsl")]);
+        Self { gpu, kernel, backward_kernel, batch_bytes: BATCH_BYTES }
     }
 
     /// The device it runs on.
@@ -112,12 +117,123 @@ impl GpuShader {
 
     /// One side's dispatches into `out` (its visible Gaussians' entries).
     fn shade_side(&self, inp: &ShadeInputs<f32>, split: bool, out: &wgpu::Buffer) -> Result<(), GpuError> {
+        let list: Vec<u32> = (0..inp.mb.len()).filter(|&j| inp.visible[j]).map(|j| j as u32).collect();
+        let Some(side) = self.prepare(inp, list, if split { F_SPLIT } else { 0 })? else { return Ok(()) };
+        let d = &self.gpu.device;
+        for b in side.batches() {
+            let (ub, samples, given, sub) = side.batch_buffers(d, &b);
+            let bg = crate::buffers::bind(
+                d,
+                &self.kernel,
+                &[&ub, &side.frames, &side.tables, &samples, &side.verts, &given, &side.light_vis, &sub, out],
+            );
+            self.submit(&self.kernel, &bg, b.to - b.from);
+        }
+        self.gpu.check()
+    }
+
+    /// `svgir_pbr::shade_sides_backward_into` on the GPU: the material gradients and rho's from
+    /// the GPU, the env texels' added here from the samples' light gradients (see
+    /// shade_bwd.wgsl), all into `grads`.
+    pub fn backward(
+        &self,
+        front: &Side<f32>,
+        back: Option<&Side<f32>>,
+        v_color: &[f32],
+        grads: &mut PbrGrads,
+    ) -> Result<(), PbrError> {
+        check_sides(front, back)?;
+        let inp = &front.inputs;
+        let (n, m) = (inp.mb.len(), inp.mats.m);
+        svgir_pbr::expect_sizes(&[
+            ("v_color", v_color.len(), n * m * 3),
+            ("albedo gradients", grads.v_albedo.len(), n * m * 3),
+            ("roughness gradients", grads.v_roughness.len(), n * m),
+            ("normal gradients", grads.v_normals.len(), n * m * 3),
+            ("environment gradients", grads.v_env.len(), inp.env.len()),
+        ])?;
+        let stride = 7 * m + 1;
+        if (n * stride) as u64 > u32::MAX as u64 {
+            return Err(device_error(GpuError::Runtime(format!(
+                "{n} Gaussians x {m} vertices: over the kernel's u32 index"
+            ))));
+        }
+        let d = &self.gpu.device;
+        let v_color_buf = upload(d, "shade v_color", v_color);
+        let out = storage(d, "shade grads", (n * stride * 4) as u64);
+        for (side_index, side) in std::iter::once(front).chain(back).enumerate() {
+            let si = &side.inputs;
+            // Unshaded Gaussians and those no pixel saw have no gradient.
+            let list: Vec<u32> = (0..n)
+                .filter(|&j| si.visible[j] && v_color[j * m * 3..(j + 1) * m * 3].iter().any(|&g| g != 0.0))
+                .map(|j| j as u32)
+                .collect();
+            let flags = if side_index > 0 { F_BACK } else { 0 };
+            let Some(prep) = self.prepare(si, list, flags).map_err(device_error)? else { continue };
+            for b in prep.batches() {
+                let (ub, samples, given, sub) = prep.batch_buffers(d, &b);
+                let per = prep.uniform.k as usize + prep.uniform.lights as usize;
+                let v_light = storage(d, "shade v_light", ((b.g1 - b.g0) * per * 12) as u64);
+                let bg = crate::buffers::bind(
+                    d,
+                    &self.backward_kernel,
+                    &[
+                        &ub,
+                        &prep.frames,
+                        &prep.tables,
+                        &samples,
+                        &prep.verts,
+                        &given,
+                        &prep.light_vis,
+                        &sub,
+                        &v_color_buf,
+                        &out,
+                        &v_light,
+                    ],
+                );
+                self.submit(&self.backward_kernel, &bg, b.to - b.from);
+                let light = read_back::<[f32; 3]>(d, &self.gpu.queue, &[(&v_light, (b.g1 - b.g0) * per)])
+                    .map_err(device_error)?
+                    .remove(0);
+                add_light_grads(si, side.cache, b.g0, &light, &mut grads.v_env);
+            }
+        }
+        let all = read_back::<f32>(d, &self.gpu.queue, &[(&out, n * stride)]).map_err(device_error)?.remove(0);
+        self.gpu.check().map_err(device_error)?;
+        for (j, g) in all.chunks_exact(stride).enumerate() {
+            let add = |dst: &mut [f32], src: &[f32]| dst.iter_mut().zip(src).for_each(|(o, x)| *o += *x);
+            add(&mut grads.v_albedo[j * m * 3..(j + 1) * m * 3], &g[..3 * m]);
+            add(&mut grads.v_roughness[j * m..(j + 1) * m], &g[3 * m..4 * m]);
+            add(&mut grads.v_normals[j * m * 3..(j + 1) * m * 3], &g[4 * m..7 * m]);
+            grads.v_rho += g[7 * m];
+        }
+        Ok(())
+    }
+
+    /// One dispatch of `kernel` over `count` listed Gaussians.
+    fn submit(&self, kernel: &wgpu::ComputePipeline, bg: &wgpu::BindGroup, count: usize) {
+        let mut enc = self.gpu.device.create_command_encoder(&Default::default());
+        let (x, y) = grid((count as u32).div_ceil(64));
+        let mut pass = enc.begin_compute_pass(&Default::default());
+        pass.set_pipeline(kernel);
+        pass.set_bind_group(0, bg, &[]);
+        pass.dispatch_workgroups(x, y, 1);
+        drop(pass);
+        self.gpu.queue.submit([enc.finish()]);
+    }
+
+    /// What both kernels read of one side, uploaded: `None` when `list` is empty.
+    fn prepare<'a>(
+        &self,
+        inp: &'a ShadeInputs<'a, f32>,
+        list: Vec<u32>,
+        flags: u32,
+    ) -> Result<Option<Prepared<'a>>, GpuError> {
+        if list.is_empty() {
+            return Ok(None);
+        }
         let mb = inp.mb;
         let (n, m, k) = (mb.len(), inp.mats.m, mb.k);
-        let list: Vec<u32> = (0..n).filter(|&j| inp.visible[j]).map(|j| j as u32).collect();
-        if list.is_empty() {
-            return Ok(());
-        }
         let d = &self.gpu.device;
         let frames: Vec<[f32; 4]> = (0..n)
             .flat_map(|j| {
@@ -150,10 +266,10 @@ impl GpuShader {
                 light_vis.extend((0..n).map(|j| l.visibility(j, b)));
             }
         }
-        // Per vertex: (normal, roughness), (albedo, diffuse weight), the weight at the view of
-        // the listed Gaussians (as svgir_pbr::shade's `diffuse_weights`).
+        // Per vertex: (normal, roughness), (albedo, diffuse weight), (its derivatives), the weight
+        // at the view of the listed Gaussians (as svgir_pbr::shade's `diffuse_weights`).
         let mats = &inp.mats;
-        let mut verts = vec![[0.0f32; 4]; n * m * 2];
+        let mut verts = vec![[0.0f32; 4]; n * m * 3];
         for &j in &list {
             let j = j as usize;
             let wo = (inp.camera_center - inp.positions[j]).normalize_or(glam::Vec3::Z).to_array();
@@ -162,9 +278,10 @@ impl GpuShader {
                 let nrm = [mats.normals[b], mats.normals[b + 1], mats.normals[b + 2]];
                 let r = mats.roughness[i];
                 let nv = nrm[0] * wo[0] + nrm[1] * wo[1] + nrm[2] * wo[2];
-                let t = inp.params.diffuse.weight(nv, r).value;
-                verts[2 * i] = [nrm[0], nrm[1], nrm[2], r];
-                verts[2 * i + 1] = [mats.albedo[b], mats.albedo[b + 1], mats.albedo[b + 2], t];
+                let w = inp.params.diffuse.weight(nv, r);
+                verts[3 * i] = [nrm[0], nrm[1], nrm[2], r];
+                verts[3 * i + 1] = [mats.albedo[b], mats.albedo[b + 1], mats.albedo[b + 2], w.value];
+                verts[3 * i + 2] = [w.v_mu, w.v_r, 0.0, 0.0];
             }
         }
         let (indirect_flag, rho, given) = match inp.indirect {
@@ -172,15 +289,14 @@ impl GpuShader {
             Indirect::Traced { rho } => (F_TRACED, rho, None),
             Indirect::Given(g) => (F_GIVEN, 0.0, Some(g)),
         };
-        let flags = if inp.params.visibility { F_VIS } else { 0 } | indirect_flag | if split { F_SPLIT } else { 0 };
         let c = inp.camera_center;
-        let base_uniform = Uniform {
+        let uniform = Uniform {
             camera: [c.x, c.y, c.z],
             // Uniforms hold no infinity: the largest f32 clamps nothing finite.
             env_max: inp.params.env_max.min(f32::MAX),
             k: k as u32,
             m: m as u32,
-            flags,
+            flags: flags | if inp.params.visibility { F_VIS } else { 0 } | indirect_flag,
             count: 0,
             env_w: inp.env_geom.width,
             env_h: inp.env_geom.height,
@@ -195,55 +311,157 @@ impl GpuShader {
             _pad: [0; 2],
         };
         let limit = self.gpu.report.max_storage_binding;
+        let per_light = lights.map_or(0, |l| l.len() as u64) * 12;
         for (what, bytes) in [
             ("the shading's frames", frames.len() as u64 * 16),
             ("the shading's tables", tables.len() as u64 * 16),
             ("the vertex materials", verts.len() as u64 * 16),
             ("the light visibility", light_vis.len() as u64 * 4),
+            ("the shading gradients", n as u64 * (7 * m as u64 + 1) * 4),
         ] {
             if bytes > limit {
                 return Err(GpuError::TooLarge { what, bytes, limit });
             }
         }
-        let per_gaussian = k as u64 * (SAMPLE_BYTES + if given.is_some() { 12 } else { 0 });
+        // Bound per Gaussian: its samples, its given light, the backward's light gradients.
+        let per_gaussian = k as u64 * (SAMPLE_BYTES + 12 + if given.is_some() { 12 } else { 0 }) + per_light;
         if per_gaussian > limit {
             return Err(GpuError::TooLarge { what: "one Gaussian's samples", bytes: per_gaussian, limit });
         }
         let batch = (self.batch_bytes.min(limit) / per_gaussian).max(1) as usize;
-        let frames = upload(d, "shade frames", &frames);
-        let tables = upload(d, "shade tables", &tables);
-        let verts = upload(d, "shade vertices", &verts);
-        let light_vis = upload(d, "shade light visibility", &light_vis);
+        Ok(Some(Prepared {
+            mb,
+            list,
+            given,
+            batch,
+            uniform,
+            frames: upload(d, "shade frames", &frames),
+            tables: upload(d, "shade tables", &tables),
+            verts: upload(d, "shade vertices", &verts),
+            light_vis: upload(d, "shade light visibility", &light_vis),
+        }))
+    }
+}
+
+/// One side's uploaded inputs and how its Gaussians are batched.
+struct Prepared<'a> {
+    mb: &'a svgir_trace::MicroBuffer,
+    list: Vec<u32>,
+    given: Option<&'a [[f32; 3]]>,
+    batch: usize,
+    uniform: Uniform,
+    frames: wgpu::Buffer,
+    tables: wgpu::Buffer,
+    verts: wgpu::Buffer,
+    light_vis: wgpu::Buffer,
+}
+
+/// Gaussians `g0 .. g1` bound, `list[from .. to]` of them listed.
+struct Batch {
+    g0: usize,
+    g1: usize,
+    from: usize,
+    to: usize,
+}
+
+impl Prepared<'_> {
+    /// The batches with at least one listed Gaussian.
+    fn batches(&self) -> Vec<Batch> {
+        let n = self.mb.len();
+        let mut out = Vec::new();
         let mut from = 0;
-        for g0 in (0..n).step_by(batch) {
-            let g1 = (g0 + batch).min(n);
-            let to = from + list[from..].partition_point(|&j| (j as usize) < g1);
+        for g0 in (0..n).step_by(self.batch) {
+            let g1 = (g0 + self.batch).min(n);
+            let to = from + self.list[from..].partition_point(|&j| (j as usize) < g1);
             if to > from {
-                let samples = upload(d, "shade samples", &pack(mb, g0..g1));
-                let given = match given {
-                    Some(g) => upload(d, "shade indirect", &g[g0 * k..g1 * k]),
-                    None => storage(d, "shade indirect (none)", 16),
-                };
-                let sub = upload(d, "shade list", &list[from..to]);
-                let u = Uniform { count: (to - from) as u32, base: g0 as u32, span: (g1 - g0) as u32, ..base_uniform };
-                let ub = crate::buffers::uniform(d, "shade params", &u);
-                let bg = crate::buffers::bind(
-                    d,
-                    &self.kernel,
-                    &[&ub, &frames, &tables, &samples, &verts, &given, &light_vis, &sub, out],
-                );
-                let mut enc = d.create_command_encoder(&Default::default());
-                let (x, y) = grid(((to - from) as u32).div_ceil(64));
-                let mut pass = enc.begin_compute_pass(&Default::default());
-                pass.set_pipeline(&self.kernel);
-                pass.set_bind_group(0, &bg, &[]);
-                pass.dispatch_workgroups(x, y, 1);
-                drop(pass);
-                self.gpu.queue.submit([enc.finish()]);
+                out.push(Batch { g0, g1, from, to });
             }
             from = to;
         }
-        self.gpu.check()
+        out
+    }
+
+    /// A batch's uniform, samples, given light and list.
+    fn batch_buffers(&self, d: &wgpu::Device, b: &Batch) -> (wgpu::Buffer, wgpu::Buffer, wgpu::Buffer, wgpu::Buffer) {
+        let k = self.mb.k;
+        let u =
+            Uniform { count: (b.to - b.from) as u32, base: b.g0 as u32, span: (b.g1 - b.g0) as u32, ..self.uniform };
+        (
+            crate::buffers::uniform(d, "shade params", &u),
+            upload(d, "shade samples", &pack(self.mb, b.g0..b.g1)),
+            match self.given {
+                Some(g) => upload(d, "shade indirect", &g[b.g0 * k..b.g1 * k]),
+                None => storage(d, "shade indirect (none)", 16),
+            },
+            upload(d, "shade list", &self.list[b.from..b.to]),
+        )
+    }
+}
+
+/// Adds the light gradients `light` of Gaussians `g0 ..` (K micro-buffer samples then the
+/// directional lights each, per channel `C V dL/dLin`) into the env texels: through the four
+/// bilinear taps of each direction (the cache's, else looked up as the CPU does), masked by the
+/// lights, and through each light's one texel with its weight. Blocks of Gaussians sum into
+/// partial maps added in block order, so the sum is the same for any thread count.
+fn add_light_grads(
+    inp: &ShadeInputs<f32>,
+    cache: Option<&svgir_trace::DirectionCache>,
+    g0: usize,
+    light: &[[f32; 3]],
+    v_env: &mut [[f32; 3]],
+) {
+    use rayon::prelude::*;
+    let mb = inp.mb;
+    let k = mb.k;
+    let lights = inp.lights.filter(|l| !l.is_empty());
+    let per = k + lights.map_or(0, |l| l.len());
+    let table = mb.table();
+    let texels = v_env.len();
+    let partials: Vec<Vec<[f32; 3]>> = light
+        .par_chunks(per * 256)
+        .enumerate()
+        .map(|(bi, block)| {
+            let mut part = vec![[0.0f32; 3]; texels];
+            for (li, samples) in block.chunks(per).enumerate() {
+                let j = g0 + bi * 256 + li;
+                let frame = HemiFrame::new(mb.normals[j], mb.xi[j]);
+                for (s, gv) in samples.iter().enumerate() {
+                    if *gv == [0.0; 3] {
+                        continue;
+                    }
+                    if s < k {
+                        let mut taps = match cache {
+                            Some(c) => c.taps(j * k + s),
+                            None => inp.env_geom.taps(frame.dir(&table, s)),
+                        };
+                        if let Some(l) = inp.lights {
+                            l.mask_taps(&mut taps);
+                        }
+                        for t in 0..4 {
+                            let texel = &mut part[taps.index[t] as usize];
+                            for c in 0..3 {
+                                texel[c] += taps.weight[t] * gv[c];
+                            }
+                        }
+                    } else if let Some(l) = lights {
+                        let b = s - k;
+                        let w = l.sample_scale(b, k);
+                        let texel = &mut part[l.texels[b] as usize];
+                        for c in 0..3 {
+                            texel[c] += w * gv[c];
+                        }
+                    }
+                }
+            }
+            part
+        })
+        .collect();
+    for part in partials {
+        for (o, x) in v_env.iter_mut().zip(&part) {
+            for c in 0..3 {
+                o[c] += x[c];
+            }
+        }
     }
 }
 
@@ -258,5 +476,15 @@ impl VertexShader for GpuShader {
 
     fn shade_sides(&self, front: &Side<f32>, back: Option<&Side<f32>>, out: &mut ShadeOutput) -> Result<(), PbrError> {
         self.shade(front, back, out)
+    }
+
+    fn shade_sides_backward(
+        &self,
+        front: &Side<f32>,
+        back: Option<&Side<f32>>,
+        v_color: &[f32],
+        grads: &mut PbrGrads,
+    ) -> Result<(), PbrError> {
+        self.backward(front, back, v_color, grads)
     }
 }

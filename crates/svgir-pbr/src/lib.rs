@@ -62,7 +62,7 @@ pub use grads::PbrGrads;
 pub use material::{activate, activate_backward, ActivatedMaterials, MaterialGrads, SvgMaterials};
 pub use shade::{shade, shade_into, shade_into_cached, Indirect, ShadeInputs, ShadeOutput, ShadeParams, ENV_MAX};
 pub use shade_backward::{shade_backward, shade_backward_cached};
-pub use shader::{check_sides, CpuShader, VertexShader};
+pub use shader::{check_sides, expect_sizes, CpuShader, VertexShader};
 pub use svgir_core::Float;
 pub use svgir_trace::DirectionCache;
 pub use two_sided::{

@@ -6,7 +6,7 @@
 
 use crate::shade::{ShadeOutput, SideRef};
 use crate::two_sided::Side;
-use crate::PbrError;
+use crate::{PbrError, PbrGrads};
 
 /// A backend that shades every visible Gaussian's vertices (SPEC 4, with SPEC 5's visibility
 /// and indirect light), one side or two.
@@ -18,6 +18,16 @@ pub trait VertexShader: Send + Sync {
     /// (the sides' sets disjoint), the others 0; `out.split` asks for the direct and indirect
     /// parts too.
     fn shade_sides(&self, front: &Side<f32>, back: Option<&Side<f32>>, out: &mut ShadeOutput) -> Result<(), PbrError>;
+
+    /// [`crate::shade_sides_backward_into`]: the gradients of `sum v_color . c` added into
+    /// `grads` (sized for the sides' N, M and map).
+    fn shade_sides_backward(
+        &self,
+        front: &Side<f32>,
+        back: Option<&Side<f32>>,
+        v_color: &[f32],
+        grads: &mut PbrGrads,
+    ) -> Result<(), PbrError>;
 }
 
 /// The CPU kernels.
@@ -32,6 +42,16 @@ impl VertexShader for CpuShader {
     fn shade_sides(&self, front: &Side<f32>, back: Option<&Side<f32>>, out: &mut ShadeOutput) -> Result<(), PbrError> {
         crate::shade_sides_into(front, back, out)
     }
+
+    fn shade_sides_backward(
+        &self,
+        front: &Side<f32>,
+        back: Option<&Side<f32>>,
+        v_color: &[f32],
+        grads: &mut PbrGrads,
+    ) -> Result<(), PbrError> {
+        crate::shade_sides_backward_into(front, back, v_color, grads)
+    }
 }
 
 /// Every check [`crate::shade_sides_into`] makes before it shades: each side's inputs and
@@ -40,4 +60,10 @@ impl VertexShader for CpuShader {
 pub fn check_sides(front: &Side<f32>, back: Option<&Side<f32>>) -> Result<(), PbrError> {
     let sides: Vec<SideRef<f32>> = crate::two_sided::sides(front, back)?;
     crate::shade::check_sides(&sides)
+}
+
+/// `Err(SizeMismatch)` for the first `(what, got, want)` whose sizes differ: the checks of an
+/// array's length, with the CPU kernels' messages, for a device backend.
+pub fn expect_sizes(sizes: &[(&'static str, usize, usize)]) -> Result<(), PbrError> {
+    sizes.iter().try_for_each(|&(what, got, want)| crate::expect_len(what, got, want))
 }

@@ -50,9 +50,9 @@ use std::sync::Arc;
 use std::time::Instant;
 use svgir_core::{Camera, Dataset, Image, Rng, Surfels};
 use svgir_pbr::{
-    negated, radiance_consistency_with_grad, shade_sides_backward_into, split_by_side, ColourProjector,
-    ConsistencyInputs, CpuShader, DirectionCache, EnvLight, Indirect, PbrError, PbrGrads, ShadeInputs, ShadeOutput,
-    ShadeParams, Side, SvgMaterials, VertexShader,
+    negated, radiance_consistency_with_grad, split_by_side, ColourProjector, ConsistencyInputs, CpuShader,
+    DirectionCache, EnvLight, Indirect, PbrError, PbrGrads, ShadeInputs, ShadeOutput, ShadeParams, Side, SvgMaterials,
+    VertexShader,
 };
 use svgir_raster::{
     backward, render, Background, ColorSource, Features, ForwardState, OutputGrads, Projected, RasterConfig,
@@ -139,8 +139,8 @@ pub struct Stage2 {
     pub kernels: Kernels,
 }
 
-/// Where stage 2's device kernels run: the micro-buffer tracer and the vertex shader of the
-/// renders (evaluation, relighting, and training's forward shading). The CPU's by default; the
+/// Where stage 2's device kernels run: the micro-buffer tracer and the vertex shader (training's
+/// shading forward and backward, and every render: evaluation, relighting). The CPU's by default; the
 /// front end swaps in a device's (svgir-gpu), so this crate never depends on a GPU crate.
 #[derive(Clone)]
 pub struct Kernels {

@@ -231,7 +231,14 @@ impl Stage2 {
         // The shading's gradients are added into L_rc's (the same quantities), or into zeros.
         let mut pg = cons_grads.unwrap_or_else(|| PbrGrads::zeros(self.surfels.len(), m, env_rad.data.len()));
         let (shading, v_sh) = rayon::join(
-            || shade_sides_backward_into(&front_grad, back_grad.as_ref(), &g_pbr.v_color_features, &mut pg),
+            || {
+                self.kernels.shader.shade_sides_backward(
+                    &front_grad,
+                    back_grad.as_ref(),
+                    &g_pbr.v_color_features,
+                    &mut pg,
+                )
+            },
             || svgir_raster::sh_colors_backward(&sh_input, &sh_proj, &sh_colour_grads(&g_pbr.v_extra, m)),
         );
         let v_sh = v_sh.map_err(|e| PbrError::InvalidParameter(e.to_string()))?;
