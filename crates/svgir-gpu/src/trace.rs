@@ -60,6 +60,7 @@ const F_CULL: u32 = 1;
 const F_LINEAR: u32 = 2;
 const F_RADIANCE: u32 = 4;
 const F_RECORD: u32 = 8;
+const F_FIXED: u32 = 16;
 
 /// One recorded hit of [`GpuTracer::record`]: what the march consumed, in order.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -135,7 +136,7 @@ impl GpuTracer {
         p: &TraceParams,
         with_radiance: bool,
     ) -> Result<MicroBuffer, GpuError> {
-        let scene = self.scene(bvh, surfels, &normals, seed, k, p, with_radiance)?;
+        let scene = self.scene(bvh, surfels, &normals, seed, k, p, with_radiance, None)?;
         let words = self.run(&scene, None)?.0;
         let n = words.len();
         let mut mb = MicroBuffer {
@@ -166,7 +167,7 @@ impl GpuTracer {
         record_max: u32,
     ) -> Result<Vec<RecordedRay>, GpuError> {
         let normals: Vec<Vec3> = (0..surfels.len()).map(|j| surfels.normal(j)).collect();
-        let scene = self.scene(bvh, surfels, &normals, seed, k, p, with_radiance)?;
+        let scene = self.scene(bvh, surfels, &normals, seed, k, p, with_radiance, None)?;
         let rec = self.run(&scene, Some(record_max))?.1;
         let per = 1 + 2 * record_max as usize;
         Ok(rec
@@ -184,6 +185,25 @@ impl GpuTracer {
             .collect())
     }
 
+    /// `svgir_trace::MicroTracer::visibility_columns` on the GPU: one ray per (Gaussian,
+    /// direction), all directions in one trace.
+    pub fn columns(
+        &self,
+        bvh: &Bvh,
+        surfels: &Surfels,
+        normals: &[Vec3],
+        dirs: &[Vec3],
+        p: &TraceParams,
+    ) -> Result<Vec<Vec<u16>>, GpuError> {
+        if dirs.is_empty() {
+            return Ok(Vec::new());
+        }
+        let b = dirs.len();
+        let scene = self.scene(bvh, surfels, normals, 0, b, p, false, Some(dirs))?;
+        let words = self.run(&scene, None)?.0;
+        Ok((0..b).map(|l| words.iter().skip(l).step_by(b).map(|w| (w[0] & 0xffff) as u16).collect()).collect())
+    }
+
     #[allow(clippy::too_many_arguments)]
     fn scene(
         &self,
@@ -194,6 +214,7 @@ impl GpuTracer {
         k: usize,
         p: &TraceParams,
         with_radiance: bool,
+        fixed: Option<&[Vec3]>,
     ) -> Result<Scene, GpuError> {
         MicroBuffer::check_inputs(surfels, normals, k).map_err(|e| GpuError::Runtime(e.to_string()))?;
         if bvh.max_scales.len() != surfels.len() {
@@ -225,10 +246,16 @@ impl GpuTracer {
                 [[o.x, o.y, o.z, t_start], [b1.x, b1.y, b1.z, cx], [b2.x, b2.y, b2.z, sx], [n.x, n.y, n.z, 0.0]]
             })
             .collect();
-        let table = FibTable::new(k);
-        let [c, s, r, z] = table.rows();
-        let fib: Vec<[f32; 4]> = (0..k).map(|i| [c[i], s[i], r[i], z[i]]).collect();
+        let fib: Vec<[f32; 4]> = match fixed {
+            Some(dirs) => dirs.iter().map(|d| [d.x, d.y, d.z, 0.0]).collect(),
+            None => {
+                let table = FibTable::new(k);
+                let [c, s, r, z] = table.rows();
+                (0..k).map(|i| [c[i], s[i], r[i], z[i]]).collect()
+            }
+        };
         let flags = if p.cull_backfaces { F_CULL } else { 0 }
+            | if fixed.is_some() { F_FIXED } else { 0 }
             | if p.linear_radiance { F_LINEAR } else { 0 }
             | if with_radiance { F_RADIANCE } else { 0 };
         let uniform = Uniform {
@@ -370,5 +397,16 @@ impl MicroTracer for GpuTracer {
     ) -> Result<MicroBuffer, TraceError> {
         self.micro_buffer(bvh, surfels, normals, k, seed, p, with_radiance)
             .map_err(|e| TraceError::Device(e.to_string()))
+    }
+
+    fn visibility_columns(
+        &self,
+        bvh: &Bvh,
+        surfels: &Surfels,
+        normals: &[Vec3],
+        dirs: &[Vec3],
+        p: &TraceParams,
+    ) -> Result<Vec<Vec<u16>>, TraceError> {
+        self.columns(bvh, surfels, normals, dirs, p).map_err(|e| TraceError::Device(e.to_string()))
     }
 }

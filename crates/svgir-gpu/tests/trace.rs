@@ -180,3 +180,42 @@ fn gpu_trace_refuses_what_the_cpu_refuses() {
     let mb = tracer.micro_buffer(&Bvh::build(&e), &e, vec![], 8, 1, &p, true).unwrap();
     assert!(mb.is_empty() && mb.vis.is_empty());
 }
+
+/// The directional lights' visibility columns (`MicroTracer::visibility_columns`, behind
+/// `BrightLights::trace` and `for_normals`) against the CPU's: the same rays, so the same
+/// values but where a crossing's rounding moves a hit over a rule's boundary, and the same
+/// zeros below every Gaussian's hemisphere (bit-equal on lavapipe).
+#[test]
+fn gpu_light_columns_match_the_cpu_ones() {
+    let Some(gpu) = common::gpu() else { return };
+    let tracer = GpuTracer::new(gpu);
+    let mut rng = svgir_core::Rng::new(3);
+    let dirs: Vec<Vec3> = (0..12).map(|_| Vec3::new(rng.normal(), rng.normal(), rng.normal()).normalize()).collect();
+    let p = TraceParams::default();
+    for (name, s) in [("random", random_scene(1500, 21)), ("object", object_scene(2500, 22))] {
+        let bvh = Bvh::build(&s);
+        let axes: Vec<Vec3> = (0..s.len()).map(|j| s.normal(j)).collect();
+        let cpu = svgir_trace::ColumnTracer::columns(&bvh, &s, &axes, &dirs, &p).unwrap();
+        let gpu = tracer.columns(&bvh, &s, &axes, &dirs, &p).unwrap();
+        assert_eq!(gpu.len(), dirs.len());
+        let (mut n, mut far, mut shadowed) = (0, 0, 0);
+        for (b, (c, g)) in cpu.iter().zip(&gpu).enumerate() {
+            for (j, (&x, &y)) in c.iter().zip(g).enumerate() {
+                n += 1;
+                if axes[j].dot(dirs[b]) <= 0.0 {
+                    assert_eq!((x, y), (0, 0), "{name}: light {b} below Gaussian {j}");
+                }
+                shadowed += usize::from(x < 65535 && axes[j].dot(dirs[b]) > 0.0);
+                far +=
+                    usize::from(from_unorm16(x) - from_unorm16(y) > 1e-3 || from_unorm16(y) - from_unorm16(x) > 1e-3);
+            }
+        }
+        eprintln!("{name}: {far} of {n} visibilities differ ({shadowed} shadowed)");
+        assert!(far <= n / 2000, "{name}: {far} of {n} visibilities differ");
+        assert!(shadowed > n / 20, "{name}: weak test, {shadowed} of {n} shadowed");
+    }
+    assert!(tracer
+        .columns(&Bvh::build(&random_scene(10, 1)), &random_scene(10, 1), &[Vec3::Z; 10], &[], &p)
+        .unwrap()
+        .is_empty());
+}

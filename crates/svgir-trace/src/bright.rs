@@ -17,10 +17,13 @@
 //! Visibility of light b from Gaussian j is the transmittance march of SPEC 5 (V = T_final, 0
 //! below 0.2) from j's centre towards the texel, and 0 when the texel lies below j's geometric
 //! horizon (the hemisphere of the micro-buffer normal). Stored light-major as u16 unorm, N per
-//! light, so a re-selection keeps the columns of texels already traced. Work split: rayon over
-//! Gaussians per light column; deterministic for any thread count.
+//! light, so a re-selection keeps the columns of texels already traced. The columns come from a
+//! [`ColumnTracer`]: on the CPU, rayon over Gaussians per light column (deterministic for any
+//! thread count); or a [`MicroTracer`]'s own (`Via`, e.g. the GPU's), every column in one call.
 
+use crate::bvh::Bvh;
 use crate::pack::{from_unorm16, unorm16};
+use crate::tracer::MicroTracer;
 use crate::traverse::{march_visibility, HitSource, Ray, TraceParams};
 use crate::TraceError;
 use glam::Vec3;
@@ -152,6 +155,47 @@ fn trace_column<S: HitSource + Sync>(
         .collect()
 }
 
+/// What traces the lights' visibility columns: every [`HitSource`] (the rayon march above), or
+/// a [`MicroTracer`] with its BVH ([`Via`], e.g. a GPU's).
+pub trait ColumnTracer {
+    /// For each of `dirs`, the visibility (u16 unorm) from every Gaussian of `surfels`: the
+    /// visibility march from its centre, 0 where `dir` is below its hemisphere about `normals`.
+    fn columns(
+        &self,
+        surfels: &Surfels,
+        normals: &[Vec3],
+        dirs: &[Vec3],
+        p: &TraceParams,
+    ) -> Result<Vec<Vec<u16>>, TraceError>;
+}
+
+impl<S: HitSource + Sync> ColumnTracer for S {
+    fn columns(
+        &self,
+        surfels: &Surfels,
+        normals: &[Vec3],
+        dirs: &[Vec3],
+        p: &TraceParams,
+    ) -> Result<Vec<Vec<u16>>, TraceError> {
+        Ok(dirs.iter().map(|&d| trace_column(self, surfels, normals, d, p)).collect())
+    }
+}
+
+/// A [`MicroTracer`] and the BVH it traces through, as a [`ColumnTracer`].
+pub struct Via<'a>(pub &'a dyn MicroTracer, pub &'a Bvh);
+
+impl ColumnTracer for Via<'_> {
+    fn columns(
+        &self,
+        surfels: &Surfels,
+        normals: &[Vec3],
+        dirs: &[Vec3],
+        p: &TraceParams,
+    ) -> Result<Vec<Vec<u16>>, TraceError> {
+        self.0.visibility_columns(self.1, surfels, normals, dirs, p)
+    }
+}
+
 impl BrightLights {
     /// No lights: every texel is sampled as in SPEC 4.
     pub fn empty(width: u32, height: u32) -> Self {
@@ -169,7 +213,7 @@ impl BrightLights {
     /// Lights at `texels` of a `geom`-sized map, seen from every Gaussian of `surfels` (hemisphere
     /// axes `normals`, normally the micro-buffer's). Texels that `reuse` already holds (same map
     /// size and surfels) keep its direction and visibility instead of being traced again.
-    pub fn trace<S: HitSource + Sync>(
+    pub fn trace<S: ColumnTracer + ?Sized>(
         src: &S,
         surfels: &Surfels,
         normals: &[Vec3],
@@ -182,27 +226,33 @@ impl BrightLights {
         if normals.len() != n {
             return Err(TraceError::SizeMismatch { what: "normals", got: normals.len(), want: n });
         }
-        let columns = texels
+        // Each texel's reused column, or its direction to trace (all traced in one call).
+        let mut columns: Vec<(Vec3, Option<Vec<u16>>)> = texels
             .iter()
             .map(|&t| {
                 let reused = reuse.and_then(|r| Some((r, r.reusable(geom.width, geom.height, t, None, n)?)));
                 if let Some((r, b)) = reused {
-                    return (r.dirs[b], r.vis[b].clone());
+                    return (r.dirs[b], Some(r.vis[b].clone()));
                 }
                 if t >= geom.width * geom.height {
-                    return (Vec3::Z, Vec::new()); // rejected by `assemble`
+                    return (Vec3::Z, Some(Vec::new())); // rejected by `assemble`
                 }
-                let dir = geom.texel_dir(t / geom.width, t % geom.width).normalize();
-                (dir, trace_column(src, surfels, normals, dir, p))
+                (geom.texel_dir(t / geom.width, t % geom.width).normalize(), None)
             })
             .collect();
+        let dirs: Vec<Vec3> = columns.iter().filter(|(_, c)| c.is_none()).map(|(d, _)| *d).collect();
+        let mut traced = src.columns(surfels, normals, &dirs, p)?.into_iter();
+        for (_, c) in columns.iter_mut().filter(|(_, c)| c.is_none()) {
+            *c = traced.next();
+        }
+        let columns = columns.into_iter().map(|(d, c)| (d, c.unwrap_or_default())).collect();
         Self::assemble(geom, texels, columns)
     }
 
     /// These lights with light b moved to the unit direction `dir` (its visibility traced again;
     /// its radiance and solid angle stay its texel's): a sun need not sit at a texel centre.
     #[allow(clippy::too_many_arguments)]
-    pub fn with_direction<S: HitSource + Sync>(
+    pub fn with_direction<S: ColumnTracer + ?Sized>(
         &self,
         src: &S,
         surfels: &Surfels,
@@ -219,7 +269,7 @@ impl BrightLights {
         }
         let mut out = self.clone();
         out.dirs[b] = unit_direction(dir);
-        out.vis[b] = trace_column(src, surfels, normals, out.dirs[b], p);
+        out.vis[b] = src.columns(surfels, normals, &[out.dirs[b]], p)?.remove(0);
         Ok(out)
     }
 
@@ -227,7 +277,7 @@ impl BrightLights {
     /// e.g. every Gaussian's back side `-n` (two-sided shading). `reuse` holds earlier lights
     /// for the same axes, surfels and map size (e.g. the back sides' before a re-selection): a
     /// light of the same texel and direction keeps its column, the others are traced.
-    pub fn for_normals<S: HitSource + Sync>(
+    pub fn for_normals<S: ColumnTracer + ?Sized>(
         &self,
         src: &S,
         surfels: &Surfels,
@@ -240,16 +290,20 @@ impl BrightLights {
             return Err(TraceError::SizeMismatch { what: "normals", got: normals.len(), want: n });
         }
         let mut out = self.clone();
-        out.vis = self
+        let mut columns: Vec<Option<Vec<u16>>> = self
             .texels
             .iter()
             .zip(&self.dirs)
             .map(|(&t, &d)| {
-                reuse
-                    .and_then(|r| Some(r.vis[r.reusable(self.width, self.height, t, Some(d), n)?].clone()))
-                    .unwrap_or_else(|| trace_column(src, surfels, normals, d, p))
+                reuse.and_then(|r| Some(r.vis[r.reusable(self.width, self.height, t, Some(d), n)?].clone()))
             })
             .collect();
+        let dirs: Vec<Vec3> = columns.iter().zip(&self.dirs).filter(|(c, _)| c.is_none()).map(|(_, d)| *d).collect();
+        let mut traced = src.columns(surfels, normals, &dirs, p)?.into_iter();
+        for c in columns.iter_mut().filter(|c| c.is_none()) {
+            *c = traced.next();
+        }
+        out.vis = columns.into_iter().map(Option::unwrap_or_default).collect();
         Ok(out)
     }
 

@@ -37,7 +37,7 @@ pub mod tracer;
 pub mod traverse;
 
 pub use bounce::add_bounces;
-pub use bright::{brightest_texels, concentrate_lobe, BrightLights};
+pub use bright::{brightest_texels, concentrate_lobe, BrightLights, ColumnTracer, Via};
 pub use bvh::{Bvh, Node};
 pub use direction_cache::DirectionCache;
 pub use gather::{

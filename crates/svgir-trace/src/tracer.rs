@@ -29,6 +29,18 @@ pub trait MicroTracer: Send + Sync {
         p: &TraceParams,
         with_radiance: bool,
     ) -> Result<MicroBuffer, TraceError>;
+
+    /// For each of `dirs`, the visibility (u16 unorm) from every Gaussian of `surfels` through
+    /// `bvh`: the visibility march from its centre, 0 where the direction is below its
+    /// hemisphere about `normals` (the directional lights' columns, `crate::BrightLights`).
+    fn visibility_columns(
+        &self,
+        bvh: &Bvh,
+        surfels: &Surfels,
+        normals: &[Vec3],
+        dirs: &[Vec3],
+        p: &TraceParams,
+    ) -> Result<Vec<Vec<u16>>, TraceError>;
 }
 
 /// The CPU march ([`MicroBuffer::trace_about`] on the BVH).
@@ -55,5 +67,16 @@ impl MicroTracer for CpuTracer {
         } else {
             MicroBuffer::trace_occlusion_about(bvh, surfels, normals, k, seed, p)
         }
+    }
+
+    fn visibility_columns(
+        &self,
+        bvh: &Bvh,
+        surfels: &Surfels,
+        normals: &[Vec3],
+        dirs: &[Vec3],
+        p: &TraceParams,
+    ) -> Result<Vec<Vec<u16>>, TraceError> {
+        crate::bright::ColumnTracer::columns(bvh, surfels, normals, dirs, p)
     }
 }

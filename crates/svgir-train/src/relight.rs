@@ -22,7 +22,7 @@
 use crate::stage2::{BackShading, PbrRender, Shading, Stage2};
 use svgir_core::{Camera, EnvMap};
 use svgir_pbr::{DirectionCache, Indirect, PbrError, ShadeParams};
-use svgir_trace::{brightest_texels, BrightLights, Bvh, GatherParams, HitSide, MicroBuffer, VertexMaterials};
+use svgir_trace::{brightest_texels, BrightLights, Bvh, GatherParams, HitSide, MicroBuffer, VertexMaterials, Via};
 
 /// SPEC 7: directions per Gaussian at relighting evaluation.
 pub const RELIGHT_DIRECTIONS: usize = 384;
@@ -117,13 +117,15 @@ impl Relighter {
             (Some(bvh), count) if count > 0 => {
                 let texels = brightest_texels(&env, count);
                 let p = s2.config.trace_params();
-                Some(BrightLights::trace(bvh, &s2.surfels, &self.mb.normals, &env, &texels, &p, None)?)
+                let via = Via(s2.kernels.tracer.as_ref(), bvh);
+                Some(BrightLights::trace(&via, &s2.surfels, &self.mb.normals, &env, &texels, &p, None)?)
             }
             _ => None,
         };
         let back_lights = match (&self.back, &self.bvh, &lights) {
             (Some((back, _)), Some(bvh), Some(l)) => {
-                Some(l.for_normals(bvh, &s2.surfels, &back.normals, &s2.config.trace_params(), None)?)
+                let via = Via(s2.kernels.tracer.as_ref(), bvh);
+                Some(l.for_normals(&via, &s2.surfels, &back.normals, &s2.config.trace_params(), None)?)
             }
             _ => None,
         };

@@ -39,6 +39,7 @@ const F_CULL: u32 = 1u;     // TraceParams::cull_backfaces
 const F_LINEAR: u32 = 2u;   // TraceParams::linear_radiance
 const F_RADIANCE: u32 = 4u; // march (with L) rather than march_visibility
 const F_RECORD: u32 = 8u;   // write the consumed hits to `record`
+const F_FIXED: u32 = 16u;   // `fib` holds one direction per k, the same for every Gaussian
 
 const KBUF: u32 = 16u;       // svgir_trace::traverse::KBUF
 const FIRST_PASS: u32 = 4u;  // svgir_trace::traverse::FIRST_PASS
@@ -60,7 +61,8 @@ const ALPHA_MAX: f32 = 0.99;
 // Per Gaussian: (origin, t_start), (b1, cos xi), (b2, sin xi), (axis, 0): the ray source and its
 // hemisphere frame (svgir_shading::HemiFrame), prepared on the CPU.
 @group(0) @binding(4) var<storage, read> sources: array<vec4<f32>>;
-// Per direction k: (cos g_k, sin g_k, r_k, z_k) (svgir_shading::FibTable).
+// Per direction k: (cos g_k, sin g_k, r_k, z_k) (svgir_shading::FibTable); with F_FIXED the
+// directions themselves, (d_k, 0).
 @group(0) @binding(5) var<storage, read> fib: array<vec4<f32>>;
 // Per ray of the dispatch: (V unorm16 | L.r f16 << 16, L.g | L.b << 16, first hit, u~ | v~ << 16).
 @group(0) @binding(6) var<storage, read_write> samples: array<vec4<u32>>;
@@ -336,9 +338,20 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
     let s2 = sources[4u * j + 2u];
     let s3 = sources[4u * j + 3u];
     let f = fib[kk];
-    let cphi = f.x * s1.w - f.y * s2.w;
-    let sphi = f.y * s1.w + f.x * s2.w;
-    let d = s1.xyz * (f.z * cphi) + s2.xyz * (f.z * sphi) + s3.xyz * f.w;
+    var d: vec3<f32>;
+    if (P.flags & F_FIXED) != 0u {
+        // A light's column (svgir_trace::bright::trace_column): the same direction for every
+        // Gaussian, 0 below its hemisphere.
+        d = f.xyz;
+        if dot(s3.xyz, d) <= 0.0 {
+            samples[local] = vec4<u32>(0u, 0u, NO_HIT, 0u);
+            return;
+        }
+    } else {
+        let cphi = f.x * s1.w - f.y * s2.w;
+        let sphi = f.y * s1.w + f.x * s2.w;
+        d = s1.xyz * (f.z * cphi) + s2.xyz * (f.z * sphi) + s3.xyz * f.w;
+    }
     let ray = Ray(s0.xyz, d, s0.w, j);
     let recording = (P.flags & F_RECORD) != 0u;
     let rbase = local * (1u + 2u * P.record_max);

@@ -59,7 +59,7 @@ use svgir_raster::{
     RenderInput, RenderOutput,
 };
 use svgir_trace::{
-    brightest_texels, concentrate_lobe, BrightLights, Bvh, CpuTracer, GatherParams, MicroBuffer, MicroTracer,
+    brightest_texels, concentrate_lobe, BrightLights, Bvh, CpuTracer, GatherParams, MicroBuffer, MicroTracer, Via,
 };
 
 /// What one stage-2 iteration reports (a line of `metrics.jsonl`).
@@ -375,7 +375,8 @@ impl Stage2 {
         let dir_cache = DirectionCache::new(&mb, &self.env.radiance())?;
         let subsets = direction_subsets(&self.config, &mb, &dir_cache)?;
         let grad_subsets = gradient_subsets(&self.config, &mb, &dir_cache)?;
-        let lights = self.lights.for_normals(bvh, occluders, &mb.normals, &self.config.trace_params(), None)?;
+        let via = Via(self.kernels.tracer.as_ref(), bvh);
+        let lights = self.lights.for_normals(&via, occluders, &mb.normals, &self.config.trace_params(), None)?;
         self.back = Some(BackSide { mb, dir_cache, subsets, grad_subsets, lights });
         Ok(())
     }
@@ -487,7 +488,8 @@ impl Stage2 {
         }
         let t0 = Instant::now();
         let occluders = self.occluders();
-        let bvh = self.bvh.get_or_insert_with(|| Bvh::build(&occluders));
+        let tracer = self.kernels.tracer.clone();
+        let bvh = &Via(tracer.as_ref(), self.bvh.get_or_insert_with(|| Bvh::build(&occluders)));
         let geom = svgir_core::EnvMap::constant(self.env.width, self.env.height, [0.0; 3]);
         let p = self.config.trace_params();
         self.lights = BrightLights::trace(bvh, &occluders, &self.mb.normals, &geom, texels, &p, Some(&self.lights))?;

@@ -109,7 +109,9 @@ impl Stage2 {
     /// Move light `b` to the unit direction `dir`, tracing its shadows again.
     pub fn move_light(&mut self, b: usize, dir: Vec3) -> Result<(), PbrError> {
         let occluders = self.occluders();
-        let bvh = self.bvh.get_or_insert_with(|| svgir_trace::Bvh::build(&occluders));
+        let tracer = self.kernels.tracer.clone();
+        let bvh =
+            &svgir_trace::Via(tracer.as_ref(), self.bvh.get_or_insert_with(|| svgir_trace::Bvh::build(&occluders)));
         let p = self.config.trace_params();
         self.lights = self.lights.with_direction(bvh, &occluders, &self.mb.normals, b, dir, &p)?;
         if let Some(back) = &mut self.back {
