@@ -106,15 +106,16 @@ pub fn trace_table(gpu: Gpu, gaussians: &[usize], reps: usize) -> Result<String,
 
 /// `svgir bench pbr --device gpu`: the vertex shading of svgir-pbr's synthetic problem (M = 4,
 /// every Gaussian visible) at stage 2's K = 64 with traced indirect light and at relighting's
-/// K = 384 with given indirect light, on the GPU (wall clock from host inputs to host colours:
-/// upload, shade, read-back) beside the CPU kernels on `threads` threads, in the same run.
+/// K = 384 with given indirect light, forward and backward, on the GPU (wall clock from host
+/// inputs to host outputs: upload, shade, read-back, and the backward's env scatter on the
+/// host) beside the CPU kernels on `threads` threads, in the same run.
 pub fn shade_table(gpu: Gpu, gaussians: &[usize], reps: usize, threads: usize) -> Result<String, GpuError> {
     use svgir_pbr::fixtures::Problem;
     use svgir_pbr::{CpuShader, Indirect, ShadeOutput, Side, VertexShader};
     let name = gpu.report.to_string();
     let shader = crate::shade::GpuShader::new(gpu);
     let mut s = format!(
-        "svgir-gpu shade bench on {name} (CPU: {threads} threads)\n| Gaussians | K | indirect | GPU ms | CPU ms |\n|---|---|---|---|---|\n"
+        "svgir-gpu shade bench on {name} (CPU: {threads} threads)\n| Gaussians | K | indirect | GPU forward ms | CPU forward ms | GPU backward ms | CPU backward ms |\n|---|---|---|---|---|---|---|\n"
     );
     let err = |e: svgir_pbr::PbrError| GpuError::Runtime(e.to_string());
     for &n in gaussians {
@@ -126,19 +127,28 @@ pub fn shade_table(gpu: Gpu, gaussians: &[usize], reps: usize, threads: usize) -
                 inputs.indirect = Indirect::Given(&light);
             }
             let side = Side { inputs, cache: None };
-            let time = |backend: &dyn VertexShader| -> Result<f64, GpuError> {
+            let mut grads = svgir_pbr::PbrGrads::zeros(n, 4, problem.env.data.len());
+            let mut time = |backend: &dyn VertexShader, backward: bool| -> Result<f64, GpuError> {
                 let mut out = ShadeOutput::colour_only();
-                backend.shade_sides(&side, None, &mut out).map_err(err)?;
+                let mut once = |out: &mut ShadeOutput| {
+                    if backward {
+                        backend.shade_sides_backward(&side, None, &problem.v_color, &mut grads)
+                    } else {
+                        backend.shade_sides(&side, None, out)
+                    }
+                };
+                once(&mut out).map_err(err)?;
                 let t0 = Instant::now();
                 for _ in 0..reps.max(1) {
-                    backend.shade_sides(&side, None, &mut out).map_err(err)?;
+                    once(&mut out).map_err(err)?;
                     std::hint::black_box(&out.color);
                 }
                 Ok(t0.elapsed().as_secs_f64() * 1e3 / reps.max(1) as f64)
             };
-            let (g, c) = (time(&shader)?, time(&CpuShader)?);
+            let (gf, cf) = (time(&shader, false)?, time(&CpuShader, false)?);
+            let (gb, cb) = (time(&shader, true)?, time(&CpuShader, true)?);
             let ind = if given { "given" } else { "traced" };
-            s += &format!("| {n} | {k} | {ind} | {g:.1} | {c:.1} |\n");
+            s += &format!("| {n} | {k} | {ind} | {gf:.1} | {cf:.1} | {gb:.1} | {cb:.1} |\n");
         }
     }
     Ok(s)
