@@ -83,10 +83,11 @@ pub fn trace_table(gpu: Gpu, gaussians: &[usize], reps: usize) -> Result<String,
         let bvh = Bvh::build(&surfels);
         let build = t0.elapsed().as_secs_f64();
         let time = |k: usize, radiance: bool| -> Result<f64, GpuError> {
-            tracer.micro_buffer(&bvh, &surfels, axes.clone(), k, 3, &p, radiance)?;
+            let req = || svgir_trace::TraceRequest { axes: axes.clone(), k, seed: 3, params: &p, radiance };
+            tracer.micro_buffer(&bvh, &surfels, req())?;
             let t0 = Instant::now();
             for _ in 0..reps.max(1) {
-                std::hint::black_box(tracer.micro_buffer(&bvh, &surfels, axes.clone(), k, 3, &p, radiance)?);
+                std::hint::black_box(tracer.micro_buffer(&bvh, &surfels, req())?);
             }
             Ok(t0.elapsed().as_secs_f64() / reps.max(1) as f64)
         };

@@ -25,7 +25,7 @@ use glam::Vec3;
 use svgir_core::Surfels;
 use svgir_shading::gaussian_xi;
 use svgir_shading::hemisphere::{FibTable, HemiFrame};
-use svgir_trace::{Bvh, Interleave, MicroBuffer, MicroTracer, TraceError, TraceParams};
+use svgir_trace::{Bvh, Interleave, MicroBuffer, MicroTracer, TraceError, TraceParams, TraceRequest};
 
 /// Rays per dispatch.
 pub const CHUNK: u32 = 1 << 20;
@@ -123,20 +123,11 @@ impl GpuTracer {
         &self.gpu
     }
 
-    /// `svgir_trace::MicroTracer::trace` on the GPU: K directions about `normals` for every
-    /// Gaussian of `surfels` through `bvh` (built over them), with the traced radiance or not.
-    #[allow(clippy::too_many_arguments)]
-    pub fn micro_buffer(
-        &self,
-        bvh: &Bvh,
-        surfels: &Surfels,
-        normals: Vec<Vec3>,
-        k: usize,
-        seed: u64,
-        p: &TraceParams,
-        with_radiance: bool,
-    ) -> Result<MicroBuffer, GpuError> {
-        let scene = self.scene(bvh, surfels, &normals, seed, k, p, with_radiance, None)?;
+    /// `svgir_trace::MicroTracer::trace` on the GPU: the micro-buffers `req` asks for, of every
+    /// Gaussian of `surfels` through `bvh` (built over them).
+    pub fn micro_buffer(&self, bvh: &Bvh, surfels: &Surfels, req: TraceRequest) -> Result<MicroBuffer, GpuError> {
+        let scene = self.scene(bvh, surfels, &req, None)?;
+        let (k, normals) = (req.k, req.axes);
         let words = self.run(&scene, None)?.0;
         let n = words.len();
         let mut mb = MicroBuffer {
@@ -153,21 +144,16 @@ impl GpuTracer {
         Ok(mb)
     }
 
-    /// The micro-buffer march of every ray (j * K + k order) with its direction and its first
-    /// `record_max` consumed hits (for the tests against the CPU traversal).
-    #[allow(clippy::too_many_arguments)]
+    /// The micro-buffer march of every ray of `req` (j * K + k order) with its direction and
+    /// its first `record_max` consumed hits (for the tests against the CPU traversal).
     pub fn record(
         &self,
         bvh: &Bvh,
         surfels: &Surfels,
-        k: usize,
-        seed: u64,
-        p: &TraceParams,
-        with_radiance: bool,
+        req: TraceRequest,
         record_max: u32,
     ) -> Result<Vec<RecordedRay>, GpuError> {
-        let normals: Vec<Vec3> = (0..surfels.len()).map(|j| surfels.normal(j)).collect();
-        let scene = self.scene(bvh, surfels, &normals, seed, k, p, with_radiance, None)?;
+        let scene = self.scene(bvh, surfels, &req, None)?;
         let rec = self.run(&scene, Some(record_max))?.1;
         let per = 1 + 2 * record_max as usize;
         Ok(rec
@@ -199,23 +185,23 @@ impl GpuTracer {
             return Ok(Vec::new());
         }
         let b = dirs.len();
-        let scene = self.scene(bvh, surfels, normals, 0, b, p, false, Some(dirs))?;
+        let req = TraceRequest { axes: normals.to_vec(), k: b, seed: 0, params: p, radiance: false };
+        let scene = self.scene(bvh, surfels, &req, Some(dirs))?;
         let words = self.run(&scene, None)?.0;
         Ok((0..b).map(|l| words.iter().skip(l).step_by(b).map(|w| (w[0] & 0xffff) as u16).collect()).collect())
     }
 
-    #[allow(clippy::too_many_arguments)]
+    /// `req`'s scene on the GPU; with `fixed`, the directions themselves (one per k, the same
+    /// for every Gaussian) instead of the Fibonacci table.
     fn scene(
         &self,
         bvh: &Bvh,
         surfels: &Surfels,
-        normals: &[Vec3],
-        seed: u64,
-        k: usize,
-        p: &TraceParams,
-        with_radiance: bool,
+        req: &TraceRequest,
         fixed: Option<&[Vec3]>,
     ) -> Result<Scene, GpuError> {
+        let TraceRequest { axes: normals, k, seed, params: p, radiance: with_radiance } = req;
+        let (k, seed, with_radiance) = (*k, *seed, *with_radiance);
         MicroBuffer::check_inputs(surfels, normals, k).map_err(|e| GpuError::Runtime(e.to_string()))?;
         if bvh.max_scales.len() != surfels.len() {
             return Err(GpuError::Runtime(format!(
@@ -385,18 +371,8 @@ impl MicroTracer for GpuTracer {
         self.gpu.report.name.clone()
     }
 
-    fn trace(
-        &self,
-        bvh: &Bvh,
-        surfels: &Surfels,
-        normals: Vec<Vec3>,
-        k: usize,
-        seed: u64,
-        p: &TraceParams,
-        with_radiance: bool,
-    ) -> Result<MicroBuffer, TraceError> {
-        self.micro_buffer(bvh, surfels, normals, k, seed, p, with_radiance)
-            .map_err(|e| TraceError::Device(e.to_string()))
+    fn trace(&self, bvh: &Bvh, surfels: &Surfels, req: TraceRequest) -> Result<MicroBuffer, TraceError> {
+        self.micro_buffer(bvh, surfels, req).map_err(|e| TraceError::Device(e.to_string()))
     }
 
     fn visibility_columns(

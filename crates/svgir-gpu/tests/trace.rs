@@ -9,10 +9,15 @@ use svgir_core::Surfels;
 use svgir_gpu::trace::{GpuTracer, RecordedRay};
 use svgir_trace::pack::{f16_to_f32, from_unorm16};
 use svgir_trace::scenes::{object_scene, random_scene};
-use svgir_trace::{Bvh, HitSource, MicroBuffer, Ray, TraceParams, NO_HIT};
+use svgir_trace::{Bvh, HitSource, MicroBuffer, Ray, TraceParams, TraceRequest, NO_HIT};
 
 /// Hits recorded per ray.
 const RECORD: u32 = 48;
+
+/// K directions about every surfel's own normal.
+fn request<'a>(s: &Surfels, k: usize, seed: u64, p: &'a TraceParams, radiance: bool) -> TraceRequest<'a> {
+    TraceRequest { axes: (0..s.len()).map(|j| s.normal(j)).collect(), k, seed, params: p, radiance }
+}
 
 /// The variants of the rules each scene is traced with: the default, scale-aware offsets and a
 /// finite range, back-face culling with linear radiance and a low SH degree, and the
@@ -57,7 +62,7 @@ fn gpu_march_consumes_the_cpu_hits_in_order() {
     for (name, s) in [("random", random_scene(1500, 11)), ("object", object_scene(2500, 12))] {
         let bvh = Bvh::build(&s);
         for (vi, (p, with_radiance)) in variants().into_iter().enumerate() {
-            let rec = tracer.record(&bvh, &s, k, 5, &p, with_radiance, RECORD).expect("GPU trace");
+            let rec = tracer.record(&bvh, &s, request(&s, k, 5, &p, with_radiance), RECORD).expect("GPU trace");
             assert_eq!(rec.len(), s.len() * k);
             let mut bad = Vec::new();
             for (r, g) in rec.iter().enumerate() {
@@ -100,8 +105,9 @@ fn gpu_samples_are_the_cpu_march_of_the_same_rays_packed() {
     let bvh = Bvh::build(&s);
     for (p, with_radiance) in variants() {
         let normals: Vec<Vec3> = (0..s.len()).map(|j| s.normal(j)).collect();
-        let mb = tracer.micro_buffer(&bvh, &s, normals, k, seed, &p, with_radiance).expect("GPU trace");
-        let rec = tracer.record(&bvh, &s, k, seed, &p, with_radiance, 1).expect("GPU trace");
+        let req = TraceRequest { axes: normals, k, seed, params: &p, radiance: with_radiance };
+        let mb = tracer.micro_buffer(&bvh, &s, req.clone()).expect("GPU trace");
+        let rec = tracer.record(&bvh, &s, req, 1).expect("GPU trace");
         let (mut hits, mut partial) = (0, 0);
         for (r, g) in rec.iter().enumerate() {
             let (j, kk) = (r / k, r % k);
@@ -142,7 +148,8 @@ fn gpu_micro_buffers_match_the_cpu_trace() {
     let front: Vec<Vec3> = (0..s.len()).map(|j| s.normal(j)).collect();
     for axes in [front.clone(), front.iter().map(|n| -*n).collect()] {
         let cpu = MicroBuffer::trace_about(&bvh, &s, axes.clone(), k, seed, &p).unwrap();
-        let g = tracer.micro_buffer(&bvh, &s, axes.clone(), k, seed, &p, true).expect("GPU trace");
+        let req = TraceRequest { axes: axes.clone(), k, seed, params: &p, radiance: true };
+        let g = tracer.micro_buffer(&bvh, &s, req.clone()).expect("GPU trace");
         assert_eq!((g.k, &g.normals, &g.xi, g.interleave), (cpu.k, &cpu.normals, &cpu.xi, cpu.interleave));
         // The directions differ by f32 rounding alone (HemiFrame against hemisphere_dir), so a
         // sample differs only where a hit sits on a boundary of the rules.
@@ -158,7 +165,7 @@ fn gpu_micro_buffers_match_the_cpu_trace() {
         assert!(far_v <= n / 1000 && far_l <= n / 1000, "V differs on {far_v}, L on {far_l} of {n}");
         assert!(cpu.first_hit.iter().filter(|&&h| h != NO_HIT).count() > n / 10, "weak test: few hits");
         // The occlusion-only trace is the full one without L, to the bit.
-        let occ = tracer.micro_buffer(&bvh, &s, axes, k, seed, &p, false).expect("GPU trace");
+        let occ = tracer.micro_buffer(&bvh, &s, TraceRequest { radiance: false, ..req }).expect("GPU trace");
         assert_eq!((&occ.vis, &occ.first_hit, &occ.uv), (&g.vis, &g.first_hit, &g.uv));
         assert!(occ.radiance.iter().all(|l| *l == [0; 3]));
     }
@@ -171,13 +178,13 @@ fn gpu_trace_refuses_what_the_cpu_refuses() {
     let s = random_scene(50, 1);
     let bvh = Bvh::build(&s);
     let p = TraceParams::default();
-    let axes = |n: usize| vec![Vec3::Z; n];
-    assert!(tracer.micro_buffer(&bvh, &s, axes(50), 0, 1, &p, true).is_err(), "K = 0");
-    assert!(tracer.micro_buffer(&bvh, &s, axes(3), 8, 1, &p, true).is_err(), "axes for 3 of 50");
+    let req = |n: usize, k: usize| TraceRequest { axes: vec![Vec3::Z; n], k, seed: 1, params: &p, radiance: true };
+    assert!(tracer.micro_buffer(&bvh, &s, req(50, 0)).is_err(), "K = 0");
+    assert!(tracer.micro_buffer(&bvh, &s, req(3, 8)).is_err(), "axes for 3 of 50");
     let other = Bvh::build(&random_scene(40, 2));
-    assert!(tracer.micro_buffer(&other, &s, axes(50), 8, 1, &p, true).is_err(), "BVH of other surfels");
+    assert!(tracer.micro_buffer(&other, &s, req(50, 8)).is_err(), "BVH of other surfels");
     let e = Surfels::default();
-    let mb = tracer.micro_buffer(&Bvh::build(&e), &e, vec![], 8, 1, &p, true).unwrap();
+    let mb = tracer.micro_buffer(&Bvh::build(&e), &e, req(0, 8)).unwrap();
     assert!(mb.is_empty() && mb.vis.is_empty());
 }
 

@@ -49,7 +49,7 @@ pub use gather_backward::{
 pub use hit::{disks_of, Disk, Hit};
 pub use microbuffer::{Interleave, MicroBuffer, NO_HIT};
 pub use reference::BruteForce;
-pub use tracer::{CpuTracer, MicroTracer};
+pub use tracer::{CpuTracer, MicroTracer, TraceRequest};
 pub use traverse::{march, march_visibility, HitSource, MarchResult, Occlusion, Ray, TraceParams, NO_ID};
 
 /// Everything the tracer can reject: invalid surfels, bad parameters, mismatched array sizes.

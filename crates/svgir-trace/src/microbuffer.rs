@@ -22,6 +22,7 @@
 //! the fill is race-free and, the march being deterministic, bit-identical for any thread count.
 
 use crate::pack::{f16_from_f32, f16_to_f32, from_unorm16, unorm16};
+use crate::tracer::TraceRequest;
 use crate::traverse::{march, march_visibility, HitSource, Ray, TraceParams};
 use crate::TraceError;
 use glam::Vec3;
@@ -113,7 +114,7 @@ impl MicroBuffer {
         seed: u64,
         p: &TraceParams,
     ) -> Result<Self, TraceError> {
-        Self::fill(src, surfels, normals, k, seed, p, true)
+        Self::traced(src, surfels, TraceRequest { axes: normals, k, seed, params: p, radiance: true })
     }
 
     /// [`Self::trace_about`] without the traced radiance: V, I and U to the bit (each ray is
@@ -128,18 +129,12 @@ impl MicroBuffer {
         seed: u64,
         p: &TraceParams,
     ) -> Result<Self, TraceError> {
-        Self::fill(src, surfels, normals, k, seed, p, false)
+        Self::traced(src, surfels, TraceRequest { axes: normals, k, seed, params: p, radiance: false })
     }
 
-    fn fill<S: HitSource>(
-        src: &S,
-        surfels: &Surfels,
-        normals: Vec<Vec3>,
-        k: usize,
-        seed: u64,
-        p: &TraceParams,
-        with_radiance: bool,
-    ) -> Result<Self, TraceError> {
+    /// The micro-buffers `req` asks for, traced through `src` on the CPU (rayon over Gaussians).
+    pub fn traced<S: HitSource>(src: &S, surfels: &Surfels, req: TraceRequest) -> Result<Self, TraceError> {
+        let TraceRequest { axes: normals, k, seed, params: p, radiance: with_radiance } = req;
         Self::check_inputs(surfels, &normals, k)?;
         let n = surfels.len();
         let xi: Vec<f32> = (0..n).map(|j| gaussian_xi(seed, j)).collect();

@@ -10,25 +10,32 @@ use crate::TraceError;
 use glam::Vec3;
 use svgir_core::Surfels;
 
+/// What a micro-buffer trace is asked for (SPEC 5): K directions about one axis per Gaussian,
+/// the seed of their azimuth offsets, the march's rules, and whether to trace radiance too.
+#[derive(Clone, Debug)]
+pub struct TraceRequest<'a> {
+    /// Hemisphere axis per Gaussian: its normal, or `-n` for the back sides (two-sided
+    /// shading). Moved into the micro-buffer.
+    pub axes: Vec<Vec3>,
+    /// Directions per Gaussian.
+    pub k: usize,
+    /// Fixes the per-Gaussian azimuth offsets (`svgir_shading::gaussian_xi`).
+    pub seed: u64,
+    /// The march's rules.
+    pub params: &'a TraceParams,
+    /// Trace the radiance L (stage 2's buffers), or the visibility alone (L = 0; relighting's,
+    /// whose indirect light is the one-bounce gather under the new map).
+    pub radiance: bool,
+}
+
 /// A backend that fills micro-buffers (SPEC 5).
 pub trait MicroTracer: Send + Sync {
     /// A short name for logs: "cpu", or the adapter.
     fn name(&self) -> String;
 
-    /// K directions about `normals` (one axis per Gaussian) for every Gaussian of `surfels`,
-    /// through `bvh` (built over the same surfels): [`MicroBuffer::trace_about`] with
-    /// `with_radiance`, else [`MicroBuffer::trace_occlusion_about`] (L = 0).
-    #[allow(clippy::too_many_arguments)]
-    fn trace(
-        &self,
-        bvh: &Bvh,
-        surfels: &Surfels,
-        normals: Vec<Vec3>,
-        k: usize,
-        seed: u64,
-        p: &TraceParams,
-        with_radiance: bool,
-    ) -> Result<MicroBuffer, TraceError>;
+    /// The micro-buffers `req` asks for, of every Gaussian of `surfels`, through `bvh` (built
+    /// over the same surfels): [`MicroBuffer::traced`].
+    fn trace(&self, bvh: &Bvh, surfels: &Surfels, req: TraceRequest) -> Result<MicroBuffer, TraceError>;
 
     /// For each of `dirs`, the visibility (u16 unorm) from every Gaussian of `surfels` through
     /// `bvh`: the visibility march from its centre, 0 where the direction is below its
@@ -52,21 +59,8 @@ impl MicroTracer for CpuTracer {
         "cpu".into()
     }
 
-    fn trace(
-        &self,
-        bvh: &Bvh,
-        surfels: &Surfels,
-        normals: Vec<Vec3>,
-        k: usize,
-        seed: u64,
-        p: &TraceParams,
-        with_radiance: bool,
-    ) -> Result<MicroBuffer, TraceError> {
-        if with_radiance {
-            MicroBuffer::trace_about(bvh, surfels, normals, k, seed, p)
-        } else {
-            MicroBuffer::trace_occlusion_about(bvh, surfels, normals, k, seed, p)
-        }
+    fn trace(&self, bvh: &Bvh, surfels: &Surfels, req: TraceRequest) -> Result<MicroBuffer, TraceError> {
+        MicroBuffer::traced(bvh, surfels, req)
     }
 
     fn visibility_columns(

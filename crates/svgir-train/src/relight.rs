@@ -22,7 +22,9 @@
 use crate::stage2::{BackShading, PbrRender, Shading, Stage2};
 use svgir_core::{Camera, EnvMap};
 use svgir_pbr::{DirectionCache, Indirect, PbrError, ShadeParams};
-use svgir_trace::{brightest_texels, BrightLights, Bvh, GatherParams, HitSide, MicroBuffer, VertexMaterials, Via};
+use svgir_trace::{
+    brightest_texels, BrightLights, Bvh, GatherParams, HitSide, MicroBuffer, TraceRequest, VertexMaterials, Via,
+};
 
 /// SPEC 7: directions per Gaussian at relighting evaluation.
 pub const RELIGHT_DIRECTIONS: usize = 384;
@@ -92,7 +94,8 @@ impl Relighter {
         let mb = match &bvh {
             Some(bvh) if directions != s2.mb.k => {
                 let axes = (0..s2.surfels.len()).map(|j| s2.surfels.normal(j)).collect();
-                s2.kernels.tracer.trace(bvh, &s2.surfels, axes, directions, s2.config.seed, &p, false)?
+                let req = TraceRequest { axes, k: directions, seed: s2.config.seed, params: &p, radiance: false };
+                s2.kernels.tracer.trace(bvh, &s2.surfels, req)?
             }
             _ => s2.mb.clone(),
         };
@@ -101,7 +104,8 @@ impl Relighter {
             (None, _) => None,
             (Some(b), Some(bvh)) if directions != b.mb.k => {
                 let axes = mb.normals.iter().map(|n| -*n).collect();
-                let back = s2.kernels.tracer.trace(bvh, &s2.surfels, axes, directions, s2.config.seed, &p, false)?;
+                let req = TraceRequest { axes, k: directions, seed: s2.config.seed, params: &p, radiance: false };
+                let back = s2.kernels.tracer.trace(bvh, &s2.surfels, req)?;
                 let cache = DirectionCache::new(&back, &s2.env.radiance())?;
                 Some((back, cache))
             }

@@ -59,7 +59,8 @@ use svgir_raster::{
     RenderInput, RenderOutput,
 };
 use svgir_trace::{
-    brightest_texels, concentrate_lobe, BrightLights, Bvh, CpuTracer, GatherParams, MicroBuffer, MicroTracer, Via,
+    brightest_texels, concentrate_lobe, BrightLights, Bvh, CpuTracer, GatherParams, MicroBuffer, MicroTracer,
+    TraceRequest, Via,
 };
 
 /// What one stage-2 iteration reports (a line of `metrics.jsonl`).
@@ -321,8 +322,9 @@ impl Stage2 {
         let t0 = Instant::now();
         let bvh = Bvh::build(&surfels);
         let axes = (0..surfels.len()).map(|j| surfels.normal(j)).collect();
-        let mb =
-            kernels.tracer.trace(&bvh, &surfels, axes, config.directions, config.seed, &config.trace_params(), true)?;
+        let p = config.trace_params();
+        let req = TraceRequest { axes, k: config.directions, seed: config.seed, params: &p, radiance: true };
+        let mb = kernels.tracer.trace(&bvh, &surfels, req)?;
         let trace_seconds = t0.elapsed().as_secs_f64();
         let mut s2 = Self::from_parts(config, surfels, mb, trace_seconds)?;
         s2.bvh = Some(bvh);
@@ -341,15 +343,9 @@ impl Stage2 {
         let occluders = self.occluders();
         let bvh = self.bvh.get_or_insert_with(|| Bvh::build(&occluders));
         let axes = self.mb.normals.iter().map(|n| -*n).collect();
-        let mb = self.kernels.tracer.trace(
-            bvh,
-            &occluders,
-            axes,
-            self.mb.k,
-            self.config.seed,
-            &self.config.trace_params(),
-            true,
-        )?;
+        let p = self.config.trace_params();
+        let req = TraceRequest { axes, k: self.mb.k, seed: self.config.seed, params: &p, radiance: true };
+        let mb = self.kernels.tracer.trace(bvh, &occluders, req)?;
         self.attach_back_side(mb, &occluders)?;
         self.trace_seconds += t0.elapsed().as_secs_f64();
         Ok(())
