@@ -50,7 +50,7 @@ pub struct CaptureArgs {
     /// Relit turntable frames per light.
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 24)]
     pub turntable: usize,
-    /// Where stage 1 trains.
+    /// Where stage 1 trains and stage 2 traces and shades.
     #[arg(long, default_value_t = svgir_gpu::DeviceChoice::Auto)]
     pub device: svgir_gpu::DeviceChoice,
     /// Seed of every random choice.

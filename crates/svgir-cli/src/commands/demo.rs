@@ -25,7 +25,8 @@ pub struct DemoArgs {
     pub data: Option<PathBuf>,
     #[arg(long, default_value_t = 0)]
     pub seed: u64,
-    /// Where stage 1 trains: a hardware GPU if there is one (auto), the CPU, or a GPU or an error.
+    /// Where stage 1 trains and stage 2 traces and shades: a hardware GPU if there is one
+    /// (auto), the CPU, or a GPU or an error.
     #[arg(long, default_value_t = svgir_gpu::DeviceChoice::Auto)]
     pub device: svgir_gpu::DeviceChoice,
 }

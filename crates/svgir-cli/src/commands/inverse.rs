@@ -27,8 +27,8 @@ pub struct InverseArgs {
     /// Stage-2 iterations (SPEC 6: 20000).
     #[arg(long, default_value_t = 20_000)]
     pub iterations: u64,
-    /// Where to trace the micro-buffers (training's and relighting's): auto (a hardware GPU if
-    /// any), cpu or gpu.
+    /// Where to trace the micro-buffers and lights and shade the vertices (training's and
+    /// relighting's): auto (a hardware GPU if any), cpu or gpu.
     #[arg(long, default_value_t = svgir_gpu::DeviceChoice::Auto)]
     pub device: svgir_gpu::DeviceChoice,
     /// Diagnostic: before the evaluation, replace the learned albedo and roughness by the

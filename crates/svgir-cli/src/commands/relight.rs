@@ -39,7 +39,8 @@ pub struct RelightArgs {
     /// Diffuse bounces of indirect light added to SPEC 7's one-bounce term (0: Eqn 13 alone).
     #[arg(long, default_value_t = svgir_train::relight::RELIGHT_BOUNCES)]
     pub bounces: usize,
-    /// Where to trace the K directions: auto (a hardware GPU if any), cpu or gpu.
+    /// Where to trace the K directions and the lights and shade the renders: auto (a hardware
+    /// GPU if any), cpu or gpu.
     #[arg(long, default_value_t = svgir_gpu::DeviceChoice::Auto)]
     pub device: svgir_gpu::DeviceChoice,
 }
