@@ -20,6 +20,7 @@
 pub mod bench;
 pub mod buffers;
 pub mod device;
+pub mod gather;
 pub mod loss;
 pub mod raster;
 pub mod samples;

@@ -95,6 +95,7 @@ type Traced = (Vec<[u32; 4]>, Vec<[f32; 4]>);
 pub struct GpuTracer {
     gpu: Gpu,
     kernel: wgpu::ComputePipeline,
+    gather: crate::gather::Gather,
 }
 
 /// A trace's scene on the GPU: the BVH, the disks, the SH and the ray sources.
@@ -115,12 +116,18 @@ impl GpuTracer {
     pub fn new(gpu: Gpu) -> Self {
         let parts = [include_str!("shaders/common.wgsl"), include_str!("shaders/trace.wgsl")];
         let kernel = kernel_of(&gpu.device, "trace", &parts);
-        Self { gpu, kernel }
+        let gather = crate::gather::Gather::new(&gpu);
+        Self { gpu, kernel, gather }
     }
 
     /// The device it runs on.
     pub fn gpu(&self) -> &Gpu {
         &self.gpu
+    }
+
+    /// Rays per gather dispatch (`gather::PAIRS`; the tests lower it to split small scenes).
+    pub fn set_gather_batch(&mut self, pairs: usize) {
+        self.gather.pairs = pairs.max(1);
     }
 
     /// `svgir_trace::MicroTracer::trace` on the GPU: the micro-buffers `req` asks for, of every
@@ -384,5 +391,27 @@ impl MicroTracer for GpuTracer {
         p: &TraceParams,
     ) -> Result<Vec<Vec<u16>>, TraceError> {
         self.columns(bvh, surfels, normals, dirs, p).map_err(|e| TraceError::Device(e.to_string()))
+    }
+
+    fn gather_all(
+        &self,
+        mb: &MicroBuffer,
+        mats: &svgir_trace::VertexMaterials<f32>,
+        env: &svgir_core::EnvMap,
+        p: &svgir_trace::GatherParams,
+    ) -> Result<Vec<[f32; 3]>, TraceError> {
+        let side = svgir_trace::HitSide { mb, mats: *mats, lights: p.lights };
+        self.gather.run(&self.gpu, mb, &[side], env, p)
+    }
+
+    fn gather_two_sided(
+        &self,
+        rays: &MicroBuffer,
+        front: svgir_trace::HitSide,
+        back: svgir_trace::HitSide,
+        env: &svgir_core::EnvMap,
+        p: &svgir_trace::GatherParams,
+    ) -> Result<Vec<[f32; 3]>, TraceError> {
+        self.gather.run(&self.gpu, rays, &[front, back], env, p)
     }
 }

@@ -98,6 +98,12 @@ fn cell<F: Float>(x: F, nodes: usize) -> (usize, F) {
     (i, x - F::from_f64(i as f64))
 }
 
+/// The table of E(mu, r) that [`specular_albedo`] interpolates, `MU_NODES` x `R_NODES`,
+/// row-major in mu (for a device kernel that interpolates it the same way).
+pub fn specular_albedo_table() -> &'static [f64] {
+    table()
+}
+
 fn table() -> &'static [f64] {
     static TABLE: OnceLock<Vec<f64>> = OnceLock::new();
     TABLE.get_or_init(|| {

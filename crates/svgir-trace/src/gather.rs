@@ -429,17 +429,13 @@ pub fn gather_two_sided(
     p: &GatherParams,
 ) -> Result<Vec<[f32; 3]>, TraceError> {
     let normals = &front.mb.normals;
-    gather_grouped(rays, &[front, back], env, p, |j, k, h| usize::from(rays.direction(j, k).dot(normals[h]) > 0.0))
+    gather_grouped(rays, &[front, back], env, p, |j, k, h| side_met(rays, normals, j, k, h))
 }
 
-/// Eqn 13 for every ray of `rays` off side `side_of(j, k, h)` of its hit Gaussian h.
-fn gather_grouped(
-    rays: &MicroBuffer,
-    sides: &[HitSide],
-    env: &EnvMap,
-    p: &GatherParams,
-    side_of: impl Fn(usize, usize, usize) -> usize + Sync,
-) -> Result<Vec<[f32; 3]>, TraceError> {
+/// Every check [`gather_from`] and [`gather_two_sided`] make of the rays, the hit sides
+/// (`[front]`, or `[front, back]`), the map and the settings, with their errors: for a device
+/// backend, which must reject what the CPU rejects.
+pub fn check_sides(rays: &MicroBuffer, sides: &[HitSide], env: &EnvMap, p: &GatherParams) -> Result<(), TraceError> {
     for side in sides {
         check(side.mb, &side.mats, env)?;
         check_lights(side.mb, env, &GatherParams { lights: side.lights, cache: None, ..*p })?;
@@ -453,6 +449,24 @@ fn gather_grouped(
             )));
         }
     }
+    Ok(())
+}
+
+/// Which side of its hit Gaussian h ray (j, k) of `rays` meets in [`gather_two_sided`]: 1 (the
+/// back) when the ray runs along h's front normal, else 0.
+pub fn side_met(rays: &MicroBuffer, front_normals: &[glam::Vec3], j: usize, k: usize, h: usize) -> usize {
+    usize::from(rays.direction(j, k).dot(front_normals[h]) > 0.0)
+}
+
+/// Eqn 13 for every ray of `rays` off side `side_of(j, k, h)` of its hit Gaussian h.
+fn gather_grouped(
+    rays: &MicroBuffer,
+    sides: &[HitSide],
+    env: &EnvMap,
+    p: &GatherParams,
+    side_of: impl Fn(usize, usize, usize) -> usize + Sync,
+) -> Result<Vec<[f32; 3]>, TraceError> {
+    check_sides(rays, sides, env, p)?;
     let lights: Vec<LightIn<f32>> =
         sides.iter().map(|side| LightIn::new(env, &GatherParams { lights: side.lights, cache: None, ..*p })).collect();
     let n = rays.len();

@@ -4,11 +4,12 @@
 //! the crates below it never depend on a GPU crate.
 
 use crate::bvh::Bvh;
+use crate::gather::{GatherParams, HitSide, VertexMaterials};
 use crate::microbuffer::MicroBuffer;
 use crate::traverse::TraceParams;
 use crate::TraceError;
 use glam::Vec3;
-use svgir_core::Surfels;
+use svgir_core::{EnvMap, Surfels};
 
 /// What a micro-buffer trace is asked for (SPEC 5): K directions about one axis per Gaussian,
 /// the seed of their azimuth offsets, the march's rules, and whether to trace radiance too.
@@ -48,6 +49,30 @@ pub trait MicroTracer: Send + Sync {
         dirs: &[Vec3],
         p: &TraceParams,
     ) -> Result<Vec<Vec<u16>>, TraceError>;
+
+    /// Eqn 13 for every ray of `mb` ([`crate::gather_all`]; the CPU's unless a backend has its own).
+    fn gather_all(
+        &self,
+        mb: &MicroBuffer,
+        mats: &VertexMaterials<f32>,
+        env: &EnvMap,
+        p: &GatherParams,
+    ) -> Result<Vec<[f32; 3]>, TraceError> {
+        crate::gather_all(mb, mats, env, p)
+    }
+
+    /// Two-sided shading's Eqn 13 ([`crate::gather_two_sided`]; the CPU's unless a backend has
+    /// its own).
+    fn gather_two_sided(
+        &self,
+        rays: &MicroBuffer,
+        front: HitSide,
+        back: HitSide,
+        env: &EnvMap,
+        p: &GatherParams,
+    ) -> Result<Vec<[f32; 3]>, TraceError> {
+        crate::gather_two_sided(rays, front, back, env, p)
+    }
 }
 
 /// The CPU march ([`MicroBuffer::trace_about`] on the BVH).

@@ -145,7 +145,7 @@ impl Relighter {
             ..Default::default()
         };
         let Some((back, _)) = &self.back else {
-            let mut one_bounce = svgir_trace::gather_all(&self.mb, &act.view(), &env, &p)?;
+            let mut one_bounce = s2.kernels.tracer.gather_all(&self.mb, &act.view(), &env, &p)?;
             svgir_trace::add_bounces(&self.mb, &act.view(), &mut one_bounce, self.bounces)?;
             return Ok(PreparedLight { env, one_bounce: Some(one_bounce), lights, back_one_bounce: None, back_lights });
         };
@@ -157,10 +157,10 @@ impl Relighter {
             mats: VertexMaterials { normals: &flipped, ..act.view() },
             lights: back_lights.as_ref(),
         };
-        let mut one_bounce = svgir_trace::gather_two_sided(&self.mb, front_side, back_side, &env, &p)?;
+        let mut one_bounce = s2.kernels.tracer.gather_two_sided(&self.mb, front_side, back_side, &env, &p)?;
         // `add_bounces` follows the front sides' paths only.
         svgir_trace::add_bounces(&self.mb, &act.view(), &mut one_bounce, self.bounces)?;
-        let back_one_bounce = Some(svgir_trace::gather_two_sided(back, front_side, back_side, &env, &p)?);
+        let back_one_bounce = Some(s2.kernels.tracer.gather_two_sided(back, front_side, back_side, &env, &p)?);
         Ok(PreparedLight { env, one_bounce: Some(one_bounce), lights, back_one_bounce, back_lights })
     }
 
