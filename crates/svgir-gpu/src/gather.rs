@@ -52,7 +52,14 @@ pub(crate) struct Gather {
 
 impl Gather {
     pub fn new(gpu: &Gpu) -> Self {
-        Self { kernel: kernel_of(&gpu.device, "gather", &[include_str!("shaders/gather.wgsl")]), pairs: PAIRS }
+        Self {
+            kernel: kernel_of(
+                &gpu.device,
+                "gather",
+                &[include_str!("shaders/pbr_common.wgsl"), include_str!("shaders/gather.wgsl")],
+            ),
+            pairs: PAIRS,
+        }
     }
 
     /// Eqn 13 for every ray of `rays` off the side of its hit that `two_sided` picks (`sides`

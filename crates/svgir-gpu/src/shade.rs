@@ -71,10 +71,10 @@ pub struct GpuShader {
 impl GpuShader {
     /// The shader on `gpu` (compiles its kernel).
     pub fn new(gpu: Gpu) -> Self {
-        let common = include_str!("shaders/shade_common.wgsl");
-        let kernel = kernel_of(&gpu.device, "shade", &[common, include_str!("shaders/shade.wgsl")]);
+        let (pbr, common) = (include_str!("shaders/pbr_common.wgsl"), include_str!("shaders/shade_common.wgsl"));
+        let kernel = kernel_of(&gpu.device, "shade", &[pbr, common, include_str!("shaders/shade.wgsl")]);
         let backward_kernel =
-            kernel_of(&gpu.device, "shade backward", &[common, include_str!("shaders/shade_bwd.wgsl")]);
+            kernel_of(&gpu.device, "shade backward", &[pbr, common, include_str!("shaders/shade_bwd.wgsl")]);
         Self { gpu, kernel, backward_kernel, batch_bytes: BATCH_BYTES }
     }
 

@@ -37,12 +37,6 @@ struct GatherParams {
 }
 
 const ESC: u32 = 512u;
-const MAX_V: u32 = 6u;
-const PI: f32 = 3.14159265358979;
-const INV_PI: f32 = 0.3183098861837907;
-const FOUR_PI: f32 = 12.566370614359172;
-const DOT_EPS: f32 = 1e-6;
-const F0: f32 = 0.04;
 const MU_NODES: u32 = 65u;   // svgir_shading::layering
 const R_NODES: u32 = 33u;
 
@@ -70,80 +64,6 @@ const R_NODES: u32 = 33u;
 
 var<workgroup> esc_dir: array<vec4<f32>, ESC>;  // (direction, L.r)
 var<workgroup> esc_gb: array<vec2<f32>, ESC>;   // (L.g, L.b)
-
-fn cdot(x: f32) -> f32 {
-    return clamp(x, DOT_EPS, 1.0);
-}
-
-// As shade_common.wgsl: atan with about 2 ulp (Cephes' reduction and polynomial).
-fn atan_pos(x: f32) -> f32 {
-    var base = 0.0;
-    var t = x;
-    if x > 2.414213562373095 {
-        base = 0.5 * PI;
-        t = -1.0 / x;
-    } else if x > 0.4142135623730950 {
-        base = 0.25 * PI;
-        t = (x - 1.0) / (x + 1.0);
-    }
-    let z = t * t;
-    return base + ((((8.05374449538e-2 * z - 1.38776856032e-1) * z + 1.99777106478e-1) * z - 3.33329491539e-1) * z * t + t);
-}
-
-fn atan2_accurate(y: f32, x: f32) -> f32 {
-    let ax = abs(x);
-    let ay = abs(y);
-    var a = 0.0;
-    if ax >= ay {
-        if ax > 0.0 {
-            a = atan_pos(ay / ax);
-        }
-    } else {
-        a = 0.5 * PI - atan_pos(ax / ay);
-    }
-    if x < 0.0 {
-        a = PI - a;
-    }
-    return select(a, -a, y < 0.0 || (y == 0.0 && (bitcast<u32>(y) >> 31u) == 1u));
-}
-
-// svgir_core::envmap::grid_coords and Taps::at, the light texels masked, from env_at.
-fn env_lookup(d_in: vec3<f32>, env_at: u32) -> vec3<f32> {
-    var d = vec3<f32>(0.0, 0.0, 1.0);
-    let len = length(d_in);
-    if len > 0.0 {
-        d = d_in / len;
-    }
-    let z = clamp(d.z, -1.0, 1.0);
-    let phi = atan2_accurate(sqrt((1.0 - z) * (1.0 + z)), z);
-    let theta = atan2_accurate(d.y, d.x);
-    let wm = f32(P.env_w - 1u);
-    let hm = f32(P.env_h - 1u);
-    let fx = clamp((-theta / PI + 1.0) * 0.5 * wm, 0.0, wm);
-    let fy = clamp((2.0 * phi / PI - 1.0 + 1.0) * 0.5 * hm, 0.0, hm);
-    let x0 = u32(fx);
-    let y0 = u32(fy);
-    let x1 = min(x0 + 1u, P.env_w - 1u);
-    let y1 = min(y0 + 1u, P.env_h - 1u);
-    let tx = fx - f32(x0);
-    let ty = fy - f32(y0);
-    let idx = vec4<u32>(y0 * P.env_w + x0, y0 * P.env_w + x1, y1 * P.env_w + x0, y1 * P.env_w + x1);
-    let w = vec4<f32>((1.0 - tx) * (1.0 - ty), tx * (1.0 - ty), (1.0 - tx) * ty, tx * ty);
-    var raw = vec3<f32>(0.0);
-    for (var t = 0u; t < 4u; t++) {
-        let texel = tables[env_at + idx[t]];
-        if texel.w == 0.0 {
-            raw += w[t] * texel.xyz;
-        }
-    }
-    return raw;
-}
-
-fn frame_dir(b1: vec4<f32>, b2: vec4<f32>, nf: vec3<f32>, f: vec4<f32>) -> vec3<f32> {
-    let c = f.x * b1.w - f.y * b2.w;
-    let sn = f.y * b1.w + f.x * b2.w;
-    return b1.xyz * (f.z * c) + b2.xyz * (f.z * sn) + nf * f.w;
-}
 
 // svgir_shading::layering::specular_albedo's value: E(n.v, r) by bilinear lookup.
 fn specular_albedo(nv: f32, r: f32) -> f32 {
@@ -270,7 +190,7 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3
                     let word = escaped[(side * P.n + h) * P.words + e / 32u];
                     if ((word >> (e % 32u)) & 1u) != 0u {
                         dir = frame_dir(hb1, hb2, hn, tables[e]);
-                        l = clamp(env_lookup(dir, env_at), vec3<f32>(0.0), vec3<f32>(P.env_max));
+                        l = clamp(env_lookup_at(dir, env_at), vec3<f32>(0.0), vec3<f32>(P.env_max));
                     }
                 } else {
                     let b = e - k_all;
@@ -294,10 +214,9 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3
                         continue;
                     }
                     let dir = ed.xyz;
-                    let hsum = v + dir;
-                    let hv = hsum / max(length(hsum), 1e-12);
-                    let vh = cdot(dot(v, hv));
-                    let fr = F0 + (1.0 - F0) * exp2((-5.55473 * vh - 6.98316) * vh);
+                    let hf = half_fresnel(v, dir);
+                    let hv = hf.xyz;
+                    let fr = hf.w;
                     var f_cos = vec3<f32>(0.0);
                     for (var q = 0u; q < m; q++) {
                         let nl = dot(vn[q], dir);
