@@ -20,6 +20,7 @@
 pub mod bench;
 pub mod buffers;
 pub mod device;
+pub mod features;
 pub mod gather;
 pub mod loss;
 pub mod raster;
@@ -30,6 +31,7 @@ pub mod stage1;
 pub mod trace;
 
 pub use device::{open, open_named, AdapterReport, DeviceChoice, Gpu, GpuError, ADAPTER_ENV};
+pub use features::GpuFeatureRaster;
 pub use raster::{Frame, GpuForward, GpuGrads, GpuRaster, SurfelBuffers, TILE};
 pub use shade::GpuShader;
 pub use stage1::GpuStage1;

@@ -48,14 +48,14 @@ pub(crate) struct Params {
     k: [f32; 4],
     clip: [f32; 4],
     bg: [f32; 4],
-    n: u32,
-    width: u32,
-    height: u32,
+    pub(crate) n: u32,
+    pub(crate) width: u32,
+    pub(crate) height: u32,
     sh_degree: u32,
-    tiles_x: u32,
-    tiles_y: u32,
+    pub(crate) tiles_x: u32,
+    pub(crate) tiles_y: u32,
     flags: u32,
-    capacity: u32,
+    pub(crate) capacity: u32,
 }
 
 impl Params {
@@ -195,26 +195,26 @@ pub struct Frame {
     pub(crate) params: wgpu::Buffer,
     pub(crate) splat: wgpu::Buffer,
     pub(crate) rect: wgpu::Buffer,
-    tiles_n: wgpu::Buffer,
-    key: wgpu::Buffer,
-    val: wgpu::Buffer,
+    pub(crate) tiles_n: wgpu::Buffer,
+    pub(crate) key: wgpu::Buffer,
+    pub(crate) val: wgpu::Buffer,
     tmp_k: wgpu::Buffer,
     tmp_v: wgpu::Buffer,
-    cnt: wgpu::Buffer,
-    off: wgpu::Buffer,
-    rank: wgpu::Buffer,
+    pub(crate) cnt: wgpu::Buffer,
+    pub(crate) off: wgpu::Buffer,
+    pub(crate) rank: wgpu::Buffer,
     /// The binning counters (`COUNTERS` u32s, see bin_total.wgsl).
     pub(crate) count: wgpu::Buffer,
     tkey: wgpu::Buffer,
-    tval: wgpu::Buffer,
+    pub(crate) tval: wgpu::Buffer,
     tk2: wgpu::Buffer,
     tv2: wgpu::Buffer,
-    egauss: wgpu::Buffer,
-    slots: wgpu::Buffer,
-    ranges: wgpu::Buffer,
+    pub(crate) egauss: wgpu::Buffer,
+    pub(crate) slots: wgpu::Buffer,
+    pub(crate) ranges: wgpu::Buffer,
     /// Per pixel, the forward's outputs (`PIX` floats).
     pub(crate) img: wgpu::Buffer,
-    ncon: wgpu::Buffer,
+    pub(crate) ncon: wgpu::Buffer,
     /// Per pixel, the loss's output gradients (`VPIX` floats), what the backward reads.
     pub(crate) vout: wgpu::Buffer,
     /// Per Gaussian, the gradients besides SH (`VP` floats) and the SH gradients (48).
@@ -229,10 +229,25 @@ pub struct Frame {
 
 impl Frame {
     /// Buffers for `n` Gaussians, images of up to `npx` pixels and `tiles` tiles, and
-    /// `capacity` tile entries.
+    /// `capacity` tile entries, in the stage-1 kernels' layouts.
     pub fn new(gpu: &Gpu, n: u32, npx: u64, tiles: u32, capacity: u32) -> Result<Self, GpuError> {
-        check_binding(gpu, "the forward's per-pixel outputs", npx * PIX as u64 * 4)?;
-        check_binding(gpu, "the tile entries' gradient slots", capacity as u64 * DIM * 4)?;
+        let layout = Layout { slot: DIM, pix: PIX as u64, vpix: VPIX as u64 };
+        Self::with_layout(gpu, n, npx, tiles, capacity, layout)
+    }
+
+    /// [`Frame::new`] with `layout`'s floats per entry slot, output pixel and output-gradient
+    /// pixel (the feature raster's depend on its tables).
+    pub(crate) fn with_layout(
+        gpu: &Gpu,
+        n: u32,
+        npx: u64,
+        tiles: u32,
+        capacity: u32,
+        layout: Layout,
+    ) -> Result<Self, GpuError> {
+        let Layout { slot, pix, vpix } = layout;
+        check_binding(gpu, "the forward's per-pixel outputs", npx * pix * 4)?;
+        check_binding(gpu, "the tile entries' gradient slots", capacity as u64 * slot * 4)?;
         check_binding(gpu, "the SH gradients", n as u64 * 48 * 4)?;
         let d = &gpu.device;
         let nb = n as u64 * 4;
@@ -261,11 +276,11 @@ impl Frame {
             tk2: storage(d, "tile sort scratch keys", eb),
             tv2: storage(d, "tile sort scratch values", eb),
             egauss: storage(d, "entry gaussians", eb),
-            slots: storage(d, "entry gradient slots", eb * DIM),
+            slots: storage(d, "entry gradient slots", eb * slot),
             ranges: storage(d, "tile ranges", tiles as u64 * 8),
-            img: storage(d, "forward outputs", npx * PIX as u64 * 4),
+            img: storage(d, "forward outputs", npx * pix * 4),
             ncon: storage(d, "n_contrib", npx * 4),
-            vout: storage(d, "output gradients", npx * VPIX as u64 * 4),
+            vout: storage(d, "output gradients", npx * vpix * 4),
             vparam: storage(d, "parameter gradients", nb * VP as u64),
             vsh: storage(d, "sh gradients", nb * 48),
             depth_sort: sort_plan(d, n, 32, false),
@@ -279,6 +294,15 @@ impl Frame {
     pub fn capacity(&self) -> u32 {
         self.capacity
     }
+}
+
+/// Floats per entry slot, per pixel of the forward's outputs and per pixel of the output
+/// gradients, for [`Frame::with_layout`].
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Layout {
+    pub(crate) slot: u64,
+    pub(crate) pix: u64,
+    pub(crate) vpix: u64,
 }
 
 /// A render's state on the GPU: its surfels, buffers and uniform (what its backward reads).
@@ -351,6 +375,22 @@ impl GpuRaster {
         frame: &Frame,
         params: &Params,
     ) {
+        self.encode_binning(gpu, enc, surf, frame, params);
+        let (d, f, p) = (&gpu.device, frame, &frame.params);
+        let bg4 = bind(d, &self.forward, &[p, &f.splat, &f.rect, &f.ranges, &f.tval, &f.egauss, &f.img, &f.ncon]);
+        dispatch_2d(enc, &self.forward, &bg4, params.tiles_x, params.tiles_y);
+    }
+
+    /// Records everything of a render before its compositing: the projection, the depth sort,
+    /// the binning and the tile ranges (the uniform is written through the queue).
+    pub(crate) fn encode_binning(
+        &self,
+        gpu: &Gpu,
+        enc: &mut wgpu::CommandEncoder,
+        surf: &SurfelBuffers,
+        frame: &Frame,
+        params: &Params,
+    ) {
         let d = &gpu.device;
         let f = frame;
         gpu.queue.write_buffer(&f.params, 0, bytemuck::bytes_of(params));
@@ -378,8 +418,6 @@ impl GpuRaster {
             let bg3 = bind(d, &self.bin_ranges, &[p, &f.tkey, &f.ranges, &f.count]);
             dispatch(enc, &self.bin_ranges, &bg3, cap.div_ceil(256));
         }
-        let bg4 = bind(d, &self.forward, &[p, &f.splat, &f.rect, &f.ranges, &f.tval, &f.egauss, &f.img, &f.ncon]);
-        dispatch_2d(enc, &self.forward, &bg4, params.tiles_x, params.tiles_y);
     }
 
     /// Records the backward of the render last recorded into `frame`, from the output
@@ -415,7 +453,7 @@ impl GpuRaster {
         let p = Params { capacity: 0, ..*params };
         let frame = Frame::new(gpu, p.n, p.width as u64 * p.height as u64, p.tiles(), 0)?;
         let mut enc = gpu.device.create_command_encoder(&Default::default());
-        self.encode_forward(gpu, &mut enc, surf, &frame, &p);
+        self.encode_binning(gpu, &mut enc, surf, &frame, &p);
         gpu.queue.submit([enc.finish()]);
         Ok(read_back::<u32>(&gpu.device, &gpu.queue, &[(&frame.count, COUNTERS)])?[0][1])
     }
@@ -531,19 +569,25 @@ impl GpuRaster {
             }
             g.v_sh[i] = s;
         }
-        // The background's gradient, sum over pixels of T_N dL/dC (a constant colour).
         if let Some(gc) = grads.color {
-            let mut vb = [0.0f64; 3];
-            for i in 0..npx {
-                let t = img[i * PIX + 10] as f64;
-                for ch in 0..3 {
-                    vb[ch] += t * gc[i * 3 + ch] as f64;
-                }
-            }
-            g.v_background = vb.iter().map(|&v| v as f32).collect();
+            g.v_background = background_grad(img, PIX, 10, gc);
         }
         Ok(GpuGrads { grads: g, accum_weight })
     }
+}
+
+/// The gradient of a constant background colour, `sum over pixels of T_N dL/dC`, from the
+/// forward's outputs `img` (`pix` floats a pixel, the final T at `t_at`) and the colour
+/// gradients `gc` (3 a pixel).
+pub(crate) fn background_grad(img: &[f32], pix: usize, t_at: usize, gc: &[f32]) -> Vec<f32> {
+    let mut vb = [0.0f64; 3];
+    for (o, g) in img.chunks_exact(pix).zip(gc.chunks_exact(3)) {
+        let t = o[t_at] as f64;
+        for ch in 0..3 {
+            vb[ch] += t * g[ch] as f64;
+        }
+    }
+    vb.iter().map(|&v| v as f32).collect()
 }
 
 /// Reads the images of the render last recorded into `frame` into svgir-raster's output type.

@@ -23,6 +23,7 @@ mod backward_simd;
 /// Timing tables for `svgir bench` (reads `/proc` and the clock).
 #[cfg(feature = "bench")]
 pub mod bench;
+pub mod feature_raster;
 pub mod fixtures;
 pub mod forward;
 mod forward_simd;
@@ -45,6 +46,7 @@ use svgir_core::{Camera, ShCoeffs, Surfels};
 pub use backward::backward_generic;
 #[cfg(feature = "bench")]
 pub use bench::bench_table;
+pub use feature_raster::{CpuFeatureRaster, FeatureRaster, PassGrads, PassState};
 pub use forward::render_generic;
 pub use phases::PhaseTimes;
 pub use simd::Simd;
@@ -160,6 +162,12 @@ pub enum RasterError {
     /// `RasterConfig::tile` outside 1..=64.
     #[error("tile size must be in 1..=64, got {0}")]
     Tile(u32),
+    /// A [`FeatureRaster`] backward given the state of another backend's render.
+    #[error("a feature render's backward needs the state of a render by the same backend")]
+    State,
+    /// A device backend's failure, or an input it cannot take (the message says which).
+    #[error("{0}")]
+    Device(String),
 }
 
 /// Read access to the raw Gaussian parameters in the kernels' scalar type. [`Surfels`] implements

@@ -1,6 +1,8 @@
-//! What the GPU tests share: the adapter they run on.
+//! What the GPU tests share: the adapter they run on, and the rasterizer tests' checks (`oracle`).
 
 use svgir_gpu::Gpu;
+
+pub mod oracle;
 
 /// The adapter `SVGIR_GPU_ADAPTER` names, else Mesa's lavapipe; `None` (the test prints
 /// SKIPPED) without one, a panic under `SVGIR_REQUIRE_GPU=1` (as `.ci/run` sets).
