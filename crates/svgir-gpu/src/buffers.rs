@@ -47,6 +47,12 @@ pub(crate) fn uniform<T: bytemuck::Pod>(device: &wgpu::Device, label: &str, valu
 
 /// A compute pipeline, entry point `main`, from the WGSL `parts` joined in order (shared
 /// declarations first; the layout is the one the entry point's bindings imply).
+/// `guard_loops` (`shaders/loop_guard.wgsl`), for the kernels whose loops run as long as their
+/// data (tile lists, ray marches, direction sets), which bind [`Gpu`]'s status buffer.
+///
+/// [`Gpu`]: crate::Gpu
+pub(crate) const LOOP_GUARD: &str = include_str!("shaders/loop_guard.wgsl");
+
 pub(crate) fn kernel_of(device: &wgpu::Device, label: &str, parts: &[&str]) -> wgpu::ComputePipeline {
     let module = device.create_shader_module(wgpu::ShaderModuleDescriptor {
         label: Some(label),

@@ -140,18 +140,50 @@ pub struct Gpu {
     /// The first error wgpu reported outside a call that returns one (validation, out of
     /// memory), kept for [`Gpu::check`] instead of wgpu's default panic.
     errors: std::sync::Arc<std::sync::Mutex<Option<String>>>,
+    /// What `guard_loops` (shaders/loop_guard.wgsl) found: per kernel a bit when a driver cut
+    /// its loops short, and a word that stays 0. Zero when the device is opened.
+    pub(crate) status: wgpu::Buffer,
 }
+
+/// The kernels `guard_loops` names by bit, in bit order.
+const GUARDED: [&str; 8] = [
+    "the rasterizer's forward",
+    "the rasterizer's backward",
+    "the feature raster's forward",
+    "the feature raster's backward",
+    "the micro-buffer tracer",
+    "the radiance gather",
+    "the vertex shading",
+    "the vertex shading's backward",
+];
 
 impl Gpu {
     /// An error if wgpu has reported one since the device was opened (a kernel or buffer the
     /// driver refused, memory exhausted): the run stops with it instead of going on with
     /// results that were never computed.
+    ///
+    /// Also an error once a driver has cut a kernel's loops short (Mesa's lavapipe stops every
+    /// loop of an invocation after 65535 iterations in all, without a word; the kernels find
+    /// it out, `shaders/loop_guard.wgsl`): that kernel's results are partial, and the run stops
+    /// instead of training on them.
     pub fn check(&self) -> Result<(), GpuError> {
         match self.errors.lock().map(|e| e.clone()) {
-            Ok(None) => Ok(()),
-            Ok(Some(e)) => Err(GpuError::Runtime(format!("{}: {e}", self.report.name))),
-            Err(_) => Err(GpuError::Runtime("the GPU error handler panicked".into())),
+            Ok(None) => {}
+            Ok(Some(e)) => return Err(GpuError::Runtime(format!("{}: {e}", self.report.name))),
+            Err(_) => return Err(GpuError::Runtime("the GPU error handler panicked".into())),
         }
+        let bits = crate::buffers::read_back::<u32>(&self.device, &self.queue, &[(&self.status, 1)])?.remove(0)[0];
+        if bits == 0 {
+            return Ok(());
+        }
+        let cut: Vec<&str> = GUARDED.iter().enumerate().filter(|(i, _)| bits >> i & 1 == 1).map(|(_, k)| *k).collect();
+        Err(GpuError::Runtime(format!(
+            "{}: the driver cut the loops of {} short (a loop-iteration cap, as Mesa's lavapipe has at 65535 \
+             per invocation): the results are partial. The scene is too dense for this adapter at this \
+             size: use a hardware GPU, --device cpu, or fewer Gaussians per pixel",
+            self.report.name,
+            cut.join(", ")
+        )))
     }
 }
 
@@ -255,5 +287,12 @@ pub fn open_named(name: Option<&str>) -> Result<Gpu, GpuError> {
             s.get_or_insert_with(|| e.to_string());
         }
     }));
-    Ok(Gpu { device, queue, report, errors })
+    // Storage for guard_loops, copied from for Gpu::check; wgpu zeroes new buffers.
+    let status = device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some("loop guard status"),
+        size: 8,
+        usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        mapped_at_creation: false,
+    });
+    Ok(Gpu { device, queue, report, errors, status })
 }

@@ -9,9 +9,9 @@
 //! float, its entries in order), so its sums are the same at every run. One table holds both:
 //! the colours (3 channels a vertex), then the extra channels, with the same vertex count.
 
-use crate::buffers::{bind, dispatch, dispatch_2d, kernel_of, read_back, storage, uniform, upload};
+use crate::buffers::{bind, dispatch, dispatch_2d, kernel_of, read_back, storage, uniform, upload, LOOP_GUARD};
 use crate::device::{Gpu, GpuError};
-use crate::raster::{background_grad, check_binding, Frame, GpuRaster, Layout, Params, SurfelBuffers, SPLAT};
+use crate::raster::{background_grad, check_binding, Frame, GpuRaster, Layout, Params, SurfelBuffers, PARTIALS, SPLAT};
 use bytemuck::{Pod, Zeroable};
 use svgir_raster::{
     BackgroundOf, ColorSourceOf, FeatureRaster, Grads, OutputGrads, PassGrads, PassState, Projected, RasterConfig,
@@ -89,9 +89,16 @@ impl GpuFeatureRaster {
         let layout = include_str!("shaders/features.wgsl");
         let interp = include_str!("shaders/feat_interp.wgsl");
         let stage = include_str!("shaders/stage.wgsl");
-        let forward = kernel_of(d, "feat_fwd", &[common, layout, stage, interp, include_str!("shaders/feat_fwd.wgsl")]);
-        let backward =
-            kernel_of(d, "feat_bwd", &[common, layout, stage, interp, include_str!("shaders/feat_bwd.wgsl")]);
+        let forward = kernel_of(
+            d,
+            "feat_fwd",
+            &[common, layout, stage, interp, LOOP_GUARD, include_str!("shaders/feat_fwd.wgsl")],
+        );
+        let backward = kernel_of(
+            d,
+            "feat_bwd",
+            &[common, layout, stage, interp, LOOP_GUARD, PARTIALS, include_str!("shaders/feat_bwd.wgsl")],
+        );
         let sum = kernel_of(d, "feat_sum", &[common, layout, include_str!("shaders/feat_sum.wgsl")]);
         Self { raster: GpuRaster::new(&gpu), gpu, forward, backward, sum }
     }
@@ -130,7 +137,19 @@ impl GpuFeatureRaster {
         let b = bind(
             d,
             &self.forward,
-            &[&f.params, &feat_buf, &f.splat, &f.rect, &f.ranges, &f.tval, &f.egauss, &table, &f.img, &f.ncon],
+            &[
+                &f.params,
+                &feat_buf,
+                &f.splat,
+                &f.rect,
+                &f.ranges,
+                &f.tval,
+                &f.egauss,
+                &table,
+                &f.img,
+                &f.ncon,
+                &gpu.status,
+            ],
         );
         dispatch_2d(&mut enc, &self.forward, &b, params.tiles_x, params.tiles_y);
         gpu.queue.submit([enc.finish()]);
@@ -177,8 +196,19 @@ impl GpuFeatureRaster {
             d,
             &self.backward,
             &[
-                u[0], u[1], &f.splat, &f.rect, &f.ranges, &f.tval, &f.egauss, &fwd.table, &f.img, &f.ncon, &f.vout,
+                u[0],
+                u[1],
+                &f.splat,
+                &f.rect,
+                &f.ranges,
+                &f.tval,
+                &f.egauss,
+                &fwd.table,
+                &f.img,
+                &f.ncon,
+                &f.vout,
                 &f.slots,
+                &gpu.status,
             ],
         );
         dispatch_2d(&mut enc, &self.backward, &b, p.tiles_x, p.tiles_y);

@@ -56,7 +56,11 @@ impl Gather {
             kernel: kernel_of(
                 &gpu.device,
                 "gather",
-                &[include_str!("shaders/pbr_common.wgsl"), include_str!("shaders/gather.wgsl")],
+                &[
+                    include_str!("shaders/pbr_common.wgsl"),
+                    crate::buffers::LOOP_GUARD,
+                    include_str!("shaders/gather.wgsl"),
+                ],
             ),
             pairs: PAIRS,
         }
@@ -226,7 +230,19 @@ impl Gather {
             let bg = crate::buffers::bind(
                 d,
                 &self.kernel,
-                &[&ub, &bufs[0], &bufs[1], &bufs[2], &bufs[3], &bufs[4], &bufs[5], &group_buf, &pair_buf, &out_buf],
+                &[
+                    &ub,
+                    &bufs[0],
+                    &bufs[1],
+                    &bufs[2],
+                    &bufs[3],
+                    &bufs[4],
+                    &bufs[5],
+                    &group_buf,
+                    &pair_buf,
+                    &out_buf,
+                    &gpu.status,
+                ],
             );
             let mut enc = d.create_command_encoder(&Default::default());
             let (x, y) = grid(batch.len() as u32);

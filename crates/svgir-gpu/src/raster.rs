@@ -16,7 +16,7 @@
 //! Tiles are 16 px (one 256-thread workgroup each); the CPU's default is 32. Tiling changes no
 //! image bit on the CPU and only the order of gradient sums, so the two compare as the tests do.
 
-use crate::buffers::{bind, dispatch, dispatch_2d, kernel_of, read_back, storage, upload};
+use crate::buffers::{bind, dispatch, dispatch_2d, kernel_of, read_back, storage, upload, LOOP_GUARD};
 use crate::device::{Gpu, GpuError};
 use crate::sort::{scan_plan, sort_plan, ScanPlan, SortKernels, SortPlan};
 use bytemuck::{Pod, Zeroable};
@@ -114,10 +114,15 @@ pub(crate) fn kernel(device: &wgpu::Device, label: &str, body: &str) -> wgpu::Co
     kernel_of(device, label, &[include_str!("shaders/common.wgsl"), body])
 }
 
-/// A compositing kernel: `body` after the shared declarations and the batch staging (`stage.wgsl`).
-fn staged_kernel(device: &wgpu::Device, label: &str, body: &str) -> wgpu::ComputePipeline {
-    let parts = [include_str!("shaders/common.wgsl"), include_str!("shaders/stage.wgsl"), body];
-    kernel_of(device, label, &parts)
+/// The tile backwards' last reduction step (`shaders/partials.wgsl`).
+pub(crate) const PARTIALS: &str = include_str!("shaders/partials.wgsl");
+
+/// A compositing kernel: `parts` after the shared declarations, the batch staging (`stage.wgsl`)
+/// and the loop guard.
+fn staged_kernel(device: &wgpu::Device, label: &str, parts: &[&str]) -> wgpu::ComputePipeline {
+    let mut all = vec![include_str!("shaders/common.wgsl"), include_str!("shaders/stage.wgsl"), LOOP_GUARD];
+    all.extend_from_slice(parts);
+    kernel_of(device, label, &all)
 }
 
 /// Surfel parameters resident on the GPU, in [`Surfels`]' layouts (positions 3, rotations 4 as
@@ -358,8 +363,8 @@ impl GpuRaster {
             bin_total: kernel(d, "bin_total", include_str!("shaders/bin_total.wgsl")),
             bin_emit: kernel(d, "bin_emit", include_str!("shaders/bin_emit.wgsl")),
             bin_ranges: kernel(d, "bin_ranges", include_str!("shaders/bin_ranges.wgsl")),
-            forward: staged_kernel(d, "raster_fwd", include_str!("shaders/raster_fwd.wgsl")),
-            backward: staged_kernel(d, "raster_bwd", include_str!("shaders/raster_bwd.wgsl")),
+            forward: staged_kernel(d, "raster_fwd", &[include_str!("shaders/raster_fwd.wgsl")]),
+            backward: staged_kernel(d, "raster_bwd", &[PARTIALS, include_str!("shaders/raster_bwd.wgsl")]),
             project_bwd: kernel(d, "project_bwd", include_str!("shaders/project_bwd.wgsl")),
         }
     }
@@ -377,7 +382,11 @@ impl GpuRaster {
     ) {
         self.encode_binning(gpu, enc, surf, frame, params);
         let (d, f, p) = (&gpu.device, frame, &frame.params);
-        let bg4 = bind(d, &self.forward, &[p, &f.splat, &f.rect, &f.ranges, &f.tval, &f.egauss, &f.img, &f.ncon]);
+        let bg4 = bind(
+            d,
+            &self.forward,
+            &[p, &f.splat, &f.rect, &f.ranges, &f.tval, &f.egauss, &f.img, &f.ncon, &gpu.status],
+        );
         dispatch_2d(enc, &self.forward, &bg4, params.tiles_x, params.tiles_y);
     }
 
@@ -437,7 +446,7 @@ impl GpuRaster {
         let b = bind(
             d,
             &self.backward,
-            &[p, &f.splat, &f.rect, &f.ranges, &f.tval, &f.egauss, &f.img, &f.ncon, &f.vout, &f.slots],
+            &[p, &f.splat, &f.rect, &f.ranges, &f.tval, &f.egauss, &f.img, &f.ncon, &f.vout, &f.slots, &gpu.status],
         );
         dispatch_2d(enc, &self.backward, &b, params.tiles_x, params.tiles_y);
         let b = bind(

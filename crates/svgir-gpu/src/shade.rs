@@ -72,9 +72,16 @@ impl GpuShader {
     /// The shader on `gpu` (compiles its kernel).
     pub fn new(gpu: Gpu) -> Self {
         let (pbr, common) = (include_str!("shaders/pbr_common.wgsl"), include_str!("shaders/shade_common.wgsl"));
-        let kernel = kernel_of(&gpu.device, "shade", &[pbr, common, include_str!("shaders/shade.wgsl")]);
-        let backward_kernel =
-            kernel_of(&gpu.device, "shade backward", &[pbr, common, include_str!("shaders/shade_bwd.wgsl")]);
+        let kernel = kernel_of(
+            &gpu.device,
+            "shade",
+            &[pbr, common, crate::buffers::LOOP_GUARD, include_str!("shaders/shade.wgsl")],
+        );
+        let backward_kernel = kernel_of(
+            &gpu.device,
+            "shade backward",
+            &[pbr, common, crate::buffers::LOOP_GUARD, include_str!("shaders/shade_bwd.wgsl")],
+        );
         Self { gpu, kernel, backward_kernel, batch_bytes: BATCH_BYTES }
     }
 
@@ -125,7 +132,18 @@ impl GpuShader {
             let bg = crate::buffers::bind(
                 d,
                 &self.kernel,
-                &[&ub, &side.frames, &side.tables, &samples, &side.verts, &given, &side.light_vis, &sub, out],
+                &[
+                    &ub,
+                    &side.frames,
+                    &side.tables,
+                    &samples,
+                    &side.verts,
+                    &given,
+                    &side.light_vis,
+                    &sub,
+                    out,
+                    &self.gpu.status,
+                ],
             );
             self.submit(&self.kernel, &bg, b.to - b.from);
         }
@@ -189,6 +207,7 @@ impl GpuShader {
                         &v_color_buf,
                         &out,
                         &v_light,
+                        &self.gpu.status,
                     ],
                 );
                 self.submit(&self.backward_kernel, &bg, b.to - b.from);

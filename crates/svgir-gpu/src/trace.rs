@@ -114,7 +114,8 @@ struct Scene {
 impl GpuTracer {
     /// The tracer on `gpu` (compiles its kernel).
     pub fn new(gpu: Gpu) -> Self {
-        let parts = [include_str!("shaders/common.wgsl"), include_str!("shaders/trace.wgsl")];
+        let parts =
+            [include_str!("shaders/common.wgsl"), crate::buffers::LOOP_GUARD, include_str!("shaders/trace.wgsl")];
         let kernel = kernel_of(&gpu.device, "trace", &parts);
         let gather = crate::gather::Gather::new(&gpu);
         Self { gpu, kernel, gather }
@@ -318,6 +319,7 @@ impl GpuTracer {
                     scene.fib.as_entire_binding(),
                     bytes(&out, off * SAMPLE, n * SAMPLE),
                     rec_binding,
+                    self.gpu.status.as_entire_binding(),
                 ];
                 let entries: Vec<wgpu::BindGroupEntry> = entries
                     .into_iter()

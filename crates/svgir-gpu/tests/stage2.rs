@@ -1,4 +1,4 @@
-//! Stage 2 with its tracing and shading on the GPU (lavapipe in CI) against the same run on the
+//! Stage 2 with its tracing, shading and feature raster on the GPU (lavapipe in CI) against the same
 //! CPU, on the shipped scene at small size: SPEC 8's novel views, albedo and relighting within
 //! 0.02 dB (issue 76 asks for 0.3), runs resumed across devices within the same, and the same
 //! model evaluated by both devices' kernels within 0.002 dB.
@@ -59,7 +59,8 @@ fn a_short_stage2_run_on_the_gpu_lands_where_the_cpu_run_does_and_resumes_across
     let Some(gpu) = common::gpu() else { return };
     let on_gpu = Kernels {
         tracer: std::sync::Arc::new(svgir_gpu::GpuTracer::new(gpu.clone())),
-        shader: std::sync::Arc::new(svgir_gpu::GpuShader::new(gpu)),
+        shader: std::sync::Arc::new(svgir_gpu::GpuShader::new(gpu.clone())),
+        raster: std::sync::Arc::new(svgir_gpu::GpuFeatureRaster::new(gpu)),
     };
     let ds = scene();
     let surfels = stage1(&ds);

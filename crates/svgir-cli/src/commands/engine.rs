@@ -29,12 +29,14 @@ pub fn open_device(choice: DeviceChoice) -> Result<Option<svgir_gpu::Gpu>> {
     Ok(gpu)
 }
 
-/// Stage 2's and relighting's tracer and vertex shader on the device `choice` asks for.
+/// Stage 2's and relighting's tracer, vertex shader and feature raster on the device `choice`
+/// asks for.
 pub fn stage2_kernels(choice: DeviceChoice) -> Result<svgir_train::Kernels> {
     Ok(match open_device(choice)? {
         Some(gpu) => svgir_train::Kernels {
             tracer: std::sync::Arc::new(svgir_gpu::GpuTracer::new(gpu.clone())),
-            shader: std::sync::Arc::new(svgir_gpu::GpuShader::new(gpu)),
+            shader: std::sync::Arc::new(svgir_gpu::GpuShader::new(gpu.clone())),
+            raster: std::sync::Arc::new(svgir_gpu::GpuFeatureRaster::new(gpu)),
         },
         None => svgir_train::Kernels::cpu(),
     })

@@ -10,8 +10,8 @@
 // shaded sets), dL/d colour row (3 per vertex: w w_vtx gC) and dL/d extra row (per vertex
 // w w_vtx gE for the interpolated channels; w gE at vertex 0 for the uniform ones). The pixels'
 // values are added in chunks of CHUNK floats: within each subgroup (subgroupAdd; its size is read
-// at run time, never assumed), then the subgroups' partial sums in subgroup order by
-// CHUNK / 4 threads, as raster_bwd.wgsl does, so no atomics and the same sums at every run.
+// at run time, never assumed), then the subgroups' partial sums by the subgroups (partials.wgsl),
+// as raster_bwd.wgsl does, so no atomics and the same sums at every run.
 
 @group(0) @binding(0) var<uniform> P: Params;
 @group(0) @binding(1) var<uniform> F: Feat;
@@ -26,6 +26,8 @@
 // Per pixel (F.vpix = 5 + ce floats): dL/d colour (3), alpha, depth, extra channels.
 @group(0) @binding(10) var<storage, read> vout: array<f32>;
 @group(0) @binding(11) var<storage, read_write> grads: array<f32>;
+// Loops cut short (loop_guard.wgsl): bit 8.
+@group(0) @binding(12) var<storage, read_write> status: array<atomic<u32>, 2>;
 
 const BATCH: u32 = 64u;
 const CHUNK: u32 = 24u;
@@ -64,12 +66,23 @@ fn slot_value(q: u32, v_o: f32, w: f32, wv_in: array<f32, 6>, gc: vec3<f32>, ge_
     return select(0.0, w * ge[c], vtx == 0u);
 }
 
+// Floats q .. q + 3 of the slot.
+fn slot4(q: u32, v_o: f32, w: f32, wv: array<f32, 6>, gc: vec3<f32>, ge: array<f32, MAX_EXTRA>) -> vec4<f32> {
+    return vec4<f32>(
+        slot_value(q, v_o, w, wv, gc, ge),
+        slot_value(q + 1u, v_o, w, wv, gc, ge),
+        slot_value(q + 2u, v_o, w, wv, gc, ge),
+        slot_value(q + 3u, v_o, w, wv, gc, ge),
+    );
+}
+
 @compute @workgroup_size(256)
 fn main(
     @builtin(workgroup_id) wid: vec3<u32>,
     @builtin(local_invocation_index) tid: u32,
     @builtin(subgroup_invocation_id) sg_lane: u32,
     @builtin(subgroup_id) sg: u32,
+    @builtin(subgroup_size) sg_size: u32,
     @builtin(num_subgroups) n_sg: u32,
 ) {
     let tile = wid.y * P.tiles_x + wid.x;
@@ -151,8 +164,18 @@ fn main(
                         feat_value(0u, 3u, 3u, g, 2u, wv),
                     );
                     var gw = dot(gc, col) + go + gd * ev.z;
-                    for (var c = 0u; c < F.ce; c++) {
+                    // Four channels an iteration, in order (loop_guard.wgsl).
+                    for (var c = 0u; c < F.ce; c += 4u) {
                         gw += ge[c] * feat_value(F.ext_at, F.ce, F.lerped, g, c, wv);
+                        if c + 1u < F.ce {
+                            gw += ge[c + 1u] * feat_value(F.ext_at, F.ce, F.lerped, g, c + 1u, wv);
+                        }
+                        if c + 2u < F.ce {
+                            gw += ge[c + 2u] * feat_value(F.ext_at, F.ce, F.lerped, g, c + 2u, wv);
+                        }
+                        if c + 3u < F.ce {
+                            gw += ge[c + 3u] * feat_value(F.ext_at, F.ce, F.lerped, g, c + 3u, wv);
+                        }
                     }
                     let v_alpha = ti * gw - acc * inv_one_m;
                     acc += gw * w;
@@ -163,41 +186,39 @@ fn main(
                 }
             }
             for (var k = 0u; k < chunks; k++) {
-                var vals: array<vec4<f32>, 6>;
+                // Chunk k of the slot: six groups of four floats, unrolled (loop_guard.wgsl
+                // counts every loop iteration on lavapipe).
+                var c = array<vec4<f32>, 6>();
                 if w != 0.0 {
-                    for (var i = 0u; i < 6u; i++) {
-                        let q = k * CHUNK + 4u * i;
-                        vals[i] = vec4<f32>(
-                            slot_value(q, v_o, w, wv, gc, ge),
-                            slot_value(q + 1u, v_o, w, wv, gc, ge),
-                            slot_value(q + 2u, v_o, w, wv, gc, ge),
-                            slot_value(q + 3u, v_o, w, wv, gc, ge),
-                        );
-                    }
+                    let q = k * CHUNK;
+                    c[0] = slot4(q, v_o, w, wv, gc, ge);
+                    c[1] = slot4(q + 4u, v_o, w, wv, gc, ge);
+                    c[2] = slot4(q + 8u, v_o, w, wv, gc, ge);
+                    c[3] = slot4(q + 12u, v_o, w, wv, gc, ge);
+                    c[4] = slot4(q + 16u, v_o, w, wv, gc, ge);
+                    c[5] = slot4(q + 20u, v_o, w, wv, gc, ge);
                 }
-                for (var i = 0u; i < 6u; i++) {
-                    let s = subgroupAdd(vals[i]);
-                    if sg_lane == 0u {
-                        partial[sg][i] = s;
-                    }
+                let s0 = subgroupAdd(c[0]);
+                let s1 = subgroupAdd(c[1]);
+                let s2 = subgroupAdd(c[2]);
+                let s3 = subgroupAdd(c[3]);
+                let s4 = subgroupAdd(c[4]);
+                let s5 = subgroupAdd(c[5]);
+                if sg_lane == 0u {
+                    partial[sg][0] = s0;
+                    partial[sg][1] = s1;
+                    partial[sg][2] = s2;
+                    partial[sg][3] = s3;
+                    partial[sg][4] = s4;
+                    partial[sg][5] = s5;
                 }
                 workgroupBarrier();
-                if tid < 6u {
-                    var sum = vec4<f32>(0.0);
-                    for (var s = 0u; s < n_sg; s++) {
-                        sum += partial[s][tid];
-                    }
-                    let q = k * CHUNK + 4u * tid;
-                    let base = s_slot[j] * F.fd;
-                    for (var c = 0u; c < 4u; c++) {
-                        if q + c < F.fd {
-                            grads[base + q + c] = sum[c];
-                        }
-                    }
-                }
+                let q = k * CHUNK;
+                write_partials(s_slot[j] * F.fd + q, min(CHUNK, F.fd - q), sg, sg_lane, sg_size, n_sg);
                 workgroupBarrier();
             }
         }
         hi = lo;
     }
+    guard_loops(8u);
 }

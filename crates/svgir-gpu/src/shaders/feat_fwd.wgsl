@@ -18,6 +18,8 @@
 @group(0) @binding(7) var<storage, read> feat: array<f32>;
 @group(0) @binding(8) var<storage, read_write> img: array<f32>;
 @group(0) @binding(9) var<storage, read_write> ncon: array<u32>;
+// Loops cut short (loop_guard.wgsl): bit 4.
+@group(0) @binding(10) var<storage, read_write> status: array<atomic<u32>, 2>;
 
 const BATCH: u32 = 128u;
 
@@ -100,8 +102,18 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
                     median = ev.z;
                 }
             }
-            for (var c = 0u; c < F.ce; c++) {
+            // Four channels an iteration (loop_guard.wgsl counts iterations on lavapipe).
+            for (var c = 0u; c < F.ce; c += 4u) {
                 ext[c] = fma(w, feat_value(F.ext_at, F.ce, F.lerped, g, c, wv), ext[c]);
+                if c + 1u < F.ce {
+                    ext[c + 1u] = fma(w, feat_value(F.ext_at, F.ce, F.lerped, g, c + 1u, wv), ext[c + 1u]);
+                }
+                if c + 2u < F.ce {
+                    ext[c + 2u] = fma(w, feat_value(F.ext_at, F.ce, F.lerped, g, c + 2u, wv), ext[c + 2u]);
+                }
+                if c + 3u < F.ce {
+                    ext[c + 3u] = fma(w, feat_value(F.ext_at, F.ce, F.lerped, g, c + 3u, wv), ext[c + 3u]);
+                }
             }
             t = test;
             nc = b0 + j - r0 + 1u;
@@ -123,4 +135,5 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
         }
         ncon[p] = nc;
     }
+    guard_loops(4u);
 }

@@ -48,9 +48,17 @@ fn feat_value(at: u32, chans: u32, lerped: u32, g: u32, c: u32, w_in: array<f32,
     if F.m == 1u || c >= lerped {
         return feat[base + c];
     }
+    // The vertices in order, as the CPU's loop adds them, written out: lavapipe counts every
+    // loop iteration against its cap (loop_guard.wgsl).
     var out = w[0] * feat[base + c];
-    for (var k = 1u; k < F.m; k++) {
-        out = fma(w[k], feat[base + k * chans + c], out);
+    out = fma(w[1], feat[base + chans + c], out);
+    if F.m > 2u {
+        out = fma(w[2], feat[base + 2u * chans + c], out);
+        out = fma(w[3], feat[base + 3u * chans + c], out);
+    }
+    if F.m > 4u {
+        out = fma(w[4], feat[base + 4u * chans + c], out);
+        out = fma(w[5], feat[base + 5u * chans + c], out);
     }
     return out;
 }

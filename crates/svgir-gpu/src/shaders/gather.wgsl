@@ -61,6 +61,8 @@ const R_NODES: u32 = 33u;
 @group(0) @binding(8) var<storage, read> pairs: array<vec2<u32>>;
 // L1b per pair of this dispatch, 3 floats.
 @group(0) @binding(9) var<storage, read_write> out: array<f32>;
+// Loops cut short (loop_guard.wgsl): bit 32.
+@group(0) @binding(10) var<storage, read_write> status: array<atomic<u32>, 2>;
 
 var<workgroup> esc_dir: array<vec4<f32>, ESC>;  // (direction, L.r)
 var<workgroup> esc_gb: array<vec2<f32>, ESC>;   // (L.g, L.b)
@@ -237,4 +239,5 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3
             out[o + 2u] = acc.z * P.scale;
         }
     }
+    guard_loops(32u);
 }

@@ -6,8 +6,8 @@
 //
 // Reduction, without atomics: for each entry, the pixels' contributions (DIM values, below) are
 // added within each subgroup (subgroupAdd; its size is read at run time, never assumed), the
-// subgroups' partial sums are staged in workgroup memory and added in subgroup order by DIM / 4
-// threads, which write the entry's own slot `grads[entry * DIM ..]`. Every slot belongs to one
+// subgroups' partial sums are staged in workgroup memory and added by the subgroups
+// (partials.wgsl), which write the entry's own slot `grads[entry * DIM ..]`. Every slot belongs to one
 // (tile, Gaussian) entry, so the per-Gaussian sums (project_bwd.wgsl) need no atomics either and
 // the result is the same at every run.
 //
@@ -25,6 +25,8 @@
 // Per pixel: dL/d colour (3), alpha, depth, normal (3), distortion (9).
 @group(0) @binding(8) var<storage, read> vout: array<f32>;
 @group(0) @binding(9) var<storage, read_write> grads: array<f32>;
+// Loops cut short (loop_guard.wgsl): bit 2.
+@group(0) @binding(10) var<storage, read_write> status: array<atomic<u32>, 2>;
 
 const BATCH: u32 = 64u;
 const PIX: u32 = 13u;
@@ -44,6 +46,7 @@ fn main(
     @builtin(local_invocation_index) tid: u32,
     @builtin(subgroup_invocation_id) sg_lane: u32,
     @builtin(subgroup_id) sg: u32,
+    @builtin(subgroup_size) sg_size: u32,
     @builtin(num_subgroups) n_sg: u32,
 ) {
     let tile = wid.y * P.tiles_x + wid.x;
@@ -203,19 +206,10 @@ fn main(
                 partial[sg][5] = s5;
             }
             workgroupBarrier();
-            if tid < 6u {
-                var sum = vec4<f32>(0.0);
-                for (var k = 0u; k < n_sg; k++) {
-                    sum += partial[k][tid];
-                }
-                let base = s_slot[j] * DIM + tid * 4u;
-                grads[base] = sum.x;
-                grads[base + 1u] = sum.y;
-                grads[base + 2u] = sum.z;
-                grads[base + 3u] = sum.w;
-            }
+            write_partials(s_slot[j] * DIM, DIM, sg, sg_lane, sg_size, n_sg);
             workgroupBarrier();
         }
         hi = lo;
     }
+    guard_loops(2u);
 }

@@ -18,6 +18,8 @@
 // Per pixel: colour (3), alpha, depth, median, normal (3), distortion, final T, M1, M2 (13).
 @group(0) @binding(6) var<storage, read_write> img: array<f32>;
 @group(0) @binding(7) var<storage, read_write> ncon: array<u32>;
+// Loops cut short (loop_guard.wgsl): bit 1.
+@group(0) @binding(8) var<storage, read_write> status: array<atomic<u32>, 2>;
 
 const BATCH: u32 = 128u;
 const PIX: u32 = 13u;
@@ -133,4 +135,5 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) 
         img[o + 12u] = m2;
         ncon[p] = nc;
     }
+    guard_loops(1u);
 }

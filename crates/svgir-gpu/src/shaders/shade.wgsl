@@ -41,6 +41,8 @@
 @group(0) @binding(7) var<storage, read> list: array<u32>;
 // Colour, then (F_SPLIT) direct and indirect parts: (j * M + m) * 3 + c, N * M * 3 each.
 @group(0) @binding(8) var<storage, read_write> out: array<f32>;
+// Loops cut short (loop_guard.wgsl): bit 64.
+@group(0) @binding(9) var<storage, read_write> status: array<atomic<u32>, 2>;
 
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
@@ -123,4 +125,5 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
             }
         }
     }
+    guard_loops(64u);
 }

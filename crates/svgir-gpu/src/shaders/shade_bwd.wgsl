@@ -31,6 +31,8 @@
 @group(0) @binding(9) var<storage, read_write> grads: array<f32>;
 // Per sample of the bound Gaussians, ((j - base) * (K + lights) + s) * 3 + c: C V dL/dLin_c.
 @group(0) @binding(10) var<storage, read_write> v_light: array<f32>;
+// Loops cut short (loop_guard.wgsl): bit 128.
+@group(0) @binding(11) var<storage, read_write> status: array<atomic<u32>, 2>;
 
 const F_BACK: u32 = 16u;   // the back side: its shading normals are negated
 
@@ -164,4 +166,5 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
         grads[base + 3u * m + v] = P.scale * (vr[v] + q * dw.y);
     }
     grads[base + 7u * m] = v_rho;
+    guard_loops(128u);
 }

@@ -69,6 +69,8 @@ const ALPHA_MAX: f32 = 0.99;
 // F_RECORD: per ray 1 + 2 * record_max vec4s: (dir, bitcast hits consumed), then per hit
 // (t, bitcast id, alpha, u), (v, 0, 0, 0).
 @group(0) @binding(7) var<storage, read_write> record: array<vec4<f32>>;
+// Loops cut short (loop_guard.wgsl): bit 16.
+@group(0) @binding(8) var<storage, read_write> status: array<atomic<u32>, 2>;
 
 var<private> kb_t: array<f32, KBUF>;
 var<private> kb_id: array<u32, KBUF>;
@@ -417,4 +419,5 @@ fn main(@builtin(workgroup_id) wid: vec3<u32>, @builtin(num_workgroups) nwg: vec
         uv = unorm16(clamp(0.5 + 0.5 * fu, 0.001, 0.999)) | (unorm16(clamp(0.5 + 0.5 * fv, 0.001, 0.999)) << 16u);
     }
     samples[local] = vec4<u32>(unorm16(vis) | (f16_bits(lc.x) << 16u), f16_bits(lc.y) | (f16_bits(lc.z) << 16u), first, uv);
+    guard_loops(16u);
 }

@@ -55,8 +55,7 @@ use svgir_pbr::{
     VertexShader,
 };
 use svgir_raster::{
-    backward, render, Background, ColorSource, Features, ForwardState, OutputGrads, Projected, RasterConfig,
-    RenderInput, RenderOutput,
+    render, Background, ColorSource, CpuFeatureRaster, FeatureRaster, Features, OutputGrads, RasterConfig, RenderInput,
 };
 use svgir_trace::{
     brightest_texels, concentrate_lobe, BrightLights, Bvh, CpuTracer, GatherParams, MicroBuffer, MicroTracer,
@@ -140,8 +139,9 @@ pub struct Stage2 {
     pub kernels: Kernels,
 }
 
-/// Where stage 2's device kernels run: the micro-buffer tracer and the vertex shader (training's
-/// shading forward and backward, and every render: evaluation, relighting). The CPU's by default; the
+/// Where stage 2's device kernels run: the micro-buffer tracer, the vertex shader (training's
+/// shading forward and backward, and every render: evaluation, relighting) and the feature
+/// raster (the PBR pass, forward and backward, and every render's). The CPU's by default; the
 /// front end swaps in a device's (svgir-gpu), so this crate never depends on a GPU crate.
 #[derive(Clone)]
 pub struct Kernels {
@@ -149,12 +149,14 @@ pub struct Kernels {
     pub tracer: Arc<dyn MicroTracer>,
     /// Shades the vertices (SPEC 4).
     pub shader: Arc<dyn VertexShader>,
+    /// Composites the shaded colours and the material channels (SPEC 6's PBR pass).
+    pub raster: Arc<dyn FeatureRaster>,
 }
 
 impl Kernels {
     /// The CPU kernels.
     pub fn cpu() -> Self {
-        Self { tracer: Arc::new(CpuTracer), shader: Arc::new(CpuShader) }
+        Self { tracer: Arc::new(CpuTracer), shader: Arc::new(CpuShader), raster: Arc::new(CpuFeatureRaster) }
     }
 
     /// What runs them, for logs: "cpu", or the adapter.
@@ -171,7 +173,8 @@ impl Default for Kernels {
 
 impl std::fmt::Debug for Kernels {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "Kernels(tracer {}, shader {})", self.tracer.name(), self.shader.name())
+        let (t, s, r) = (self.tracer.name(), self.shader.name(), self.raster.name());
+        write!(f, "Kernels(tracer {t}, shader {s}, raster {r})")
     }
 }
 
@@ -292,12 +295,9 @@ fn photo_coverage(mode: Coverage, image: &Image) -> Option<Vec<f32>> {
     (mode == Coverage::Photo && image.channels == 4).then(|| alpha_of(image))
 }
 
-/// The PBR pass of a view after its SH pass's projection `prior`: the same Gaussians (SPEC 6
-/// freezes their geometry, and opacities change only at the optimiser's step), camera and
-/// settings, so it reuses that projection; with one vertex per Gaussian (M = 1) it renders its
-/// own.
-pub(crate) fn render_after(input: &RenderInput, cfg: &RasterConfig, prior: &Projected) -> (RenderOutput, ForwardState) {
-    svgir_raster::try_render_reusing(input, cfg, prior).unwrap_or_else(|_| render(input, cfg))
+/// A feature raster's refusal as stage 2's error.
+fn raster_error(e: svgir_raster::RasterError) -> PbrError {
+    PbrError::InvalidParameter(format!("the PBR pass: {e}"))
 }
 
 impl Stage2 {

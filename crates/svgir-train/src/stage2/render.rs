@@ -159,7 +159,10 @@ impl Stage2 {
             extra: Some(Features { data: &extra, vertices: m, channels: EXTRA_CHANNELS, uniform: 0 }),
             background: Background::Color([0.0; 3]),
         };
-        let (out, _) = super::render_after(&input, &self.raster, &seen_state.projected());
+        // The normal image is the shading normals' (feature channels), not the splats'.
+        let cfg = RasterConfig { normals: false, ..self.raster };
+        let (out, _) =
+            self.kernels.raster.render(&input, &cfg, &seen_state.projected()).map_err(super::raster_error)?;
         let mut r = PbrRender {
             width: w as u32,
             height: h as u32,

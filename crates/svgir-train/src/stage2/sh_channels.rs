@@ -1,7 +1,7 @@
 //! The SH image of Eqn 15 splatted inside the PBR pass, so that one backward serves both images.
 //!
 //! SPEC 6 freezes the geometry, so the SH pass and the PBR pass composite the same entries with
-//! the same alphas (the PBR pass reuses the SH pass's projection, `render_after`). Training gives
+//! the same alphas (the PBR pass reuses the SH pass's projection, `svgir_raster::FeatureRaster::render`). Training gives
 //! every vertex of a Gaussian that Gaussian's SH colour as three more extra channels of the PBR
 //! pass, declared uniform (`svgir_raster::FeaturesOf::uniform`): the kernels read them once per
 //! Gaussian instead of interpolating a constant, so they composite to the SH pass's `sum w c`
@@ -209,7 +209,8 @@ mod tests {
             extra: Some(Features { data: &extra, vertices: m, channels: PASS_CHANNELS, uniform: SH_CHANNELS }),
             background: Background::Color([0.0; 3]),
         };
-        let (pbr_out, pbr_state) = super::super::render_after(&pbr_input, &cfg, &sh_state.projected());
+        let (pbr_out, pbr_state) = svgir_raster::try_render_reusing(&pbr_input, &cfg, &sh_state.projected())
+            .expect("M = 4 reuses the SH pass's projection");
         let (_, sh_image) = split_pass(&pbr_out.extra, &pbr_out.alpha, bg);
         let diff = sh_image.iter().zip(&sh_out.color).fold(0.0f32, |d, (a, b)| d.max((a - b).abs()));
         assert!(diff < 1e-5, "the SH image from the PBR pass is {diff} off the SH pass's");

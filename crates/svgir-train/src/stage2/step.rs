@@ -157,7 +157,11 @@ impl Stage2 {
         // The loss reads the PBR pass's depth but not its splat normals (the shading normals are
         // feature channels), so that output is not accumulated.
         let pbr_raster = RasterConfig { normals: false, ..self.raster };
-        let (pbr_out, pbr_state) = render_after(&pbr_input, &pbr_raster, &sh_proj);
+        // The PBR pass's Gaussians, camera and settings are the SH pass's (SPEC 6 freezes the
+        // geometry; opacities change only at the optimiser's step): a backend may reuse its
+        // projection.
+        let (pbr_out, pbr_state) =
+            self.kernels.raster.render(&pbr_input, &pbr_raster, &sh_proj).map_err(raster_error)?;
         let (materials_out, sh_image) = split_pass(&pbr_out.extra, &pbr_out.alpha, bg);
         let t1 = Instant::now();
 
@@ -214,20 +218,25 @@ impl Stage2 {
 
         // 4. Backward: the PBR pass's gives the SH image's gradients too (`sh_channels`).
         let v_pass = join_pass_grads(&obj.v_extra, &obj.v_sh_color, bg, &mut obj.v_alpha);
-        let g_pbr = backward(
-            &pbr_input,
-            &pbr_raster,
-            &pbr_state,
-            &pbr_out,
-            &OutputGrads {
-                color: Some(&obj.v_color),
-                alpha: Some(&obj.v_alpha),
-                depth: Some(&obj.v_depth),
-                normal: None,
-                distortion: None,
-                extra: Some(&v_pass),
-            },
-        );
+        let pass = self
+            .kernels
+            .raster
+            .backward(
+                &pbr_input,
+                &pbr_raster,
+                &pbr_state,
+                &pbr_out,
+                &OutputGrads {
+                    color: Some(&obj.v_color),
+                    alpha: Some(&obj.v_alpha),
+                    depth: Some(&obj.v_depth),
+                    normal: None,
+                    distortion: None,
+                    extra: Some(&v_pass),
+                },
+            )
+            .map_err(raster_error)?;
+        let g_pbr = &pass.grads;
         // The shading's gradients are added into L_rc's (the same quantities), or into zeros.
         let mut pg = cons_grads.unwrap_or_else(|| PbrGrads::zeros(self.surfels.len(), m, env_rad.data.len()));
         let (shading, v_sh) = rayon::join(
@@ -285,7 +294,7 @@ impl Stage2 {
         }
         if cfg.shade_sets == ShadeSets::LastVisit {
             // The SH pass's weights: the same entries composited with the same alphas.
-            self.view_sets.record(view_index, &pbr_out.accum_weight, min_w);
+            self.view_sets.record(view_index, &pass.accum_weight, min_w);
         }
         let t4 = Instant::now();
         let secs = |a: Instant, b: Instant| (b - a).as_secs_f64();
