@@ -198,20 +198,7 @@ fn main(
                     c[4] = slot4(q + 16u, v_o, w, wv, gc, ge);
                     c[5] = slot4(q + 20u, v_o, w, wv, gc, ge);
                 }
-                let s0 = subgroupAdd(c[0]);
-                let s1 = subgroupAdd(c[1]);
-                let s2 = subgroupAdd(c[2]);
-                let s3 = subgroupAdd(c[3]);
-                let s4 = subgroupAdd(c[4]);
-                let s5 = subgroupAdd(c[5]);
-                if sg_lane == 0u {
-                    partial[sg][0] = s0;
-                    partial[sg][1] = s1;
-                    partial[sg][2] = s2;
-                    partial[sg][3] = s3;
-                    partial[sg][4] = s4;
-                    partial[sg][5] = s5;
-                }
+                stage_partials(c[0], c[1], c[2], c[3], c[4], c[5], sg, sg_lane);
                 workgroupBarrier();
                 let q = k * CHUNK;
                 write_partials(s_slot[j] * F.fd + q, min(CHUNK, F.fd - q), sg, sg_lane, sg_size, n_sg);

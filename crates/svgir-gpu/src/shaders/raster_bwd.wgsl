@@ -191,20 +191,7 @@ fn main(
                     c5 = vec4<f32>(gpy.z, w, 0.0, 0.0);
                 }
             }
-            let s0 = subgroupAdd(c0);
-            let s1 = subgroupAdd(c1);
-            let s2 = subgroupAdd(c2);
-            let s3 = subgroupAdd(c3);
-            let s4 = subgroupAdd(c4);
-            let s5 = subgroupAdd(c5);
-            if sg_lane == 0u {
-                partial[sg][0] = s0;
-                partial[sg][1] = s1;
-                partial[sg][2] = s2;
-                partial[sg][3] = s3;
-                partial[sg][4] = s4;
-                partial[sg][5] = s5;
-            }
+            stage_partials(c0, c1, c2, c3, c4, c5, sg, sg_lane);
             workgroupBarrier();
             write_partials(s_slot[j] * DIM, DIM, sg, sg_lane, sg_size, n_sg);
             workgroupBarrier();
