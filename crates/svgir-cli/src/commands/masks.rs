@@ -15,7 +15,7 @@ use clap::Args;
 use serde_json::json;
 use std::path::PathBuf;
 use svgir_core::{Image, Rng};
-use svgir_train::foreground::{render_share, select_foreground, ForegroundConfig};
+use svgir_train::foreground::{clipped_gaussians, render_share, select_foreground, ForegroundConfig};
 use svgir_train::mask_check::check_masks;
 use svgir_train::mask_refine::{refine, RefineConfig};
 
@@ -79,13 +79,17 @@ pub fn run(args: MasksArgs) -> Result<()> {
         ..Default::default()
     };
     let cfg = ForegroundConfig::default();
-    let fg = select_foreground(&surfels, &cameras, &raster, &cfg, &mut Rng::new(args.seed))
+    let photos: Vec<(&[f32], usize)> =
+        dataset.train.iter().map(|v| (v.image.data.as_slice(), v.image.channels as usize)).collect();
+    let clipped = clipped_gaussians(&surfels, &cameras, &photos, &cfg);
+    let fg = select_foreground(&surfels, &cameras, &clipped, &raster, &cfg, &mut Rng::new(args.seed))
         .map_err(|e| anyhow::anyhow!("{}: {e}", args.data.display()))?;
     eprintln!(
-        "foreground: {} of {} Gaussians ({} where every camera looks{})",
+        "foreground: {} of {} Gaussians ({} where every camera looks, {} seen clipped left out{})",
         fg.selected_count,
         surfels.len(),
         fg.candidates,
+        fg.clipped,
         if fg.support.is_some() { "; support plane removed" } else { "" }
     );
     let views: Vec<_> = dataset.all_views().collect();

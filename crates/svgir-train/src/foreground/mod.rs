@@ -10,11 +10,20 @@
 //!    everything beyond it are background.
 //! 4. **One object**: the connected cluster (26-neighbour voxel grid) with the most candidates
 //!    is the seed; it grows over every Gaussian connected to it above the support and within
-//!    `grow` times its radius (the parts some photos cut off). Floaters and the rest of the
-//!    scene go.
+//!    `grow` times its radius (the parts some photos cut off). Near the support it grows only
+//!    over the seed's footprint on it: beyond the object's base, what lies there is the
+//!    support's own scatter in front of it, thicker than the slab (nothing behind a wall holds
+//!    its depth) and connected to the object. Floaters and the rest of the scene go.
 //! 5. **Masks by rendering**: each view renders the foreground share of its pixels (foreground
 //!    Gaussians carry 1, the rest 0, composited as colour), so occlusion by the background is
 //!    the renderer's; the mask is that share over the pixel's opacity, 0.5 the threshold.
+//!
+//! Gaussians seen clipped (every channel at the photo's maximum) from a good share of the photos
+//! take no part in steps 2-4: a blown-out region has no texture nor shading, so any depth fits
+//! it, and stage 1 leaves sheets of such Gaussians where densification happened to put them
+//! (beside a white object in front of an overexposed wall, at the object's depth). They still
+//! render. The object's own blown-out parts are taken back after step 4: those touching it, and
+//! those inside its outline's convex hull in most photos.
 //!
 //! Every size is relative to the candidates' spread around the focus, so the result does not
 //! depend on the capture's units. All random choices come from the given [`Rng`].
@@ -23,6 +32,12 @@ use glam::{DMat3, DVec3, Vec3};
 use serde::{Deserialize, Serialize};
 use svgir_core::{Camera, Rng, Surfels};
 use svgir_raster::{render, Background, ColorSource, Features, RasterConfig, RenderInput};
+
+mod cells;
+mod hull;
+
+use cells::{Clusters, Footprint};
+use hull::{hull, in_hull};
 
 /// Thresholds of the foreground selection of a capture's Gaussians.
 #[derive(Clone, Debug, Serialize, Deserialize)]
@@ -55,6 +70,15 @@ pub struct ForegroundConfig {
     /// Connectivity voxel of the growth, as a multiple of `voxel` (coarser: it bridges the
     /// sparser, fainter Gaussians of the parts few photos see).
     pub grow_voxel: f32,
+    /// A photo's pixel is clipped when every colour channel is at least this (8-bit photos load
+    /// as stored over 255, so 0.99 is 252.5 and up).
+    pub clipped_level: f32,
+    /// A Gaussian whose centre lands on a clipped pixel in at least this share of the photos it
+    /// is inside of is no evidence of the object (module docs).
+    pub clipped_share: f32,
+    /// Below this height over the support (a share of the candidates' median distance to the
+    /// focus), the object grows only over the seed cluster's footprint on the support.
+    pub low_height: f32,
 }
 
 impl Default for ForegroundConfig {
@@ -72,6 +96,9 @@ impl Default for ForegroundConfig {
             min_opacity: 0.05,
             grow: 2.5,
             grow_voxel: 2.0,
+            clipped_level: 0.99,
+            clipped_share: 0.3,
+            low_height: 0.5,
         }
     }
 }
@@ -119,6 +146,8 @@ pub struct Foreground {
     pub selected: Vec<bool>,
     /// Number of Gaussians selected as the object.
     pub selected_count: usize,
+    /// Opaque Gaussians left out of the selection because the photos see them clipped.
+    pub clipped: usize,
 }
 
 /// The point nearest to all cameras' optical axes; `None` when they are (nearly) parallel.
@@ -136,6 +165,12 @@ pub fn focus_point(cameras: &[Camera]) -> Option<Vec3> {
     (cameras.len() >= 2 && det.abs() > 1e-6 * (cameras.len() as f64).powi(3)).then(|| (a.inverse() * b).as_vec3())
 }
 
+/// The image position of `p` in `cam`, if it falls inside the image.
+fn pixel_of(cam: &Camera, p: Vec3) -> Option<(f32, f32)> {
+    let (x, y, _) = cam.project(p)?;
+    (x >= 0.0 && y >= 0.0 && x < cam.width() as f32 && y < cam.height() as f32).then_some((x, y))
+}
+
 fn inside_image(cam: &Camera, p: Vec3, margin: f32) -> bool {
     match cam.project(p) {
         Some((x, y, _)) => {
@@ -146,10 +181,39 @@ fn inside_image(cam: &Camera, p: Vec3, margin: f32) -> bool {
     }
 }
 
-/// Steps 1-4 of the module docs.
+/// Per Gaussian: its centre lands on a clipped pixel (every colour channel at least
+/// `cfg.clipped_level`) in at least `cfg.clipped_share` of the photos it is inside of. `photos`
+/// are the cameras' images: interleaved values, `channels` a pixel, colour first.
+pub fn clipped_gaussians(
+    surfels: &Surfels,
+    cameras: &[Camera],
+    photos: &[(&[f32], usize)],
+    cfg: &ForegroundConfig,
+) -> Vec<bool> {
+    assert_eq!(cameras.len(), photos.len(), "one photo per camera");
+    (0..surfels.len())
+        .map(|i| {
+            let p = surfels.positions[i];
+            let (mut inside, mut clipped) = (0usize, 0usize);
+            for (cam, &(data, ch)) in cameras.iter().zip(photos) {
+                let Some((x, y)) = pixel_of(cam, p) else { continue };
+                inside += 1;
+                let k = (y as usize * cam.width() as usize + x as usize) * ch;
+                if data[k..k + ch.min(3)].iter().all(|&v| v >= cfg.clipped_level) {
+                    clipped += 1;
+                }
+            }
+            inside > 0 && clipped as f32 >= cfg.clipped_share * inside as f32
+        })
+        .collect()
+}
+
+/// Steps 1-4 of the module docs; `clipped` (per Gaussian, from [`clipped_gaussians`], or empty)
+/// marks the Gaussians that take no part in the object.
 pub fn select_foreground(
     surfels: &Surfels,
     cameras: &[Camera],
+    clipped: &[bool],
     raster: &RasterConfig,
     cfg: &ForegroundConfig,
     rng: &mut Rng,
@@ -159,7 +223,9 @@ pub fn select_foreground(
     let need = (cfg.seen_fraction * cameras.len() as f32).ceil() as usize;
     let opaque: Vec<usize> = (0..n).filter(|&i| surfels.opacity(i) >= cfg.min_opacity).collect();
     let seen_by_all = |p: Vec3| cameras.iter().filter(|c| inside_image(c, p, cfg.image_margin)).count() >= need;
-    let idx: Vec<usize> = opaque.iter().copied().filter(|&i| seen_by_all(surfels.positions[i])).collect();
+    let is_clipped = |i: usize| clipped.get(i).copied().unwrap_or(false);
+    let idx: Vec<usize> =
+        opaque.iter().copied().filter(|&i| !is_clipped(i) && seen_by_all(surfels.positions[i])).collect();
     if idx.len() < 10 {
         return Err(format!(
             "only {} Gaussians lie where every camera looks; is this an object-centred capture?",
@@ -217,12 +283,23 @@ pub fn select_foreground(
         (0..n).filter(|&i| seed_members[i]).map(|i| (surfels.positions[i] - focus).length()).fold(0.0f32, f32::max);
     // Grow it over every Gaussian connected to it (parts of the object that some photos cut
     // off), above the support and within `grow` times the seed's radius.
+    // Near the support it grows only over the seed's footprint on it: what lies there beyond
+    // the object's own base is the support's scatter in front of it, which is thicker than the
+    // slab (nothing is seen behind a wall to hold it), and connected.
+    let footprint = support.map(|pl| {
+        Footprint::new(pl, voxel * cfg.grow_voxel, (0..n).filter(|&i| seed_members[i]).map(|i| surfels.positions[i]))
+    });
+    let low = cfg.low_height * scale;
+    let over_base = |p: Vec3| match (&footprint, support) {
+        (Some(f), Some(pl)) => pl.signed_distance(p) >= low || f.covers(p),
+        _ => true,
+    };
     let eligible: Vec<usize> = opaque
         .iter()
         .copied()
         .filter(|&i| {
             let p = surfels.positions[i];
-            (p - focus).length() <= cfg.grow * seed_radius && above_support(p)
+            !is_clipped(i) && (p - focus).length() <= cfg.grow * seed_radius && above_support(p) && over_base(p)
         })
         .collect();
     let all = Clusters::new(surfels, &eligible, voxel * cfg.grow_voxel);
@@ -232,8 +309,18 @@ pub fn select_foreground(
         .collect();
     comps.sort_unstable();
     comps.dedup();
-    let selected = all.members(&comps, n);
+    let mut selected = all.members(&comps, n);
+    let joining: Vec<usize> = opaque
+        .iter()
+        .copied()
+        .filter(|&i| {
+            let p = surfels.positions[i];
+            is_clipped(i) && above_support(p) && (p - focus).length() <= cfg.grow * seed_radius
+        })
+        .collect();
+    readmit_clipped(surfels, cameras, raster, voxel, &joining, &mut selected);
     let selected_count = selected.iter().filter(|s| **s).count();
+    let clipped_out = opaque.iter().filter(|&&i| is_clipped(i) && !selected[i]).count();
     if selected_count == 0 {
         return Err("no object left after removing the support plane".into());
     }
@@ -249,7 +336,42 @@ pub fn select_foreground(
         candidate_heights,
         selected,
         selected_count,
+        clipped: clipped_out,
     })
+}
+
+/// Clipped Gaussians (`joining`) next to the object, within a voxel of a selected one (no
+/// chaining), are its own blown-out parts, a white stripe between coloured ones; a sheet beside
+/// it is not. So are those inside the convex hull of the object's silhouette in most of the
+/// photos they are inside of: a highlight on a white bust, which may reach its outline.
+fn readmit_clipped(
+    surfels: &Surfels,
+    cameras: &[Camera],
+    raster: &RasterConfig,
+    voxel: f32,
+    joining: &[usize],
+    selected: &mut [bool],
+) {
+    if joining.is_empty() {
+        return;
+    }
+    let sel_idx: Vec<usize> = (0..selected.len()).filter(|&i| selected[i]).collect();
+    let near = Clusters::new(surfels, &sel_idx, voxel);
+    let hulls: Vec<Vec<(f32, f32)>> =
+        cameras.iter().map(|cam| hull(&render_share(surfels, selected, cam, raster), cam.width() as usize)).collect();
+    for &i in joining {
+        let p = surfels.positions[i];
+        let (mut inside, mut within) = (0usize, 0usize);
+        for (cam, h) in cameras.iter().zip(&hulls) {
+            if let Some(px) = pixel_of(cam, p) {
+                inside += 1;
+                within += in_hull(h, px) as usize;
+            }
+        }
+        if near.touches(p) || 2 * within > inside {
+            selected[i] = true;
+        }
+    }
 }
 
 /// Points on the surfaces each camera sees: its median depth back-projected at the pixels of a
@@ -346,76 +468,6 @@ fn support_plane(
     (all_above && pl.signed_distance(focus) > tol).then_some((pl, count))
 }
 
-/// Voxel cells of the given Gaussians and their 26-connected components.
-struct Clusters {
-    voxel: f32,
-    cells: std::collections::HashMap<(i64, i64, i64), Vec<usize>>,
-    /// Component of each cell, and each component's Gaussian count.
-    label: std::collections::HashMap<(i64, i64, i64), usize>,
-    sizes: Vec<usize>,
-}
-
-impl Clusters {
-    fn key(&self, p: Vec3) -> (i64, i64, i64) {
-        let v = (p / self.voxel).floor();
-        (v.x as i64, v.y as i64, v.z as i64)
-    }
-
-    fn new(s: &Surfels, idx: &[usize], voxel: f32) -> Self {
-        let mut c = Self { voxel, cells: Default::default(), label: Default::default(), sizes: Vec::new() };
-        for &i in idx {
-            let k = c.key(s.positions[i]);
-            c.cells.entry(k).or_default().push(i);
-        }
-        // Flood fill over occupied cells in a fixed order, so that ties resolve the same way.
-        let mut keys: Vec<_> = c.cells.keys().copied().collect();
-        keys.sort_unstable();
-        for &k in &keys {
-            if c.label.contains_key(&k) {
-                continue;
-            }
-            let id = c.sizes.len();
-            let mut size = 0;
-            let mut stack = vec![k];
-            c.label.insert(k, id);
-            while let Some(q) = stack.pop() {
-                size += c.cells[&q].len();
-                for dz in -1..=1 {
-                    for dy in -1..=1 {
-                        for dx in -1..=1 {
-                            let nb = (q.0 + dx, q.1 + dy, q.2 + dz);
-                            if c.cells.contains_key(&nb) && !c.label.contains_key(&nb) {
-                                c.label.insert(nb, id);
-                                stack.push(nb);
-                            }
-                        }
-                    }
-                }
-            }
-            c.sizes.push(size);
-        }
-        c
-    }
-
-    /// The component with the most Gaussians.
-    fn largest(&self) -> Option<usize> {
-        (0..self.sizes.len()).max_by_key(|&c| (self.sizes[c], std::cmp::Reverse(c)))
-    }
-
-    /// Per-Gaussian flags (over `n`) of the members of `components`.
-    fn members(&self, components: &[usize], n: usize) -> Vec<bool> {
-        let mut out = vec![false; n];
-        for (k, members) in &self.cells {
-            if components.contains(&self.label[k]) {
-                for &i in members {
-                    out[i] = true;
-                }
-            }
-        }
-        out
-    }
-}
-
 /// Soft mask of one view: the foreground's share of each pixel's opacity (0 where nothing is).
 pub fn render_share(surfels: &Surfels, selected: &[bool], camera: &Camera, raster: &RasterConfig) -> Vec<f32> {
     let feats: Vec<f32> = selected.iter().flat_map(|&s| [if s { 1.0 } else { 0.0 }; 3]).collect();
@@ -435,68 +487,4 @@ pub fn render_share(surfels: &Surfels, selected: &[bool], camera: &Camera, raste
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use glam::{Mat4, Quat, Vec2};
-    use svgir_core::{Intrinsics, ShCoeffs};
-
-    /// `n` cameras on a ring looking at (0, 0, 0.3), the centre of the test's ball.
-    fn ring_cameras(n: usize, radius: f32, height: f32) -> Vec<Camera> {
-        (0..n)
-            .map(|k| {
-                let a = k as f32 / n as f32 * std::f32::consts::TAU;
-                let eye = Vec3::new(radius * a.cos(), radius * a.sin(), height);
-                let c2w = Mat4::look_at_rh(eye, Vec3::new(0.0, 0.0, 0.3), Vec3::Z).inverse();
-                Camera::from_blender_c2w(c2w, Intrinsics::from_fov_x(0.8, 64, 48)).unwrap()
-            })
-            .collect()
-    }
-
-    /// A ball of Gaussians on a large table, plus a floater: the ball alone is selected, and
-    /// its rendered share is high on the ball's centre and low on the table.
-    #[test]
-    fn ball_on_a_table() {
-        let cams = ring_cameras(12, 4.0, 2.5);
-        let f = focus_point(&cams).unwrap();
-        assert!((f - Vec3::new(0.0, 0.0, 0.3)).length() < 1e-3, "focus {f}");
-        let mut rng = Rng::new(1);
-        let mut s = Surfels::with_capacity(0, 0);
-        let q = Quat::IDENTITY;
-        let push = |s: &mut Surfels, p: Vec3, scale: f32| {
-            s.push(p, q, Vec2::splat(scale.ln()), 3.0, ShCoeffs::from_rgb([0.5; 3]));
-        };
-        for _ in 0..2000 {
-            let d = Vec3::new(rng.normal(), rng.normal(), rng.normal()).normalize() * 0.3;
-            push(&mut s, d + Vec3::new(0.0, 0.0, 0.3), 0.03);
-        }
-        let table_start = s.len();
-        for _ in 0..3000 {
-            push(&mut s, Vec3::new(rng.range(-2.0, 2.0), rng.range(-2.0, 2.0), 0.0), 0.05);
-        }
-        push(&mut s, Vec3::new(0.0, 0.0, 1.2), 0.02);
-        let fg = select_foreground(&s, &cams, &RasterConfig::default(), &ForegroundConfig::default(), &mut Rng::new(2))
-            .unwrap();
-        let pl = fg.support.expect("the table is found");
-        assert!(pl.normal.z > 0.99 && pl.d.abs() < 0.05, "{pl:?}");
-        let ball = fg.selected[..table_start].iter().filter(|x| **x).count();
-        let table = fg.selected[table_start..s.len() - 1].iter().filter(|x| **x).count();
-        assert!(ball > 1700, "ball {ball}");
-        assert!(table < 30, "table {table}");
-        assert!(!fg.selected[s.len() - 1], "floater selected");
-        let cam = &cams[0];
-        let share = render_share(&s, &fg.selected, cam, &RasterConfig::default());
-        let (x, y, _) = cam.project(Vec3::new(0.0, 0.0, 0.3)).unwrap();
-        let at = |x: f32, y: f32| share[y as usize * cam.width() as usize + x as usize];
-        assert!(at(x, y) > 0.9, "ball centre share {}", at(x, y));
-        let (tx, ty, _) = cam.project(Vec3::new(0.5, -1.5, 0.0)).unwrap();
-        assert!(at(tx, ty) < 0.1, "table share {}", at(tx, ty));
-    }
-
-    #[test]
-    fn parallel_cameras_have_no_focus() {
-        let k = Intrinsics::from_fov_x(0.8, 8, 8);
-        let cams: Vec<Camera> =
-            (0..3).map(|i| Camera::from_w2c(glam::Mat3::IDENTITY, Vec3::new(i as f32, 0.0, 0.0), k).unwrap()).collect();
-        assert!(focus_point(&cams).is_none());
-    }
-}
+mod tests;
