@@ -188,6 +188,12 @@ impl GpuStage1 {
                     .into(),
             ));
         }
+        if host.config.loss.opacity_binary > 0.0 {
+            return Err(GpuError::Runtime(
+                "the binary-opacity term (--weight opacity_binary) has no GPU kernel yet; train it with --device cpu"
+                    .into(),
+            ));
+        }
         let d = &gpu.device;
         let raster = GpuRaster::new(&gpu);
         let loss = LossKernels::new(&gpu);

@@ -3,12 +3,13 @@
 //! explicit double sum `sum_{j<i} w_i w_j (m_i - m_j)^2`, not the running sum). Slow and obvious:
 //! it is the oracle for the tiled forward and, in `f64`, the function the gradient tests
 //! differentiate numerically. Shares only the per-Gaussian preprocess and the per-pixel ray-splat
-//! evaluation with the fast path. Sequential; nothing is saved.
+//! evaluation with the fast path. Sequential; nothing is saved. [`layer_weights`] lists the same
+//! composite's per-Gaussian weights at chosen pixels, for statistics of how stacked surfaces are.
 
 use crate::forward::{background_at, distortion_depth, hit_weights, FeatView};
 use crate::interp::MAX_VERTICES;
-use crate::preprocess::{preprocess, Cam};
-use crate::splat::intersect;
+use crate::preprocess::{preprocess, Cam, Splat};
+use crate::splat::{intersect, Hit};
 use crate::tiles::sort_key;
 use crate::{GaussianParams, RasterConfig, RenderInputOf, RenderOutputOf};
 use svgir_core::Float;
@@ -52,16 +53,7 @@ pub fn render_reference<F: Float, P: GaussianParams<F> + ?Sized>(
         for x in 0..w {
             let p = y * w + x;
             let (xf, yf) = (F::c(x as f64 + 0.5), F::c(y as f64 + 0.5));
-            hits.clear();
-            for (g, s) in splats.iter().enumerate() {
-                if !s.visible() {
-                    continue;
-                }
-                if let Some(hit) = intersect(&s.h, s.center, s.opacity, xf, yf, near) {
-                    hits.push((sort_key(s.depth, g as u32), g, hit));
-                }
-            }
-            hits.sort_by_key(|h| h.0);
+            pixel_hits(&splats, xf, yf, near, &mut hits);
             composited.clear();
             let mut t = F::ONE;
             for &(_, g, hit) in &hits {
@@ -109,4 +101,59 @@ pub fn render_reference<F: Float, P: GaussianParams<F> + ?Sized>(
         }
     }
     out
+}
+
+/// Every visible splat's hit at pixel position (`x`, `y`), sorted by the (depth, id) key.
+fn pixel_hits<F: Float>(splats: &[Splat<F>], x: F, y: F, near: F, hits: &mut Vec<(u64, usize, Hit<F>)>) {
+    hits.clear();
+    for (g, s) in splats.iter().enumerate() {
+        if !s.visible() {
+            continue;
+        }
+        if let Some(hit) = intersect(&s.h, s.center, s.opacity, x, y, near) {
+            hits.push((sort_key(s.depth, g as u32), g, hit));
+        }
+    }
+    hits.sort_by_key(|h| h.0);
+}
+
+/// One Gaussian's share of a pixel's composite.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct LayerHit<F> {
+    /// Index of the Gaussian.
+    pub gaussian: u32,
+    /// Its weight `alpha_i T_i` (SPEC 1).
+    pub weight: F,
+    /// Depth of its ray-splat intersection (camera z).
+    pub depth: F,
+}
+
+/// The composite's weights at each of `pixels` (column, row), front to back, cut where
+/// [`render_reference`] stops: their sum is that pixel's alpha. O(pixels x Gaussians).
+pub fn layer_weights<F: Float, P: GaussianParams<F> + ?Sized>(
+    input: &RenderInputOf<F, P>,
+    cfg: &RasterConfig,
+    pixels: &[(u32, u32)],
+) -> Vec<Vec<LayerHit<F>>> {
+    let cam = Cam::<F>::new(input.camera);
+    let (splats, _) = preprocess(input.surfels, &cam, &input.colors, cfg);
+    let near = F::from_f32(cfg.near);
+    let mut hits = Vec::new();
+    pixels
+        .iter()
+        .map(|&(x, y)| {
+            pixel_hits(&splats, F::c(x as f64 + 0.5), F::c(y as f64 + 0.5), near, &mut hits);
+            let mut t = F::ONE;
+            let mut out = Vec::new();
+            for &(_, g, hit) in &hits {
+                let next = t * (F::ONE - hit.alpha);
+                if next < F::from_f32(cfg.t_stop) {
+                    break;
+                }
+                out.push(LayerHit { gaussian: g as u32, weight: hit.alpha * t, depth: hit.z });
+                t = next;
+            }
+            out
+        })
+        .collect()
 }

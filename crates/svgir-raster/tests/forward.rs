@@ -183,3 +183,34 @@ fn rejects_bad_inputs() {
     };
     assert!(svgir_raster::try_render(&input, &RasterConfig::default()).is_err());
 }
+
+/// The oracle's per-pixel weights add up to its alpha, and to its accumulated weight per Gaussian
+/// when every pixel is listed; listed front to back (by the sort key's centre depth, which here
+/// orders the intersections too), none of them zero.
+#[test]
+fn layer_weights_sum_to_the_oracles_alpha() {
+    use svgir_raster::fixtures::Problem;
+    use svgir_raster::reference::layer_weights;
+    let prob = Problem::new(300, 24);
+    let input = prob.input();
+    let cfg = RasterConfig::default();
+    let dense = render_reference(&input, &cfg);
+    let pixels: Vec<(u32, u32)> = (0..24).flat_map(|y| (0..24).map(move |x| (x, y))).collect();
+    let layers = layer_weights(&input, &cfg, &pixels);
+    let mut acc = vec![0.0f64; prob.surfels.len()];
+    let mut stacked = 0;
+    for (k, l) in layers.iter().enumerate() {
+        let sum: f32 = l.iter().map(|h| h.weight).sum();
+        assert!((sum - dense.alpha[k]).abs() < 1e-5, "pixel {k}: {sum} vs alpha {}", dense.alpha[k]);
+        assert!(l.iter().all(|h| h.weight > 0.0));
+        assert!(l.windows(2).all(|p| p[0].depth <= p[1].depth), "pixel {k}: not front to back");
+        for h in l {
+            acc[h.gaussian as usize] += h.weight as f64;
+        }
+        stacked += (l.len() > 1) as usize;
+    }
+    assert!(stacked > 100, "the scene stacks splats: {stacked} pixels with two or more");
+    for (g, (&a, &b)) in acc.iter().zip(&dense.accum_weight).enumerate() {
+        assert!((a - b as f64).abs() < 1e-4, "Gaussian {g}: {a} vs {b}");
+    }
+}

@@ -152,6 +152,10 @@ pub struct LossWeights {
     pub entropy: f32,
     /// 2DGS depth distortion; 0 for object datasets as 2DGS's synthetic setting.
     pub distortion: f32,
+    /// Weight of the binary-opacity term: the mean over the Gaussians of their opacity's binary
+    /// entropy, once densification has ended (`crate::losses::opacity`). Off by default.
+    #[serde(default)]
+    pub opacity_binary: f32,
 }
 
 /// Loss weights that can be set by name (`svgir train/inverse --weight NAME=VALUE`).
@@ -164,7 +168,7 @@ pub trait NamedWeights: Default {
 
 impl NamedWeights for LossWeights {
     const NAMES: &'static [&'static str] =
-        &["l1", "ssim", "mask", "normal_start", "normal_ramp", "entropy", "distortion"];
+        &["l1", "ssim", "mask", "normal_start", "normal_ramp", "entropy", "distortion", "opacity_binary"];
 
     fn set(&mut self, name: &str, value: f32) -> Option<()> {
         let w = match name {
@@ -175,6 +179,7 @@ impl NamedWeights for LossWeights {
             "normal_ramp" => &mut self.normal_ramp,
             "entropy" => &mut self.entropy,
             "distortion" => &mut self.distortion,
+            "opacity_binary" => &mut self.opacity_binary,
             _ => return None,
         };
         *w = value;
@@ -184,7 +189,16 @@ impl NamedWeights for LossWeights {
 
 impl Default for LossWeights {
     fn default() -> Self {
-        Self { l1: 0.9, ssim: 0.1, mask: 0.01, normal_start: 0.01, normal_ramp: 0.01, entropy: 0.1, distortion: 0.0 }
+        Self {
+            l1: 0.9,
+            ssim: 0.1,
+            mask: 0.01,
+            normal_start: 0.01,
+            normal_ramp: 0.01,
+            entropy: 0.1,
+            distortion: 0.0,
+            opacity_binary: 0.0,
+        }
     }
 }
 
@@ -311,6 +325,7 @@ impl Stage1Config {
                     normal_ramp: 0.0,
                     entropy: 0.0,
                     distortion: 0.0,
+                    opacity_binary: 0.0,
                 };
                 c
             }

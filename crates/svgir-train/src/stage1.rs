@@ -398,6 +398,14 @@ impl Stage1 {
             let g: Vec<f32> = grads.v_mean2d_norm.iter().map(|g| g * to_ndc).collect();
             self.stats.add(&g, &out.max_radius, &out.accum_weight);
         }
+        let mut grads = grads;
+        if weights.opacity_binary > 0.0 && it > cfg.densify.until_iter {
+            crate::losses::opacity::binary_opacity(
+                &self.surfels.opacity_logits,
+                weights.opacity_binary,
+                &mut grads.v_opacity_logits,
+            );
+        }
         self.set_position_lr(it);
         let s = &mut self.surfels;
         self.groups[0].step(bytemuck::cast_slice_mut(&mut s.positions), bytemuck::cast_slice(&grads.v_positions));

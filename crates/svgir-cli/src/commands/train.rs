@@ -134,9 +134,10 @@ pub struct TrainArgs {
     /// Override the densification threshold on the mean view-space gradient (SPEC 2: 2.5e-4; 3DGS: 2e-4).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long)]
     pub densify_grad: Option<f32>,
-    /// Loss weight, repeatable: l1, ssim, mask, normal_start, normal_ramp, entropy or distortion
-    /// (defaults: SPEC 2; the depth-normal weight ramps from normal_start to
-    /// normal_start + normal_ramp over the run).
+    /// Loss weight, repeatable: l1, ssim, mask, normal_start, normal_ramp, entropy, distortion or
+    /// opacity_binary (defaults: SPEC 2, opacity_binary 0; the depth-normal weight ramps from
+    /// normal_start to normal_start + normal_ramp over the run; opacity_binary, each surfel's
+    /// opacity entropy, acts once densification has ended, on the CPU only).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long = "weight", value_name = "NAME=VALUE")]
     pub weights: Vec<String>,
 }

@@ -6,6 +6,7 @@ pub mod depth_normal;
 pub mod l1;
 pub mod mask;
 pub mod objective;
+pub mod opacity;
 pub mod smoothness;
 
 use rayon::prelude::*;
