@@ -469,6 +469,20 @@ impl Stage1 {
                 reset_opacity(&mut self.surfels, &mut self.groups[3]);
             }
         }
+        if it == cfg.iterations && cfg.loss.opacity_binary > 0.0 {
+            // The binary-opacity term drives most surfels to opacity 0 once densification has
+            // ended; those under the rasterizer's and tracer's 1/255 cut render and trace as
+            // nothing, so the run ends without them (stage 2 and the exports are the faster).
+            let keep: Vec<bool> =
+                (0..self.surfels.len()).map(|i| self.surfels.opacity(i) >= svgir_trace::hit::ALPHA_MIN).collect();
+            if keep.iter().any(|k| !k) && keep.iter().any(|k| *k) {
+                self.surfels.retain(&keep);
+                for g in self.groups.iter_mut() {
+                    g.retain_rows(&keep);
+                }
+                self.stats = DensifyStats::new(self.surfels.len());
+            }
+        }
         if it.is_multiple_of(cfg.sh_upgrade_interval) && self.surfels.sh_degree < cfg.max_sh_degree {
             self.surfels.sh_degree += 1;
         }

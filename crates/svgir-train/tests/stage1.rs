@@ -178,3 +178,28 @@ fn half_size_iterations_are_a_half_size_run_then_the_full_one() {
     assert_eq!(d.surfels, a.surfels, "resuming changed the run");
     assert_eq!(d.surfels, e.surfels);
 }
+
+/// The binary-opacity term drives surfels to opacity 0 once densification ends, and the run
+/// ends without those under the 1/255 cut (which render as nothing), still training well.
+#[test]
+fn binary_opacity_ends_without_invisible_surfels() {
+    let Some(ds) = scene() else { return };
+    let mut t = trainer(&ds, 400);
+    t.config.loss.opacity_binary = 0.2;
+    let invisible = |t: &Stage1| (0..t.surfels.len()).filter(|&i| t.surfels.opacity(i) < 1.0 / 255.0).count();
+    while t.iteration + 1 < t.config.iterations {
+        t.step(&ds);
+    }
+    let (before, n) = (invisible(&t), t.surfels.len());
+    t.step(&ds);
+    assert!(t.is_done());
+    let psnr = test_psnr(&t, &ds);
+    eprintln!(
+        "{before} of {n} surfels invisible before the last step; {} left; test PSNR {psnr:.2} dB",
+        t.surfels.len()
+    );
+    assert!(before * 5 > n * 2, "the term left only {before} of {n} invisible");
+    assert_eq!(invisible(&t), 0);
+    assert!(t.surfels.len() + before * 9 / 10 <= n, "pruned {} of {before}", n - t.surfels.len());
+    assert!(psnr > 20.0, "test PSNR {psnr:.2}");
+}
