@@ -14,7 +14,8 @@
 //!
 //! `cargo run --release -p svgir-diagnose --bin surface_layers -- PLY DATA [--views N] [--stride S]`
 
-use anyhow::{bail, Context, Result};
+use anyhow::{bail, Result};
+use clap::Parser;
 use rayon::prelude::*;
 use std::path::PathBuf;
 use svgir_io::LoadOptions;
@@ -41,32 +42,19 @@ fn depth_layers(hits: &[LayerHit<f32>]) -> usize {
     count + (weight > LAYER_WEIGHT) as usize
 }
 
+/// How opaque and how thin stage 1's surfaces are (see the file's docs).
+#[derive(Parser)]
 struct Args {
+    /// The model: a run's point_cloud.ply.
     ply: PathBuf,
+    /// The dataset whose test views are rendered.
     data: PathBuf,
+    /// Test views used (the first N).
+    #[arg(long, default_value_t = 8)]
     views: usize,
+    /// Every this-many-th pixel of each row and column gets the oracle's per-pixel weights.
+    #[arg(long, default_value_t = 4, value_parser = clap::value_parser!(u32).range(1..))]
     stride: u32,
-}
-
-fn parse_args() -> Result<Args> {
-    let mut pos = Vec::new();
-    let (mut views, mut stride) = (8, 4);
-    let mut it = std::env::args().skip(1);
-    while let Some(a) = it.next() {
-        let mut value = |name: &str| it.next().with_context(|| format!("{name} needs a value"));
-        match a.as_str() {
-            "--views" => views = value("--views")?.parse().context("--views: not a count")?,
-            "--stride" => stride = value("--stride")?.parse().context("--stride: not a count")?,
-            _ if a.starts_with("--") => bail!("unknown option {a}"),
-            _ => pos.push(PathBuf::from(a)),
-        }
-    }
-    let [ply, data]: [PathBuf; 2] =
-        pos.try_into().map_err(|_| anyhow::anyhow!("usage: surface_layers PLY DATA [--views N] [--stride S]"))?;
-    if stride == 0 {
-        bail!("--stride: must be at least 1");
-    }
-    Ok(Args { ply, data, views, stride })
 }
 
 fn median(v: &mut [f32]) -> f32 {
@@ -75,7 +63,7 @@ fn median(v: &mut [f32]) -> f32 {
 }
 
 fn main() -> Result<()> {
-    let args = parse_args()?;
+    let args = Args::parse();
     let (surfels, _) = svgir_io::read_gaussians_ply(&args.ply)?;
     let ds = svgir_io::load_dataset(&args.data, &LoadOptions { load_test: true, ..Default::default() })?;
     if ds.test.is_empty() {
