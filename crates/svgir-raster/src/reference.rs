@@ -128,7 +128,8 @@ pub struct LayerHit<F> {
     pub depth: F,
 }
 
-/// The composite's weights at each of `pixels` (column, row), front to back, cut where
+/// The composite's weights at each of `pixels` (column, row), in the composite's (centre depth,
+/// id) order, cut where
 /// [`render_reference`] stops: their sum is that pixel's alpha. O(pixels x Gaussians).
 pub fn layer_weights<F: Float, P: GaussianParams<F> + ?Sized>(
     input: &RenderInputOf<F, P>,

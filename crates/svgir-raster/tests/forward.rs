@@ -185,8 +185,8 @@ fn rejects_bad_inputs() {
 }
 
 /// The oracle's per-pixel weights add up to its alpha, and to its accumulated weight per Gaussian
-/// when every pixel is listed; listed front to back (by the sort key's centre depth, which here
-/// orders the intersections too), none of them zero.
+/// when every pixel is listed; none of them zero. (They come in the sort key's order, by centre
+/// depth; a tilted splat's intersection depth may be out of that order.)
 #[test]
 fn layer_weights_sum_to_the_oracles_alpha() {
     use svgir_raster::fixtures::Problem;
@@ -203,7 +203,6 @@ fn layer_weights_sum_to_the_oracles_alpha() {
         let sum: f32 = l.iter().map(|h| h.weight).sum();
         assert!((sum - dense.alpha[k]).abs() < 1e-5, "pixel {k}: {sum} vs alpha {}", dense.alpha[k]);
         assert!(l.iter().all(|h| h.weight > 0.0));
-        assert!(l.windows(2).all(|p| p[0].depth <= p[1].depth), "pixel {k}: not front to back");
         for h in l {
             acc[h.gaussian as usize] += h.weight as f64;
         }

@@ -29,7 +29,8 @@ const LAYER_WEIGHT: f32 = 0.1;
 /// Hits within this share of the layer's first depth are one depth layer.
 const LAYER_GAP: f32 = 0.01;
 
-/// Depth layers of one pixel's hits (front to back) with more than `LAYER_WEIGHT` weight.
+/// Depth layers of one pixel's hits (in the composite's centre-depth order, which a tilted
+/// splat's intersection depth may break slightly) with more than `LAYER_WEIGHT` weight.
 fn depth_layers(hits: &[LayerHit<f32>]) -> usize {
     let (mut count, mut start, mut weight) = (0, f32::NEG_INFINITY, 0.0);
     for h in hits {
