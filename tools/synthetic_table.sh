@@ -9,7 +9,9 @@
 # Stage 2: STAGE2_ITERATIONS (SPEC's schedule is 20000), relighting evaluated at K = 384, with
 #          `svgir inverse`'s measured profile (Stage2Config::for_profile, the one place its
 #          settings are resolved). Options after `--` are passed on (e.g. `-- --profile spec`).
-# Environment: SCENES="cup_and_ball suzanne_marble" restricts the scenes.
+# Environment: SCENES="cup_and_ball suzanne_marble" restricts the scenes; STAGE1_OPTIONS="..." adds
+# `svgir train` options (e.g. "--weight opacity_binary=0.05"); SVGIR=path runs that binary instead of
+# building one (an experiment that must not pick up a build in progress).
 #
 # Re-running with the same OUT continues: an interrupted stage resumes from its last checkpoint
 # and finished scenes are only re-tabulated. Use a new OUT for new settings.
@@ -23,15 +25,19 @@ shift $(( $# < 2 ? $# : 2 ))
 [ $# -gt 0 ] || set -- --profile measured
 ITERS1="${STAGE1_ITERATIONS:-30000}"
 [ -d "$DATA" ] || { echo "error: $DATA not found (the shared data folder next to the checkout)" >&2; exit 1; }
-cargo build --release --manifest-path "$ROOT/Cargo.toml" -p svgir-cli
-SVGIR="$ROOT/target/release/svgir"
+if [ -z "${SVGIR:-}" ]; then
+  cargo build --release --manifest-path "$ROOT/Cargo.toml" -p svgir-cli
+  SVGIR="$ROOT/target/release/svgir"
+fi
+read -r -a stage1_options <<< "${STAGE1_OPTIONS:-}"
 for scene in ${SCENES:-$(ls "$DATA")}; do
   run="$OUT/$scene"
   if [ ! -f "$run/point_cloud.ply" ]; then
     resume=()
     [ -f "$run/checkpoint.bin" ] && resume=(--resume)
     "$SVGIR" train "$DATA/$scene" --out "$run" --iterations "$ITERS1" --background black --init-points 20000 \
-      --densify-every 100 --densify-until $((ITERS1 / 2)) --opacity-reset-every 3000 "${resume[@]}"
+      --densify-every 100 --densify-until $((ITERS1 / 2)) --opacity-reset-every 3000 \
+      "${stage1_options[@]}" "${resume[@]}"
   fi
   if [ ! -f "$run/stage2/eval.json" ]; then
     resume=()

@@ -120,16 +120,22 @@ pub mod testing {
         Ok((r.pop().unwrap_or_default(), vout))
     }
 
-    /// One Adam step of `group` on `params` with gradient `grad`, by the GPU kernel.
+    /// One Adam step of `group` on `params` with gradient `grad`, by the GPU kernel; with
+    /// `binary_opacity` > 0 (an opacity group) the binary-opacity term's gradient at that weight
+    /// is added first, as the trainer does after densification.
     pub fn adam_step(
         gpu: &Gpu,
         group: &mut svgir_train::adam::AdamGroup,
         params: &mut [f32],
         grad: &[f32],
+        binary_opacity: f32,
     ) -> Result<(), GpuError> {
         let d = &gpu.device;
         let rows = (params.len() / group.stride) as u32;
-        let ap = crate::stage1::AdamParams::step(group, rows, group.stride as u32, 0)?;
+        let mut ap = crate::stage1::AdamParams::step(group, rows, group.stride as u32, 0)?;
+        if binary_opacity > 0.0 {
+            ap = ap.with_binary_opacity(binary_opacity, rows);
+        }
         let k = crate::raster::kernel(d, "adam", include_str!("shaders/adam.wgsl"));
         let u = crate::buffers::uniform(d, "adam params", &ap);
         let (p, g) = (upload(d, "params", params), upload(d, "grad", grad));

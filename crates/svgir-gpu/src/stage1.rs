@@ -49,7 +49,8 @@ pub(crate) struct AdamParams {
     lr_first: f32,
     lr_rest: f32,
     first: u32,
-    pad: u32,
+    /// The binary-opacity term's weight over the Gaussian count (0: off).
+    binary: f32,
 }
 
 impl AdamParams {
@@ -78,8 +79,14 @@ impl AdamParams {
             lr_first: c.step_size * s0,
             lr_rest: c.step_size * rest,
             first: first as u32,
-            pad: 0,
+            binary: 0.0,
         })
+    }
+
+    /// With the binary-opacity term's gradient (svgir_train::losses::opacity) at `weight`
+    /// added to an opacity group of `n` Gaussians before the step.
+    pub(crate) fn with_binary_opacity(self, weight: f32, n: u32) -> Self {
+        Self { binary: if n == 0 { 0.0 } else { weight / n as f32 }, ..self }
     }
 }
 
@@ -185,12 +192,6 @@ impl GpuStage1 {
         if host.exposure.is_some() {
             return Err(GpuError::Runtime(
                 "the per-photo exposure correction (--exposure) has no GPU kernels yet; train it with --device cpu"
-                    .into(),
-            ));
-        }
-        if host.config.loss.opacity_binary > 0.0 {
-            return Err(GpuError::Runtime(
-                "the binary-opacity term (--weight opacity_binary) has no GPU kernel yet; train it with --device cpu"
                     .into(),
             ));
         }
@@ -304,7 +305,11 @@ impl GpuStage1 {
         let params_bufs = self.res.surf.groups();
         for (k, group) in self.host.groups.iter_mut().enumerate() {
             let (gstride, goff) = GRAD_AT[k];
-            let ap = AdamParams::step(group, n, gstride, goff)?;
+            let mut ap = AdamParams::step(group, n, gstride, goff)?;
+            // The CPU adds the term to the opacity gradient after densification (Stage1::step).
+            if k == 3 && plan.weights.opacity_binary > 0.0 && it > self.host.config.densify.until_iter {
+                ap = ap.with_binary_opacity(plan.weights.opacity_binary, n);
+            }
             let stride = group.stride as u32;
             q.write_buffer(&self.adam_params[k], 0, bytemuck::bytes_of(&ap));
             let grad = if k == 4 { &self.frame.vsh } else { &self.frame.vparam };

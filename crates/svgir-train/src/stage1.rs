@@ -312,12 +312,14 @@ impl Stage1 {
         self.groups[0].lr = exp_lr(it - 1, cfg.lr.position_init * e, cfg.lr.position_final * e, cfg.iterations);
     }
 
-    /// Whether iteration `it` ends with work on the surfels themselves (densification or an
-    /// opacity reset), which [`Stage1::finish`] does on the host.
+    /// Whether iteration `it` ends with work on the surfels themselves (densification, an
+    /// opacity reset, or the binary-opacity term's final pruning), which [`Stage1::finish`] does on the host.
     pub fn changes_surfels_at(&self, it: u64) -> bool {
         let d = &self.config.densify;
-        it <= d.until_iter
-            && ((it >= d.from_iter && it.is_multiple_of(d.interval)) || self.config.resets_opacity_at(it))
+        let densifies = it <= d.until_iter
+            && ((it >= d.from_iter && it.is_multiple_of(d.interval)) || self.config.resets_opacity_at(it));
+        // The binary-opacity term's run ends by dropping its invisible surfels.
+        densifies || (it == self.config.iterations && self.config.loss.opacity_binary > 0.0)
     }
 
     /// One training iteration on a random training view.

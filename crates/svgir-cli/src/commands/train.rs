@@ -137,7 +137,7 @@ pub struct TrainArgs {
     /// Loss weight, repeatable: l1, ssim, mask, normal_start, normal_ramp, entropy, distortion or
     /// opacity_binary (defaults: SPEC 2, opacity_binary 0; the depth-normal weight ramps from
     /// normal_start to normal_start + normal_ramp over the run; opacity_binary, each surfel's
-    /// opacity entropy, acts once densification has ended, on the CPU only).
+    /// opacity entropy, acts once densification has ended).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long = "weight", value_name = "NAME=VALUE")]
     pub weights: Vec<String>,
 }

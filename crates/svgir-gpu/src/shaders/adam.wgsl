@@ -4,6 +4,10 @@
 // from `goff`). The host counts the steps and passes the bias-corrected constants. A render
 // whose tile entries overflowed the buffers (bin_total.wgsl) has its step skipped: no update
 // from a truncated list. One thread per float.
+//
+// The opacity group may add the binary-opacity term's gradient here (svgir_train::losses::opacity:
+// `dL/dx = -x o (1 - o) / N` of the logit x before the step, times the term's weight), as the CPU
+// adds it to the gradient before its step; one dispatch fewer than a kernel of its own.
 
 struct AdamParams {
     // Floats in the group (rows x stride).
@@ -20,7 +24,8 @@ struct AdamParams {
     lr_first: f32,
     lr_rest: f32,
     first: u32,
-    _pad: u32,
+    // The binary-opacity term's weight / N (0: off; the opacity group only, stride 1).
+    binary: f32,
 }
 
 @group(0) @binding(0) var<uniform> A: AdamParams;
@@ -38,7 +43,12 @@ fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) 
     }
     let row = i / A.stride;
     let c = i - row * A.stride;
-    let g = grad[row * A.gstride + A.goff + c];
+    var g = grad[row * A.gstride + A.goff + c];
+    if A.binary != 0.0 {
+        let x = param[i];
+        let o = 1.0 / (1.0 + exp(-x));
+        g = g + A.binary * (-x * o * (1.0 - o));
+    }
     let m = A.b1 * m1[i] + (1.0 - A.b1) * g;
     let v = A.b2 * m2[i] + (1.0 - A.b2) * g * g;
     m1[i] = m;
