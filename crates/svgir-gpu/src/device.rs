@@ -145,18 +145,6 @@ pub struct Gpu {
     pub(crate) status: wgpu::Buffer,
 }
 
-/// The kernels `guard_loops` names by bit, in bit order.
-const GUARDED: [&str; 8] = [
-    "the rasterizer's forward",
-    "the rasterizer's backward",
-    "the feature raster's forward",
-    "the feature raster's backward",
-    "the micro-buffer tracer",
-    "the radiance gather",
-    "the vertex shading",
-    "the vertex shading's backward",
-];
-
 impl Gpu {
     /// An error if wgpu has reported one since the device was opened (a kernel or buffer the
     /// driver refused, memory exhausted): the run stops with it instead of going on with
@@ -181,7 +169,12 @@ impl Gpu {
         if bits == 0 {
             return Ok(());
         }
-        let cut: Vec<&str> = GUARDED.iter().enumerate().filter(|(i, _)| bits >> i & 1 == 1).map(|(_, k)| *k).collect();
+        let cut: Vec<&str> = crate::loop_guard::GUARDED
+            .iter()
+            .enumerate()
+            .filter(|(i, _)| bits >> i & 1 == 1)
+            .map(|(_, k)| *k)
+            .collect();
         Err(GpuError::Runtime(format!(
             "{}: the driver cut the loops of {} short (a loop-iteration cap, as Mesa's lavapipe has at 65535 \
              per invocation): the results are partial. The scene is too dense for this adapter at this \

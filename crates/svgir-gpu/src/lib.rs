@@ -22,6 +22,7 @@ pub mod buffers;
 pub mod device;
 pub mod features;
 pub mod gather;
+mod loop_guard;
 pub mod loss;
 pub mod raster;
 pub mod samples;
