@@ -7,6 +7,7 @@ use svgir_core::Surfels;
 
 /// The cells of a square grid on a plane that points project into, for "lies over them".
 pub(super) struct Footprint {
+    plane: Plane,
     u: Vec3,
     v: Vec3,
     cell: f32,
@@ -17,7 +18,7 @@ impl Footprint {
     pub(super) fn new(pl: Plane, cell: f32, points: impl Iterator<Item = Vec3>) -> Self {
         let u = pl.normal.any_orthonormal_vector();
         let v = pl.normal.cross(u);
-        let mut f = Self { u, v, cell, cells: Default::default() };
+        let mut f = Self { plane: pl, u, v, cell, cells: Default::default() };
         for p in points {
             let k = f.key(p);
             f.cells.insert(k);
@@ -33,6 +34,11 @@ impl Footprint {
     pub(super) fn covers(&self, p: Vec3) -> bool {
         let k = self.key(p);
         (-1..=1).any(|a| (-1..=1).any(|b| self.cells.contains(&(k.0 + a, k.1 + b))))
+    }
+
+    /// `p` lies at least `low` above the plane, or low over the footprint.
+    pub(super) fn admits(&self, p: Vec3, low: f32) -> bool {
+        self.plane.signed_distance(p) >= low || self.covers(p)
     }
 }
 

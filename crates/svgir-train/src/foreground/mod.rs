@@ -167,18 +167,15 @@ pub fn focus_point(cameras: &[Camera]) -> Option<Vec3> {
 
 /// The image position of `p` in `cam`, if it falls inside the image.
 fn pixel_of(cam: &Camera, p: Vec3) -> Option<(f32, f32)> {
-    let (x, y, _) = cam.project(p)?;
-    (x >= 0.0 && y >= 0.0 && x < cam.width() as f32 && y < cam.height() as f32).then_some((x, y))
+    pixel_within(cam, p, 0.0)
 }
 
-fn inside_image(cam: &Camera, p: Vec3, margin: f32) -> bool {
-    match cam.project(p) {
-        Some((x, y, _)) => {
-            let (w, h) = (cam.width() as f32, cam.height() as f32);
-            x >= margin * w && x <= (1.0 - margin) * w && y >= margin * h && y <= (1.0 - margin) * h
-        }
-        None => false,
-    }
+/// The image position of `p` in `cam`, if it falls inside the image less `margin` (a share of
+/// its width and height) on every side.
+fn pixel_within(cam: &Camera, p: Vec3, margin: f32) -> Option<(f32, f32)> {
+    let (x, y, _) = cam.project(p)?;
+    let (w, h) = (cam.width() as f32, cam.height() as f32);
+    (x >= margin * w && x < (1.0 - margin) * w && y >= margin * h && y < (1.0 - margin) * h).then_some((x, y))
 }
 
 /// Per Gaussian: its centre lands on a clipped pixel (every colour channel at least
@@ -222,7 +219,8 @@ pub fn select_foreground(
     let n = surfels.len();
     let need = (cfg.seen_fraction * cameras.len() as f32).ceil() as usize;
     let opaque: Vec<usize> = (0..n).filter(|&i| surfels.opacity(i) >= cfg.min_opacity).collect();
-    let seen_by_all = |p: Vec3| cameras.iter().filter(|c| inside_image(c, p, cfg.image_margin)).count() >= need;
+    let seen_by_all =
+        |p: Vec3| cameras.iter().filter(|c| pixel_within(c, p, cfg.image_margin).is_some()).count() >= need;
     let is_clipped = |i: usize| clipped.get(i).copied().unwrap_or(false);
     let idx: Vec<usize> =
         opaque.iter().copied().filter(|&i| !is_clipped(i) && seen_by_all(surfels.positions[i])).collect();
@@ -290,10 +288,7 @@ pub fn select_foreground(
         Footprint::new(pl, voxel * cfg.grow_voxel, (0..n).filter(|&i| seed_members[i]).map(|i| surfels.positions[i]))
     });
     let low = cfg.low_height * scale;
-    let over_base = |p: Vec3| match (&footprint, support) {
-        (Some(f), Some(pl)) => pl.signed_distance(p) >= low || f.covers(p),
-        _ => true,
-    };
+    let over_base = |p: Vec3| footprint.as_ref().is_none_or(|f| f.admits(p, low));
     let eligible: Vec<usize> = opaque
         .iter()
         .copied()
