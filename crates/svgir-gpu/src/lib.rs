@@ -25,6 +25,7 @@ pub mod gather;
 mod loop_guard;
 pub mod loss;
 pub mod raster;
+mod resident;
 pub mod samples;
 pub mod shade;
 mod sort;

@@ -15,12 +15,14 @@
 //! colours differ from the CPU's only by f32 rounding: the driver may fuse multiply-adds, and
 //! the env lookups' acos / atan2 are the driver's (the tests bound both).
 //!
-//! Each call uploads its inputs and reads the colours back: the renders of the evaluation and
-//! of relighting shade on the GPU, and the CPU splats the colours. Keeping the samples resident
-//! across calls comes with the GPU stage-2 iteration.
+//! Each call uploads its small inputs (frames, tables, vertex materials, light visibility) and
+//! reads the colours back. The micro-buffer samples, most of the bytes, stay on the GPU across
+//! calls (`crate::resident`): packed and uploaded at a micro-buffer's first call, then bound as
+//! they are by every iteration's forward and backward and every render that shades it.
 
 use crate::buffers::{grid, kernel_of, read_back, storage, upload};
 use crate::device::{Gpu, GpuError};
+use crate::resident::{SampleCache, RESIDENT_BYTES};
 use crate::samples::{pack, SAMPLE_BYTES};
 use bytemuck::{Pod, Zeroable};
 use svgir_pbr::{check_sides, Indirect, PbrError, PbrGrads, ShadeInputs, ShadeOutput, Side, VertexShader};
@@ -49,7 +51,8 @@ struct Uniform {
     lights_at: u32,
     base: u32,
     span: u32,
-    _pad: [u32; 2],
+    sbase: u32,
+    _pad: u32,
 }
 
 const F_VIS: u32 = 1;
@@ -66,6 +69,8 @@ pub struct GpuShader {
     /// Most bytes of samples bound per dispatch ([`BATCH_BYTES`]; the tests lower it to
     /// split small scenes into several batches).
     pub batch_bytes: u64,
+    /// The micro-buffers' packed samples kept on the GPU across calls (`crate::resident`).
+    samples: SampleCache,
 }
 
 impl GpuShader {
@@ -82,7 +87,24 @@ impl GpuShader {
             "shade backward",
             &[pbr, common, crate::buffers::LOOP_GUARD, include_str!("shaders/shade_bwd.wgsl")],
         );
-        Self { gpu, kernel, backward_kernel, batch_bytes: BATCH_BYTES }
+        Self { gpu, kernel, backward_kernel, batch_bytes: BATCH_BYTES, samples: SampleCache::new(RESIDENT_BYTES) }
+    }
+
+    /// Keeps at most `bytes` of micro-buffer samples on the GPU across calls (0: none, each
+    /// call uploads its own; default [`RESIDENT_BYTES`]).
+    pub fn keep_samples(mut self, bytes: u64) -> Self {
+        self.samples = SampleCache::new(bytes);
+        self
+    }
+
+    /// Forgets the kept samples (after a micro-buffer was changed in place).
+    pub fn clear_kept_samples(&self) {
+        self.samples.clear()
+    }
+
+    /// Micro-buffers whose samples are kept on the GPU, and their bytes.
+    pub fn kept_samples(&self) -> (usize, u64) {
+        self.samples.kept()
     }
 
     /// The device it runs on.
@@ -327,7 +349,8 @@ impl GpuShader {
             lights_at: lights_at as u32,
             base: 0,
             span: 0,
-            _pad: [0; 2],
+            sbase: 0,
+            _pad: 0,
         };
         let limit = self.gpu.report.max_storage_binding;
         let per_light = lights.map_or(0, |l| l.len() as u64) * 12;
@@ -348,11 +371,18 @@ impl GpuShader {
             return Err(GpuError::TooLarge { what: "one Gaussian's samples", bytes: per_gaussian, limit });
         }
         let batch = (self.batch_bytes.min(limit) / per_gaussian).max(1) as usize;
+        // Kept samples come in chunks of at most a batch of samples alone. Batches end at
+        // their edges whether the samples are kept or not, so the env gradient's blocks (added
+        // in batch order) and with them its sums are the same either way.
+        let chunk = (self.batch_bytes.min(limit) / (k as u64 * SAMPLE_BYTES)).max(1) as usize;
+        let kept = self.samples.get(d, mb, chunk);
         Ok(Some(Prepared {
             mb,
             list,
             given,
             batch,
+            chunk,
+            kept,
             uniform,
             frames: upload(d, "shade frames", &frames),
             tables: upload(d, "shade tables", &tables),
@@ -368,6 +398,10 @@ struct Prepared<'a> {
     list: Vec<u32>,
     given: Option<&'a [[f32; 3]]>,
     batch: usize,
+    /// Gaussians per chunk of kept samples (batches end at chunk edges).
+    chunk: usize,
+    /// The kept samples' chunks.
+    kept: Option<Vec<wgpu::Buffer>>,
     uniform: Uniform,
     frames: wgpu::Buffer,
     tables: wgpu::Buffer,
@@ -384,18 +418,19 @@ struct Batch {
 }
 
 impl Prepared<'_> {
-    /// The batches with at least one listed Gaussian.
+    /// The batches with at least one listed Gaussian; none crosses a chunk's edge.
     fn batches(&self) -> Vec<Batch> {
         let n = self.mb.len();
+        let chunk = self.chunk;
         let mut out = Vec::new();
-        let mut from = 0;
-        for g0 in (0..n).step_by(self.batch) {
-            let g1 = (g0 + self.batch).min(n);
+        let (mut from, mut g0) = (0, 0);
+        while g0 < n {
+            let g1 = (g0 + self.batch).min(n).min((g0 / chunk + 1) * chunk);
             let to = from + self.list[from..].partition_point(|&j| (j as usize) < g1);
             if to > from {
                 out.push(Batch { g0, g1, from, to });
             }
-            from = to;
+            (from, g0) = (to, g1);
         }
         out
     }
@@ -403,11 +438,20 @@ impl Prepared<'_> {
     /// A batch's uniform, samples, given light and list.
     fn batch_buffers(&self, d: &wgpu::Device, b: &Batch) -> (wgpu::Buffer, wgpu::Buffer, wgpu::Buffer, wgpu::Buffer) {
         let k = self.mb.k;
-        let u =
-            Uniform { count: (b.to - b.from) as u32, base: b.g0 as u32, span: (b.g1 - b.g0) as u32, ..self.uniform };
+        let (samples, sbase) = match &self.kept {
+            Some(chunks) => (chunks[b.g0 / self.chunk].clone(), b.g0 / self.chunk * self.chunk),
+            None => (upload(d, "shade samples", &pack(self.mb, b.g0..b.g1)), b.g0),
+        };
+        let u = Uniform {
+            count: (b.to - b.from) as u32,
+            base: b.g0 as u32,
+            span: (b.g1 - b.g0) as u32,
+            sbase: sbase as u32,
+            ..self.uniform
+        };
         (
             crate::buffers::uniform(d, "shade params", &u),
-            upload(d, "shade samples", &pack(self.mb, b.g0..b.g1)),
+            samples,
             match self.given {
                 Some(g) => upload(d, "shade indirect", &g[b.g0 * k..b.g1 * k]),
                 None => storage(d, "shade indirect (none)", 16),

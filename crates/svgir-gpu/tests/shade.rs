@@ -242,3 +242,60 @@ fn gpu_shading_refuses_what_the_cpu_refuses() {
     shader.shade(&empty, None, &mut out).unwrap();
     assert!(out.color.len() == n * m * 3 && out.color.iter().all(|&x| x == 0.0));
 }
+
+/// The samples the shader keeps on the GPU across calls (`resident.rs`) shade exactly as the
+/// ones each call uploads: forward and backward, bit for bit, over several chunks and both
+/// sides; a new micro-buffer, and one changed in place, are shaded with their own samples.
+#[test]
+fn kept_samples_shade_as_uploaded_ones() {
+    let Some(gpu) = common::gpu() else { return };
+    let mut kept = GpuShader::new(gpu.clone());
+    let mut uploaded = GpuShader::new(gpu).keep_samples(0);
+    // 40 Gaussians' samples a chunk: 13 chunks a side.
+    kept.batch_bytes = 40 * 64 * 16;
+    uploaded.batch_bytes = kept.batch_bytes;
+    let (n, m) = (500, 4);
+    let mut c = case(n, m, 64, 4, true, 77);
+    let params = ShadeParams {
+        visibility: true,
+        env_max: 64.0,
+        diffuse: Diffuse::Layered,
+        simd: svgir_core::simd::Simd::Scalar,
+    };
+    let v_color: Vec<f32> = {
+        let mut rng = Rng::new(3);
+        (0..n * m * 3).map(|_| rng.normal()).collect()
+    };
+    // Colour, then the backward's gradients, of both shaders on the case as it is now.
+    let run = |c: &Case, shader: &GpuShader| {
+        let back_normals = negated(&c.normals);
+        let mats = VertexMaterials { m, albedo: &c.albedo[..], roughness: &c.rough[..], normals: &c.normals[..] };
+        let back_mats = VertexMaterials { normals: &back_normals[..], ..mats };
+        let side = |mb, visible, mats, lights| Side {
+            inputs: inputs(c, mb, visible, mats, &c.env.data, Mode::Traced, 0.7f32, params, lights),
+            cache: None,
+        };
+        let front = side(&c.mb, &c.front[..], mats, c.lights.as_ref());
+        let back = side(&c.back_mb, &c.back[..], back_mats, c.back_lights.as_ref());
+        let mut out = ShadeOutput::new();
+        shader.shade(&front, Some(&back), &mut out).unwrap();
+        let mut g = svgir_pbr::PbrGrads::zeros(n, m, c.env.data.len());
+        shader.backward(&front, Some(&back), &v_color, &mut g).unwrap();
+        (out.color, out.direct, out.indirect, g.v_albedo, g.v_roughness, g.v_normals, g.v_env, g.v_rho)
+    };
+    let want = run(&c, &uploaded);
+    assert_eq!(uploaded.kept_samples().0, 0);
+    assert!(run(&c, &kept) == want, "first call (uploads and keeps)");
+    assert_eq!(kept.kept_samples(), (2, 2 * (n * 64 * 16) as u64));
+    assert!(run(&c, &kept) == want, "second call (kept samples)");
+    // A new trace.
+    c.mb = synthetic_microbuffer(n, 64, 78);
+    let want_new = run(&c, &uploaded);
+    assert!(want_new != want);
+    assert!(run(&c, &kept) == want_new, "a new micro-buffer");
+    // The same allocation changed in place: every sample's visibility halved.
+    c.mb.vis.iter_mut().for_each(|v| *v /= 2);
+    let want_halved = run(&c, &uploaded);
+    assert!(want_halved != want_new);
+    assert!(run(&c, &kept) == want_halved, "a micro-buffer changed in place");
+}

@@ -12,7 +12,9 @@
 // K samples in order and, per sample, its M vertices; a thread owns its M x 3 outputs, so there
 // are no atomics and the sums run in the CPU's order (directions, then lights). The sides of a
 // two-sided model are two dispatches with disjoint lists into the same outputs. A dispatch covers
-// the Gaussians `base .. base + span` whose samples (and given indirect light) are bound.
+// the Gaussians `base .. base + span` whose given indirect light is bound; their samples lie in a
+// buffer from Gaussian `sbase` on (the batch's own upload, sbase = base, or the chunk of kept
+// samples that holds the batch, resident.rs).
 //
 // Env lookups are made here from the direction (svgir_core::envmap::grid_coords, Taps::at) rather
 // than read from the CPU's direction cache: 32 bytes a sample saved, at the price of acos/atan2's
@@ -27,13 +29,13 @@
 // included); at env_at the texels (rgb, 1 where a light texel is black to the K samples); at
 // lights_at two per light: (dir, Omega K / 2pi), (texel index as a float, 0, 0, 0).
 @group(0) @binding(2) var<storage, read> tables: array<vec4<f32>>;
-// Packed micro-buffer samples of Gaussians base .. base + span, (j - base) * K + k:
+// Packed micro-buffer samples of Gaussians from sbase on, (j - sbase) * K + k:
 // (V unorm16 | L.r f16 << 16, L.g | L.b << 16, first hit, u~ | v~ << 16), as trace.wgsl writes.
 @group(0) @binding(3) var<storage, read> samples: array<vec4<u32>>;
 // Per vertex j * M + m: (unit shading normal, roughness), (albedo, diffuse weight t),
 // (dt/d(n.v), dt/dr, 0, 0) (the backward's).
 @group(0) @binding(4) var<storage, read> verts: array<vec4<f32>>;
-// F_GIVEN: L_ind per sample, 3 floats, same order as `samples`.
+// F_GIVEN: L_ind per sample of Gaussians base .. base + span, ((j - base) * K + k) * 3 + c.
 @group(0) @binding(5) var<storage, read> given: array<f32>;
 // Light visibility, b * N + j.
 @group(0) @binding(6) var<storage, read> light_vis: array<f32>;

@@ -17,8 +17,9 @@ struct ShadeParams {
     scale: f32,       // 2 pi / K
     env_at: u32,      // first env texel in `tables`
     lights_at: u32,   // first light in `tables`
-    base: u32,        // first Gaussian whose samples are bound
-    span: u32,        // Gaussians whose samples are bound
+    base: u32,        // first Gaussian whose given light and light gradients are bound
+    span: u32,        // Gaussians whose given light and light gradients are bound
+    sbase: u32,       // first Gaussian whose samples are bound (<= base: a kept chunk's)
 }
 
 const F_VIS: u32 = 1u;     // ShadeParams::visibility (else V = 1)
@@ -62,7 +63,7 @@ fn fetch_sample(j: u32, local: u32, s: u32, b1: vec4<f32>, b2: vec4<f32>, nf: ve
     r.live = vec3<bool>(false);
     let vis_on = (P.flags & F_VIS) != 0u;
     if s < P.k {
-        let w = samples[local * P.k + s];
+        let w = samples[(j - P.sbase) * P.k + s];
         r.vis = 1.0;
         if vis_on {
             r.vis = unpack2x16unorm(w.x).x;
