@@ -29,6 +29,39 @@ fn header(out: &mut String) {
     );
 }
 
+/// How much the surfels' hittable disks overlap, which sets a ray's work more than their count:
+/// the median and 90th-percentile disk radius (the reach `bounds` gives a hit: sqrt(min(9,
+/// 2 ln(255 o))) sigma along the larger axis) as a share of the centres' bounding-box diagonal,
+/// and the disks' summed area over the area of that diagonal's disk (`sum r^2 / (d/2)^2`): how
+/// many disks a ray through the scene's middle meets, roughly, if they all faced it.
+pub fn coverage(s: &svgir_core::Surfels) -> (f32, f32, f32) {
+    if s.is_empty() {
+        return (0.0, 0.0, 0.0);
+    }
+    let (lo, hi) =
+        s.positions.iter().fold((glam::Vec3::INFINITY, glam::Vec3::NEG_INFINITY), |(a, b), p| (a.min(*p), b.max(*p)));
+    let diag = (hi - lo).length().max(1e-12);
+    let mut r: Vec<f32> = (0..s.len())
+        .map(|i| {
+            let reach2 = (2.0 * (s.opacity(i) / crate::hit::ALPHA_MIN).ln()).clamp(0.0, crate::hit::SUPPORT_R2);
+            reach2.sqrt() * s.scale(i).max_element() / diag
+        })
+        .collect();
+    let overlap = r.iter().map(|x| 4.0 * x * x).sum::<f32>();
+    r.sort_by(f32::total_cmp);
+    let at = |q: f32| r[((r.len() - 1) as f32 * q) as usize];
+    (at(0.5), at(0.9), overlap)
+}
+
+fn coverage_line(out: &mut String, s: &svgir_core::Surfels) {
+    let (median, p90, overlap) = coverage(s);
+    let _ = writeln!(
+        out,
+        "  disk radius median {:.4}, 90th percentile {:.4} of the diagonal; overlap {overlap:.1} (sum r^2 / (diagonal/2)^2)",
+        median, p90
+    );
+}
+
 /// One row per thread count (1 and `threads`) for the surfels `s`.
 fn scene_rows(out: &mut String, s: &svgir_core::Surfels, threads: usize) {
     let mut counts = vec![1usize];
@@ -93,7 +126,9 @@ pub fn bench_table_sizes(threads: usize, sizes: &[usize]) -> String {
     );
     header(&mut out);
     for &n in sizes {
-        scene_rows(&mut out, &object_scene(n, 1), threads);
+        let s = object_scene(n, 1);
+        scene_rows(&mut out, &s, threads);
+        coverage_line(&mut out, &s);
     }
     out
 }
@@ -105,6 +140,7 @@ pub fn bench_table_scene(threads: usize, s: &svgir_core::Surfels, label: &str) -
     let mut out = format!("svgir-trace: {label} ({} surfels), K = 64, default TraceParams\n", s.len());
     header(&mut out);
     scene_rows(&mut out, s, threads);
+    coverage_line(&mut out, s);
     out
 }
 
@@ -130,4 +166,27 @@ fn gather_seconds(mb: &MicroBuffer) -> f64 {
 /// The table for `svgir bench trace` at the standard sizes.
 pub fn bench_table(threads: usize) -> String {
     bench_table_sizes(threads, &[10_000, 100_000, 300_000])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::coverage;
+    use glam::{Quat, Vec2, Vec3};
+    use svgir_core::surfel::logit;
+
+    /// Opaque disks reach 3 sigma, one at opacity 1/255 nothing; radii are shares of the
+    /// diagonal and the overlap sums `(2 r)^2`.
+    #[test]
+    fn coverage_of_known_disks() {
+        let mut s = svgir_core::Surfels::with_capacity(3, 0);
+        let sh = Default::default();
+        let ln = |x: f32| Vec2::splat(x.ln());
+        s.push(Vec3::ZERO, Quat::IDENTITY, ln(0.1), logit(0.999_999), sh);
+        s.push(Vec3::new(1.0, 0.0, 0.0), Quat::IDENTITY, Vec2::new(0.05f32.ln(), 0.1f32.ln()), logit(0.999_999), sh);
+        s.push(Vec3::new(0.5, 0.0, 0.0), Quat::IDENTITY, ln(0.2), logit(1.0 / 255.0), sh);
+        let (median, p90, overlap) = coverage(&s);
+        assert!((median - 0.3).abs() < 1e-4, "{median}");
+        assert!((p90 - 0.3).abs() < 1e-4, "{p90}");
+        assert!((overlap - 2.0 * 0.36).abs() < 1e-3, "{overlap}");
+    }
 }
