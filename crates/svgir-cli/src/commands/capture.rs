@@ -32,12 +32,13 @@ pub struct CaptureArgs {
     /// Foreground masks of your own (one PNG per photo, white on the object) instead of step 2.
     #[arg(long)]
     pub masks: Option<PathBuf>,
-    /// Train on the photos downscaled by this factor (the README's figures use 4 on 2 cores).
-    #[arg(long, default_value_t = 4.0)]
-    pub downscale: f32,
-    /// Stage-1 iterations of steps 1 and 3.
-    #[arg(long, default_value_t = 7000)]
-    pub iterations: u64,
+    /// Train on the photos downscaled by this factor (default: 4 on the CPU; on a GPU the photos'
+    /// own size, at most 1600 px wide).
+    #[arg(long)]
+    pub downscale: Option<f32>,
+    /// Stage-1 iterations of steps 1 and 3 (default: 7000 on the CPU, SPEC's 30000 on a GPU).
+    #[arg(long)]
+    pub iterations: Option<u64>,
     /// Stage-2 iterations (step 4).
     #[arg(long, default_value_t = 1500)]
     pub stage2_iterations: u64,
@@ -63,6 +64,87 @@ pub struct CaptureArgs {
 
 fn s(p: &Path) -> String {
     p.display().to_string()
+}
+
+/// The photo size and stage-1 length the run trains with: chosen once, by the device, and kept
+/// in `RUN/capture.json` so that a continued run (on any device) trains as it began.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+struct Sizing {
+    /// `--downscale`, or `--resolution` (a width), or neither (the photos' own size).
+    downscale: Option<f32>,
+    resolution: Option<u32>,
+    iterations: u64,
+}
+
+/// Widest photos a GPU run trains on at their own size (3DGS's rule: wider ones are scaled to it).
+const GPU_MAX_WIDTH: u32 = 1600;
+
+impl Sizing {
+    /// The defaults: on the CPU a quarter of the photos' size and 7000 iterations (a run of
+    /// about an hour on 2 cores); on a hardware GPU the photos' own size up to 1600 px wide and
+    /// SPEC 2's 30000 iterations. Explicit options win.
+    fn defaults(gpu: bool, photo_width: u32, downscale: Option<f32>, iterations: Option<u64>) -> Self {
+        let iterations = iterations.unwrap_or(if gpu { 30_000 } else { 7000 });
+        match downscale {
+            Some(d) => Self { downscale: Some(d), resolution: None, iterations },
+            None if !gpu => Self { downscale: Some(4.0), resolution: None, iterations },
+            None => {
+                Self { downscale: None, resolution: (photo_width > GPU_MAX_WIDTH).then_some(GPU_MAX_WIDTH), iterations }
+            }
+        }
+    }
+
+    fn flags(&self) -> Vec<(&'static str, String)> {
+        let mut f = vec![("--iterations", self.iterations.to_string())];
+        if let Some(d) = self.downscale {
+            f.push(("--downscale", d.to_string()));
+        }
+        if let Some(r) = self.resolution {
+            f.push(("--resolution", r.to_string()));
+        }
+        f
+    }
+
+    fn describe(&self) -> String {
+        let size = match (self.downscale, self.resolution) {
+            (Some(d), _) => format!("photos downscaled {d}x"),
+            (None, Some(r)) => format!("photos at {r} px wide"),
+            (None, None) => "photos at their own size".into(),
+        };
+        format!("{size}, {} stage-1 iterations", self.iterations)
+    }
+
+    /// The run's sizing: `RUN/capture.json` when the run was begun (options given now win and
+    /// are kept), else the device's defaults for these photos.
+    fn of_run(args: &CaptureArgs, data: &Path) -> Result<Self> {
+        let path = args.out.join("capture.json");
+        let kept: Option<Sizing> = match std::fs::read_to_string(&path) {
+            Ok(text) => Some(
+                serde_json::from_str(&text).with_context(|| format!("{}: not a capture's settings", path.display()))?,
+            ),
+            Err(_) => None,
+        };
+        let sizing = match kept {
+            Some(k) => Sizing {
+                downscale: args.downscale.or(k.downscale),
+                resolution: if args.downscale.is_some() { None } else { k.resolution },
+                iterations: args.iterations.unwrap_or(k.iterations),
+            },
+            None => {
+                let gpu = match svgir_gpu::open(args.device)? {
+                    Some(g) => g.report.device_type != "Cpu",
+                    None => false,
+                };
+                let one = svgir_io::LoadOptions { load_test: false, max_views: Some(1), ..Default::default() };
+                let width = svgir_io::load_dataset(data, &one)?.train.first().map_or(0, |v| v.camera.width());
+                Self::defaults(gpu, width, args.downscale, args.iterations)
+            }
+        };
+        let text = serde_json::to_string_pretty(&sizing)?;
+        svgir_io::error::write_atomic(&path, text.as_bytes())?;
+        eprintln!("svgir capture: {} ({})", sizing.describe(), s(&path));
+        Ok(sizing)
+    }
 }
 
 /// Step 0: the dataset to train on, posing a plain folder of photos with COLMAP.
@@ -114,19 +196,14 @@ fn posed_dataset(args: &CaptureArgs) -> Result<PathBuf> {
 }
 
 /// A stage-1 run's flags, continuing it when it has a checkpoint.
-fn stage1(args: &CaptureArgs, data: &Path, out: &Path, extra: &[(&str, String)]) -> Result<()> {
+fn stage1(args: &CaptureArgs, sizing: &Sizing, data: &Path, out: &Path, extra: &[(&str, String)]) -> Result<()> {
     if out.join("point_cloud.ply").is_file() && out.join("eval.json").is_file() {
         eprintln!("svgir capture: {} (done before)", out.display());
         return Ok(());
     }
     let mut f = vec![s(data)];
-    f.extend(flags(&[
-        ("--out", s(out)),
-        ("--iterations", args.iterations.to_string()),
-        ("--downscale", args.downscale.to_string()),
-        ("--device", args.device.to_string()),
-        ("--seed", args.seed.to_string()),
-    ]));
+    f.extend(flags(&[("--out", s(out)), ("--device", args.device.to_string()), ("--seed", args.seed.to_string())]));
+    f.extend(flags(&sizing.flags()));
     f.extend(flags(extra));
     if out.join("checkpoint.bin").is_file() {
         f.push("--resume".into());
@@ -154,13 +231,14 @@ fn relight_maps(args: &CaptureArgs) -> Vec<PathBuf> {
 pub fn run(args: CaptureArgs) -> Result<()> {
     std::fs::create_dir_all(&args.out).with_context(|| format!("creating {}", args.out.display()))?;
     let data = posed_dataset(&args)?;
+    let sizing = Sizing::of_run(&args, &data)?;
     let (scene, object) = (args.out.join("scene"), args.out.join("object"));
 
     // Steps 1-2: the masks, from a reconstruction of the whole capture unless given.
     let masks = match &args.masks {
         Some(m) => m.clone(),
         None => {
-            stage1(&args, &data, &scene, &[("--profile", "capture".into())])?;
+            stage1(&args, &sizing, &data, &scene, &[("--profile", "capture".into())])?;
             let masks = args.out.join("masks");
             if scene.join("foreground.json").is_file() && masks.is_dir() {
                 eprintln!("svgir capture: {} (done before)", masks.display());
@@ -177,7 +255,7 @@ pub fn run(args: CaptureArgs) -> Result<()> {
     };
 
     // Step 3: the object alone.
-    stage1(&args, &data, &object, &[("--masks", s(&masks)), ("--background", "black".into())])?;
+    stage1(&args, &sizing, &data, &object, &[("--masks", s(&masks)), ("--background", "black".into())])?;
 
     // Step 4: materials, light and relighting.
     let stage2 = object.join("stage2");
@@ -299,4 +377,25 @@ fn write_capture_report(out: &Path, scene: &Path, object: &Path, own_masks: bool
     );
     svgir_io::error::write_atomic(page, html.as_bytes())?;
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::Sizing;
+
+    /// The CPU trains a quarter of the photos' size for 7000 iterations; a GPU their own size up
+    /// to 1600 px wide for SPEC's 30000; options given win on either.
+    #[test]
+    fn sizing_by_device() {
+        let cpu = Sizing::defaults(false, 4032, None, None);
+        assert_eq!(cpu, Sizing { downscale: Some(4.0), resolution: None, iterations: 7000 });
+        let phone = Sizing::defaults(true, 4032, None, None);
+        assert_eq!(phone, Sizing { downscale: None, resolution: Some(1600), iterations: 30_000 });
+        let small = Sizing::defaults(true, 1280, None, None);
+        assert_eq!(small, Sizing { downscale: None, resolution: None, iterations: 30_000 });
+        assert_eq!(small.flags(), vec![("--iterations", "30000".to_string())]);
+        let given = Sizing::defaults(true, 4032, Some(2.0), Some(500));
+        assert_eq!(given, Sizing { downscale: Some(2.0), resolution: None, iterations: 500 });
+        assert_eq!(phone.flags()[1], ("--resolution", "1600".to_string()));
+    }
 }
