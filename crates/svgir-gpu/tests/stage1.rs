@@ -197,14 +197,19 @@ fn through_checkpoint(t: &svgir_train::Stage1, ds: &svgir_core::Dataset, name: &
     back
 }
 
+/// The shipped scene with its test views.
+fn shipped_scene() -> svgir_core::Dataset {
+    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/bowl_fruit_128");
+    let opts = svgir_io::LoadOptions { load_test: true, ..Default::default() };
+    svgir_io::load_dataset(root, &opts).unwrap()
+}
+
 #[test]
 fn a_short_run_on_the_shipped_scene_lands_where_the_cpu_run_does_and_resumes_across_devices() {
     if gpu().is_none() {
         return;
     }
-    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/bowl_fruit_128");
-    let opts = svgir_io::LoadOptions { load_test: true, ..Default::default() };
-    let ds = svgir_io::load_dataset(root, &opts).unwrap();
+    let ds = shipped_scene();
     let iters = 200;
     let t0 = std::time::Instant::now();
     let mut cpu = fresh_run(&ds, iters);
@@ -281,9 +286,7 @@ fn the_binary_opacity_term_drives_and_prunes_as_on_the_cpu() {
     if gpu().is_none() {
         return;
     }
-    let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/bowl_fruit_128");
-    let opts = svgir_io::LoadOptions { load_test: true, ..Default::default() };
-    let ds = svgir_io::load_dataset(root, &opts).unwrap();
+    let ds = shipped_scene();
     let iters = 200;
     let run = || {
         let mut t = fresh_run(&ds, iters);
