@@ -20,6 +20,7 @@
 pub mod bench;
 pub mod buffers;
 pub mod device;
+mod exposure;
 pub mod features;
 pub mod gather;
 mod loop_guard;

@@ -16,6 +16,7 @@
 
 use crate::buffers::{bind, dispatch, read_back, storage, upload};
 use crate::device::{Gpu, GpuError};
+use crate::exposure::GpuExposure;
 use crate::loss::{photo_record, LossBuffers, LossKernels, LossParams, RECORD};
 use crate::raster::{kernel, Frame, GpuRaster, Params, SurfelBuffers, COUNTERS, VP};
 use bytemuck::{Pod, Zeroable};
@@ -173,6 +174,8 @@ pub struct GpuStage1 {
     stats_params: wgpu::Buffer,
     photos: Vec<wgpu::Buffer>,
     half: Option<(Vec<View>, Vec<wgpu::Buffer>)>,
+    /// The per-photo colour corrections (`--exposure`), resident.
+    exposure: Option<GpuExposure>,
     /// Whether the host's surfels, moments and statistics are those on the GPU.
     synced: bool,
     last_read: u64,
@@ -189,12 +192,6 @@ impl GpuStage1 {
     /// Puts the run `host` (fresh or resumed) on `gpu`: uploads its surfels, moments,
     /// statistics and the training photos.
     pub fn new(host: Stage1, gpu: Gpu, dataset: &Dataset) -> Result<Self, GpuError> {
-        if host.exposure.is_some() {
-            return Err(GpuError::Runtime(
-                "the per-photo exposure correction (--exposure) has no GPU kernels yet; train it with --device cpu"
-                    .into(),
-            ));
-        }
         let d = &gpu.device;
         let raster = GpuRaster::new(&gpu);
         let loss = LossKernels::new(&gpu);
@@ -221,6 +218,7 @@ impl GpuStage1 {
         let adam_params = (0..5).map(|_| uni("adam params", std::mem::size_of::<AdamParams>())).collect();
         let stats_params = uni("stats params", std::mem::size_of::<StatsParams>());
         let photos = upload_photos(&gpu, &dataset.train);
+        let exposure = host.exposure.as_ref().map(|e| GpuExposure::new(&gpu, e, npx)).transpose()?;
         let last_read = host.iteration;
         Ok(Self {
             host,
@@ -236,6 +234,7 @@ impl GpuStage1 {
             stats_params,
             photos,
             half: None,
+            exposure,
             synced: true,
             last_read,
             max_entries: 0,
@@ -287,7 +286,15 @@ impl GpuStage1 {
             (Some((_, photos)), true) => &photos[plan.view],
             _ => &self.photos[plan.view],
         };
+        let npx = w * h;
+        // The loss sees the photo's colour correction applied to the render (Stage1::step).
+        if let Some(e) = &self.exposure {
+            e.encode_forward(&self.gpu, &mut enc, &self.frame, plan.view, npx);
+        }
         self.loss.encode(&self.gpu, &mut enc, &self.frame, photo, &self.loss_bufs, &lp);
+        if let (Some(e), Some(host_e)) = (&self.exposure, self.host.exposure.as_mut()) {
+            e.encode_backward_and_step(&self.gpu, &mut enc, &self.frame, &self.adam, host_e, plan.view, npx)?;
+        }
         self.raster.encode_backward(&self.gpu, &mut enc, &self.res.surf, &self.frame, &params);
         let n = self.res.surf.n;
         if it <= self.host.config.densify.until_iter {
@@ -402,6 +409,9 @@ impl GpuStage1 {
         self.gpu.check()?;
         if !self.synced {
             self.res.download_into(&self.gpu, &mut self.host)?;
+            if let (Some(e), Some(host_e)) = (&self.exposure, self.host.exposure.as_mut()) {
+                e.download_into(&self.gpu, host_e)?;
+            }
             self.synced = true;
         }
         Ok(())

@@ -2,7 +2,7 @@
 //! the same run resident on a GPU. Both keep the run's [`Stage1`], so checkpoints, evaluation
 //! and outputs are device-blind, and a run resumes on either device.
 
-use anyhow::{bail, Result};
+use anyhow::Result;
 use std::time::Instant;
 use svgir_core::{Camera, Dataset};
 use svgir_gpu::{AdapterReport, DeviceChoice, GpuStage1};
@@ -43,18 +43,9 @@ pub fn stage2_kernels(choice: DeviceChoice) -> Result<svgir_train::Kernels> {
 }
 
 impl Engine {
-    /// Puts `trainer` on `gpu`, or keeps it on the CPU. A run the GPU kernels cannot take
-    /// (the per-photo exposure correction) stays on the CPU under `auto` and is an error under
-    /// `gpu`.
-    pub fn new(trainer: Stage1, gpu: Option<svgir_gpu::Gpu>, choice: DeviceChoice, dataset: &Dataset) -> Result<Self> {
+    /// Puts `trainer` on `gpu`, or keeps it on the CPU.
+    pub fn new(trainer: Stage1, gpu: Option<svgir_gpu::Gpu>, dataset: &Dataset) -> Result<Self> {
         let Some(gpu) = gpu else { return Ok(Self::Cpu(Box::new(trainer))) };
-        if trainer.exposure.is_some() {
-            if choice == DeviceChoice::Gpu {
-                bail!("--device gpu: the per-photo exposure correction (--exposure) has no GPU kernels yet");
-            }
-            eprintln!("device: the exposure correction runs on the CPU only; this run stays on the CPU");
-            return Ok(Self::Cpu(Box::new(trainer)));
-        }
         Ok(Self::Gpu(Box::new(GpuStage1::new(trainer, gpu, dataset)?), 0.0, 0))
     }
 

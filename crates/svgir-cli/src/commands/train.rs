@@ -195,7 +195,7 @@ pub fn run(args: TrainArgs) -> Result<()> {
         Stage1Start::New { config: Box::new(config), surfels, meta }
     };
     let trainer = driver::open_stage1(&args.out, start, &dataset, &mut |line| eprintln!("{line}"))?;
-    let mut engine = Engine::new(trainer, gpu, args.device, &dataset)?;
+    let mut engine = Engine::new(trainer, gpu, &dataset)?;
     train_loop(&mut engine, &dataset, &args)?;
     finish(&engine, &dataset, &args.out)
 }
