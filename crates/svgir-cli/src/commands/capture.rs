@@ -39,6 +39,10 @@ pub struct CaptureArgs {
     /// Stage-1 iterations of steps 1 and 3 (default: 7000 on the CPU, SPEC's 30000 on a GPU).
     #[arg(long)]
     pub iterations: Option<u64>,
+    /// Learn a per-photo colour correction in both stage-1 steps (photos of varying exposure or
+    /// white balance: a phone on auto, a photo collection).
+    #[arg(long)]
+    pub exposure: bool,
     /// Stage-2 iterations (step 4).
     #[arg(long, default_value_t = 1500)]
     pub stage2_iterations: u64,
@@ -204,6 +208,9 @@ fn stage1(args: &CaptureArgs, sizing: &Sizing, data: &Path, out: &Path, extra: &
     let mut f = vec![s(data)];
     f.extend(flags(&[("--out", s(out)), ("--device", args.device.to_string()), ("--seed", args.seed.to_string())]));
     f.extend(flags(&sizing.flags()));
+    if args.exposure {
+        f.push("--exposure".into());
+    }
     f.extend(flags(extra));
     if out.join("checkpoint.bin").is_file() {
         f.push("--resume".into());
