@@ -37,6 +37,16 @@ pub(crate) fn upload<T: bytemuck::Pod>(device: &wgpu::Device, label: &str, data:
 }
 
 /// A uniform buffer holding `value`.
+/// A uniform buffer the size of `T`, written each time it is used (`Queue::write_buffer`).
+pub(crate) fn uniform_slot<T>(device: &wgpu::Device, label: &str) -> wgpu::Buffer {
+    device.create_buffer(&wgpu::BufferDescriptor {
+        label: Some(label),
+        size: std::mem::size_of::<T>() as u64,
+        usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
+        mapped_at_creation: false,
+    })
+}
+
 pub(crate) fn uniform<T: bytemuck::Pod>(device: &wgpu::Device, label: &str, value: &T) -> wgpu::Buffer {
     device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
         label: Some(label),

@@ -10,7 +10,7 @@
 //! and the photo's row takes one step of the Adam kernel (`adam.wgsl`). No atomics, nothing
 //! read back; the host counts each photo's Adam steps, as the CPU does.
 
-use crate::buffers::{bind, dispatch, kernel_of, read_back, storage, upload};
+use crate::buffers::{bind, dispatch, kernel_of, read_back, storage, uniform_slot, upload};
 use crate::device::{Gpu, GpuError};
 use crate::raster::Frame;
 use crate::stage1::AdamParams;
@@ -70,14 +70,6 @@ impl GpuExposure {
         if e.adam.iter().any(|a| a.m.len() != PARAMS || a.v.len() != PARAMS) || e.adam.len() != e.params.len() {
             return Err(GpuError::Runtime("the exposure correction's Adam state does not match its photos".into()));
         }
-        let uni = |label: &str, size: usize| {
-            d.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: size as u64,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            })
-        };
         Ok(Self {
             apply: kernel(d, "exposure apply", include_str!("shaders/exposure/apply.wgsl")),
             backward: kernel(d, "exposure backward", include_str!("shaders/exposure/backward.wgsl")),
@@ -88,8 +80,8 @@ impl GpuExposure {
             raw: storage(d, "exposure raw colour", npx * 3 * 4),
             partials: storage(d, "exposure partials", npx.div_ceil(256) * PARAMS as u64 * 4),
             grad: storage(d, "exposure grad", PARAMS as u64 * 4),
-            uniform: uni("exposure params uniform", std::mem::size_of::<Uniform>()),
-            adam_uniform: uni("exposure adam uniform", std::mem::size_of::<AdamParams>()),
+            uniform: uniform_slot::<Uniform>(d, "exposure params uniform"),
+            adam_uniform: uniform_slot::<AdamParams>(d, "exposure adam uniform"),
             photos: e.params.len(),
         })
     }

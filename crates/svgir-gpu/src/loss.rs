@@ -109,12 +109,7 @@ impl LossBuffers {
         let d = &gpu.device;
         let f = |k: u64| npx * k * 4;
         Self {
-            params: d.create_buffer(&wgpu::BufferDescriptor {
-                label: Some("loss params"),
-                size: std::mem::size_of::<LossParams>() as u64,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            }),
+            params: crate::buffers::uniform_slot::<LossParams>(d, "loss params"),
             hbuf: storage(d, "ssim moments, horizontal pass", f(15)),
             pbuf: storage(d, "ssim partials", f(9)),
             qbuf: storage(d, "ssim partials, horizontal pass", f(9)),

@@ -257,12 +257,7 @@ impl Frame {
         let d = &gpu.device;
         let nb = n as u64 * 4;
         let eb = capacity as u64 * 4;
-        let params = d.create_buffer(&wgpu::BufferDescriptor {
-            label: Some("render params"),
-            size: std::mem::size_of::<Params>() as u64,
-            usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-            mapped_at_creation: false,
-        });
+        let params = crate::buffers::uniform_slot::<Params>(d, "render params");
         Ok(Self {
             params,
             splat: storage(d, "splats", nb * SPLAT),

@@ -14,7 +14,7 @@
 //!
 //! A checkpoint is the host's [`Stage1`], so a run resumes on either device.
 
-use crate::buffers::{bind, dispatch, read_back, storage, upload};
+use crate::buffers::{bind, dispatch, read_back, storage, uniform_slot, upload};
 use crate::device::{Gpu, GpuError};
 use crate::exposure::GpuExposure;
 use crate::loss::{photo_record, LossBuffers, LossKernels, LossParams, RECORD};
@@ -207,16 +207,8 @@ impl GpuStage1 {
             .unwrap_or(1);
         let frame = Frame::new(&gpu, res.surf.n, npx, tiles, 0)?;
         let loss_bufs = LossBuffers::new(&gpu, npx, RING);
-        let uni = |label: &str, size: usize| {
-            d.create_buffer(&wgpu::BufferDescriptor {
-                label: Some(label),
-                size: size as u64,
-                usage: wgpu::BufferUsages::UNIFORM | wgpu::BufferUsages::COPY_DST,
-                mapped_at_creation: false,
-            })
-        };
-        let adam_params = (0..5).map(|_| uni("adam params", std::mem::size_of::<AdamParams>())).collect();
-        let stats_params = uni("stats params", std::mem::size_of::<StatsParams>());
+        let adam_params = (0..5).map(|_| uniform_slot::<AdamParams>(d, "adam params")).collect();
+        let stats_params = uniform_slot::<StatsParams>(d, "stats params");
         let photos = upload_photos(&gpu, &dataset.train);
         let exposure = host.exposure.as_ref().map(|e| GpuExposure::new(&gpu, e, npx)).transpose()?;
         let last_read = host.iteration;
