@@ -91,7 +91,7 @@ impl GpuShader {
     }
 
     /// Keeps at most `bytes` of micro-buffer samples on the GPU across calls (0: none, each
-    /// call uploads its own; default [`RESIDENT_BYTES`]).
+    /// call uploads its own; default 1 GiB).
     pub fn keep_samples(mut self, bytes: u64) -> Self {
         self.samples = SampleCache::new(bytes);
         self
