@@ -36,7 +36,6 @@ pub(crate) fn upload<T: bytemuck::Pod>(device: &wgpu::Device, label: &str, data:
     })
 }
 
-/// A uniform buffer holding `value`.
 /// A uniform buffer the size of `T`, written each time it is used (`Queue::write_buffer`).
 pub(crate) fn uniform_slot<T>(device: &wgpu::Device, label: &str) -> wgpu::Buffer {
     device.create_buffer(&wgpu::BufferDescriptor {
@@ -47,6 +46,7 @@ pub(crate) fn uniform_slot<T>(device: &wgpu::Device, label: &str) -> wgpu::Buffe
     })
 }
 
+/// A uniform buffer holding `value`.
 pub(crate) fn uniform<T: bytemuck::Pod>(device: &wgpu::Device, label: &str, value: &T) -> wgpu::Buffer {
     device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
         label: Some(label),

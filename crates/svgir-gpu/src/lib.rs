@@ -40,10 +40,30 @@ pub use shade::GpuShader;
 pub use stage1::GpuStage1;
 pub use trace::GpuTracer;
 
-/// Test hooks: the scan and the sort alone, on host data.
+/// Test hooks: the adapter the tests run on, and the scan and the sort alone, on host data.
 pub mod testing {
     use crate::buffers::{read_back, upload};
     use crate::{Gpu, GpuError};
+
+    /// The adapter the GPU tests run on: the one `SVGIR_GPU_ADAPTER` names, else Mesa's
+    /// lavapipe; `None` (the test prints SKIPPED) without one, a panic under
+    /// `SVGIR_REQUIRE_GPU=1` (as `.ci/run` sets).
+    pub fn test_adapter() -> Option<Gpu> {
+        let name = std::env::var(crate::ADAPTER_ENV).unwrap_or_else(|_| "llvmpipe".into());
+        match crate::open_named(Some(&name)) {
+            Ok(g) => {
+                eprintln!("GPU tests on {}", g.report);
+                Some(g)
+            }
+            Err(e) => {
+                if std::env::var("SVGIR_REQUIRE_GPU").is_ok_and(|v| v == "1") {
+                    panic!("SVGIR_REQUIRE_GPU=1 and no GPU adapter: {e}");
+                }
+                eprintln!("SKIPPED: no GPU adapter ({e})");
+                None
+            }
+        }
+    }
 
     /// The exclusive prefix sum of `data` computed on the GPU.
     pub fn exclusive_scan(gpu: &Gpu, data: &[u32]) -> Result<Vec<u32>, GpuError> {

@@ -50,26 +50,12 @@ fn main() {
         (x == lcg(n), g.check())
     }
 
-    fn adapter() -> Option<crate::Gpu> {
-        let name = std::env::var(crate::ADAPTER_ENV).unwrap_or_else(|_| "llvmpipe".into());
-        match crate::open_named(Some(&name)) {
-            Ok(g) => Some(g),
-            Err(e) if std::env::var("SVGIR_REQUIRE_GPU").is_ok_and(|v| v == "1") => {
-                panic!("SVGIR_REQUIRE_GPU=1 and no GPU adapter: {e}")
-            }
-            Err(e) => {
-                eprintln!("SKIPPED: no GPU adapter ({e})");
-                None
-            }
-        }
-    }
-
     /// A loop within any cap runs through and leaves `check` quiet; one of 100000 iterations
     /// is cut on lavapipe (its cap is 65535), and then `check` fails naming that kernel and no
     /// other. On an adapter without a cap the long loop runs through and `check` stays quiet.
     #[test]
     fn the_guard_reports_a_cut_loop_by_its_kernel() {
-        let Some(g) = adapter() else { return };
+        let Some(g) = crate::testing::test_adapter() else { return };
         let (whole, check) = probe(&g, 1000, 4);
         assert!(whole, "a 1000-iteration loop was cut on {}", g.report.name);
         assert!(check.is_ok(), "{check:?}");

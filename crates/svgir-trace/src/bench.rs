@@ -41,12 +41,8 @@ pub fn coverage(s: &svgir_core::Surfels) -> (f32, f32, f32) {
     let (lo, hi) =
         s.positions.iter().fold((glam::Vec3::INFINITY, glam::Vec3::NEG_INFINITY), |(a, b), p| (a.min(*p), b.max(*p)));
     let diag = (hi - lo).length().max(1e-12);
-    let mut r: Vec<f32> = (0..s.len())
-        .map(|i| {
-            let reach2 = (2.0 * (s.opacity(i) / crate::hit::ALPHA_MIN).ln()).clamp(0.0, crate::hit::SUPPORT_R2);
-            reach2.sqrt() * s.scale(i).max_element() / diag
-        })
-        .collect();
+    let mut r: Vec<f32> =
+        (0..s.len()).map(|i| crate::hit::reach_sigma(s.opacity(i)) * s.scale(i).max_element() / diag).collect();
     let overlap = r.iter().map(|x| 4.0 * x * x).sum::<f32>();
     r.sort_by(f32::total_cmp);
     let at = |q: f32| r[((r.len() - 1) as f32 * q) as usize];

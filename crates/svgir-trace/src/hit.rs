@@ -17,6 +17,13 @@ pub const ALPHA_MIN: f32 = 1.0 / 255.0;
 pub const ALPHA_MAX: f32 = 0.99;
 /// Support radius in sigma units, squared.
 pub const SUPPORT_R2: f32 = 9.0;
+
+/// How far from its centre a disk of opacity `o` can be hit, in sigma units:
+/// `sqrt(min(9, 2 ln(255 o)))` (a hit needs `u^2 + v^2 <= 9` and `o exp(-(u^2 + v^2)/2) >= 1/255`;
+/// 0 below 1/255).
+pub fn reach_sigma(o: f32) -> f32 {
+    (2.0 * (o / ALPHA_MIN).ln()).clamp(0.0, SUPPORT_R2).sqrt()
+}
 /// |n.d| below this counts as parallel (the disk has ~1e-12 thickness, SPEC 5).
 pub const PARALLEL_EPS: f32 = 1e-12;
 
@@ -93,8 +100,7 @@ impl Disk {
         let sc = s.scale(i);
         let eu = r.x_axis * sc.x;
         let ev = r.y_axis * sc.y;
-        let reach2 = (2.0 * (s.opacity(i) / ALPHA_MIN).ln()).clamp(0.0, SUPPORT_R2);
-        let ext = reach2.sqrt() * (1.0 + 1e-3) * (eu * eu + ev * ev).map(f32::sqrt);
+        let ext = reach_sigma(s.opacity(i)) * (1.0 + 1e-3) * (eu * eu + ev * ev).map(f32::sqrt);
         let p = s.positions[i];
         // Padding absorbs rounding in the plane-crossing hit point, so box culling can never reject
         // a hit the exact test would accept (BVH results must equal brute force bit for bit).
