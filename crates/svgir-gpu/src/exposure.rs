@@ -4,11 +4,12 @@
 //! used) so that the photo's row binds at a 256-byte offset.
 //!
 //! In an iteration, between the raster forward and its backward (`shaders/exposure/`):
-//! `apply` turns the render's colour into `A c + b` in place, for the loss, saving the colour;
-//! after the loss `backward` turns the colour gradient into `A^T v`, puts the render's colour
-//! back and sums the 12 parameter gradients per workgroup; `sum` adds the workgroups in order,
-//! and the photo's row takes one step of the Adam kernel (`adam.wgsl`). No atomics, nothing
-//! read back; the host counts each photo's Adam steps, as the CPU does.
+//! `apply` turns the render's colour into its object's corrected colour over the background in
+//! place, for the loss, saving the colour; after the loss `backward` turns the colour gradient
+//! into `A^T v`, adds the opacity's share, puts the render's colour back and sums the 12
+//! parameter gradients per workgroup; `sum` adds the workgroups in order, and the photo's row
+//! takes one step of the Adam kernel (`adam.wgsl`). No atomics, nothing read back; the host
+//! counts each photo's Adam steps, as the CPU does.
 
 use crate::buffers::{bind, dispatch, kernel_of, read_back, storage, uniform_slot, upload};
 use crate::device::{Gpu, GpuError};
@@ -28,6 +29,7 @@ struct Uniform {
     row: u32,
     groups: u32,
     pad: u32,
+    bg: [f32; 4],
 }
 
 /// The correction's kernels and resident state, for renders of up to `npx` pixels.
@@ -86,14 +88,15 @@ impl GpuExposure {
         })
     }
 
-    fn write_uniform(&self, gpu: &Gpu, photo: usize, npx: u32) -> u32 {
+    fn write_uniform(&self, gpu: &Gpu, photo: usize, npx: u32, bg: [f32; 3]) -> u32 {
         let groups = npx.div_ceil(256);
-        let u = Uniform { npx, row: (photo * ROW) as u32, groups, pad: 0 };
+        let u = Uniform { npx, row: (photo * ROW) as u32, groups, pad: 0, bg: [bg[0], bg[1], bg[2], 0.0] };
         gpu.queue.write_buffer(&self.uniform, 0, bytemuck::bytes_of(&u));
         groups
     }
 
-    /// Records the forward on the render in `frame` (`npx` pixels) of training photo `photo`.
+    /// Records the forward on the render in `frame` (`npx` pixels, composited over `bg`) of
+    /// training photo `photo`; the backward reads the same settings.
     pub(crate) fn encode_forward(
         &self,
         gpu: &Gpu,
@@ -101,8 +104,9 @@ impl GpuExposure {
         frame: &Frame,
         photo: usize,
         npx: u32,
+        bg: [f32; 3],
     ) {
-        let groups = self.write_uniform(gpu, photo, npx);
+        let groups = self.write_uniform(gpu, photo, npx, bg);
         let b = bind(&gpu.device, &self.apply, &[&self.uniform, &self.params, &frame.img, &self.raw]);
         dispatch(enc, &self.apply, &b, groups);
     }

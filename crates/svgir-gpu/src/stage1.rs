@@ -281,7 +281,7 @@ impl GpuStage1 {
         let npx = w * h;
         // The loss sees the photo's colour correction applied to the render (Stage1::step).
         if let Some(e) = &self.exposure {
-            e.encode_forward(&self.gpu, &mut enc, &self.frame, plan.view, npx);
+            e.encode_forward(&self.gpu, &mut enc, &self.frame, plan.view, npx, plan.bg);
         }
         self.loss.encode(&self.gpu, &mut enc, &self.frame, photo, &self.loss_bufs, &lp);
         if let (Some(e), Some(host_e)) = (&self.exposure, self.host.exposure.as_mut()) {

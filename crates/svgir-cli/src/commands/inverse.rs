@@ -525,6 +525,14 @@ pub fn run(args: InverseArgs) -> Result<()> {
     if args.train_gt_light && !args.resume {
         set_true_light(&mut s2, &dataset, "--train-gt-light")?;
     }
+    if !args.resume {
+        if let Some(e) = &stage1.exposure {
+            // Stage 1 learned how each photo departs from the shared radiance (`--exposure`):
+            // stage 2 compares its renders with the photos through the same corrections.
+            eprintln!("stage 2: applying stage 1's colour corrections of {} photos", e.params.len());
+            s2.photo_corrections = e.params.clone();
+        }
+    }
     let pb = progress::bar(s2.config.iterations, "stage 2");
     pb.set_position(s2.iteration);
     let first_iteration = s2.iteration;

@@ -133,6 +133,9 @@ pub struct Stage2 {
     pub sun_schedule: SunSchedule,
     /// Per training view, the Gaussians its last render blended (`config.shade_sets`).
     pub(crate) view_sets: ViewSets,
+    /// Per training photo, stage 1's colour correction (`exposure`, a 3x3 matrix then the
+    /// offset), applied unchanged to both images before the loss; empty for none.
+    pub photo_corrections: Vec<[f32; crate::exposure::PARAMS]>,
     /// Where micro-buffers are traced (the back sides, relighting's) and the renders' vertices
     /// shaded: the CPU unless the front end chose a device. Not saved: a run resumes on
     /// whichever device the front end opens.
@@ -472,6 +475,7 @@ impl Stage2 {
             back: None,
             sun_schedule: SunSchedule::default(),
             view_sets: ViewSets::default(),
+            photo_corrections: Vec::new(),
             kernels: Kernels::cpu(),
         })
     }

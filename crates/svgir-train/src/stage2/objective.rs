@@ -14,6 +14,7 @@
 
 use super::config::Stage2Weights;
 use crate::composite::pbr_composite_keep;
+use crate::exposure;
 use crate::losses::depth_normal::depth_normal_loss;
 use crate::losses::l1::l1_loss;
 use crate::losses::smoothness::{depth_guide, edge_aware_smoothness_with, EdgeWeights, BACKGROUND_GUIDE};
@@ -102,6 +103,10 @@ pub struct Stage2Target<'a> {
     pub cover: Option<&'a [f32]>,
     /// Background colour (RGB in [0, 1]) the photo and the SH pass are composited over.
     pub background: [f32; 3],
+    /// The photo's colour correction learned in stage 1 (`exposure`), applied to both images
+    /// before they are compared with the photo, as stage 1 applied it to its render; `None`
+    /// for none.
+    pub correction: Option<&'a [f32; exposure::PARAMS]>,
 }
 
 /// The render outputs the objective depends on.
@@ -122,8 +127,10 @@ pub struct Stage2Outputs<'a> {
 pub struct Stage2Objective {
     /// The per-pixel part of Eqn 15 (no L_rc, |dN|^2 or env TV).
     pub loss: f32,
-    /// The PBR image compared with the photo.
+    /// The PBR image compared with the photo (with the photo's correction applied).
     pub image: Vec<f32>,
+    /// The SH image compared with the photo (with the photo's correction applied).
+    pub sh_image: Vec<f32>,
     /// dL / d PBR colour, `H*W*3`.
     pub v_color: Vec<f32>,
     /// dL / d opacity per pixel.
@@ -153,19 +160,38 @@ pub fn stage2_objective(
     // SPEC 3: the PBR image, then Eqn 15's photometric terms on it and on the SH image (side
     // by side: at 256 x 256 neither fills many cores alone).
     let shape = svgir_metrics::Shape::new(w, h, 3);
-    let photo = |x: &[f32]| {
-        let mut v_x = filled(npix * 3, 0.0f32);
-        let l1 = l1_loss(x, gt, wts.l1, &mut v_x);
-        let (ssim, g) = svgir_metrics::ssim_with_grad(x, gt, shape).expect("same shape");
-        v_x.par_iter_mut().zip(&g).with_min_len(CHUNK).for_each(|(v, g)| *v -= wts.ssim * g);
-        (wts.l1 * l1 + wts.ssim * (1.0 - ssim), v_x)
+    // The photo's correction (stage 1's `exposure`) maps each image's object to the photo's
+    // colours; `m` is the image's coverage (the PBR image's blend, the SH image's opacity). Its
+    // gradients return through A^T and into the coverage. The correction itself stays as stage 1
+    // left it.
+    let photo = |x: Vec<f32>, m: &[f32]| {
+        let corrected = target.correction.map(|p| exposure::apply(p, &x, m, bg));
+        let y = corrected.as_deref().unwrap_or(&x);
+        let mut v_y = filled(npix * 3, 0.0f32);
+        let l1 = l1_loss(y, gt, wts.l1, &mut v_y);
+        let (ssim, g) = svgir_metrics::ssim_with_grad(y, gt, shape).expect("same shape");
+        v_y.par_iter_mut().zip(&g).with_min_len(CHUNK).for_each(|(v, g)| *v -= wts.ssim * g);
+        let loss = wts.l1 * l1 + wts.ssim * (1.0 - ssim);
+        match target.correction {
+            Some(p) => {
+                let g = exposure::apply_backward(p, &x, m, bg, &v_y);
+                (loss, g.v_color, corrected.unwrap_or_default(), Some(g.v_alpha))
+            }
+            None => (loss, v_y, x, None),
+        }
     };
     let (image, composite) = pbr_composite_keep(out.color, out.alpha, cover, bg);
-    let ((loss_pbr, v_image), (loss_sh, v_sh_color)) = rayon::join(|| photo(&image), || photo(out.sh_color));
+    let ((loss_pbr, v_image, image, v_cover), (loss_sh, v_sh_color, sh_image, v_sh_alpha)) =
+        rayon::join(|| photo(image, cover.unwrap_or(out.alpha)), || photo(out.sh_color.to_vec(), out.alpha));
     let mut loss = loss_pbr;
     loss += loss_sh;
 
     let (v_color, mut v_alpha) = composite.backward(&v_image);
+    // The corrections' coverage gradients: the PBR image's only where its own opacity blends it.
+    let live_cover = v_cover.filter(|_| cover.is_none());
+    for v_m in [live_cover, v_sh_alpha].into_iter().flatten() {
+        v_alpha.par_iter_mut().zip(&v_m).with_min_len(CHUNK).for_each(|(v, m)| *v += m);
+    }
 
     // Material buffers (opacity detached in the division) with edge-aware smoothness
     // (Eqn 17) against the photo, and the shading-normal / depth-normal loss (Eqn 18).
@@ -217,5 +243,5 @@ pub fn stage2_objective(
         },
     );
     let v_depth: Vec<f32> = g_n.v_depth_sum.par_iter().with_min_len(CHUNK).map(|g| wts.normal * g).collect();
-    Stage2Objective { loss, image, v_color, v_alpha, v_depth, v_extra, v_sh_color }
+    Stage2Objective { loss, image, sh_image, v_color, v_alpha, v_depth, v_extra, v_sh_color }
 }

@@ -32,6 +32,13 @@ impl Stage2 {
             self.colour.apply(&mut self.env.param)?;
         }
         self.iteration += 1;
+        if !self.photo_corrections.is_empty() && self.photo_corrections.len() != dataset.train.len() {
+            return Err(PbrError::InvalidParameter(format!(
+                "{} photo colour corrections for {} training photos",
+                self.photo_corrections.len(),
+                dataset.train.len()
+            )));
+        }
         let view_index = self.rng.below(dataset.train.len());
         let view = &dataset.train[view_index];
         let bg = cfg
@@ -168,7 +175,8 @@ impl Stage2 {
         // 3. Eqn 15's per-pixel terms on the PBR image (see `composite`), its material buffers
         // and the SH image (`objective`), then the per-Gaussian ones.
         let cover = photo_coverage(cfg.pbr_coverage, &view.image);
-        let target = Stage2Target { rgb: &gt, cover: cover.as_deref(), background: bg };
+        let correction = self.photo_corrections.get(view_index);
+        let target = Stage2Target { rgb: &gt, cover: cover.as_deref(), background: bg, correction };
         let outputs = Stage2Outputs {
             color: &pbr_out.color,
             alpha: &pbr_out.alpha,
@@ -308,7 +316,7 @@ impl Stage2 {
             iteration: self.iteration,
             loss,
             psnr_pbr: psnr_of_mse(mse(&obj.image)),
-            psnr_sh: psnr_of_mse(mse(&sh_image)),
+            psnr_sh: psnr_of_mse(mse(&obj.sh_image)),
             consistency: cons_loss,
             rho: self.rho,
             sun_search,

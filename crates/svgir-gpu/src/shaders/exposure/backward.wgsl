@@ -1,8 +1,9 @@
 // The correction's backward (exposure::apply_backward): per pixel the colour gradient becomes
-// `A^T v` in place and the render's colour goes back into the forward's record; the 12
-// parameter gradients `v_c c_k` and `v_c` are summed over each workgroup's pixels into its row
-// of `partials` (a tree in shared memory, fixed order), which sum.wgsl adds in group order.
-// No atomics. One thread per pixel.
+// `A^T v` in place, `v . (A bg + b - bg)` is added to the opacity's, and the render's colour goes
+// back into the forward's record; the 12 parameter gradients `v_c f_k` and `v_c a` (object
+// colour f, opacity a) are summed over each workgroup's pixels into its row of `partials` (a
+// tree in shared memory, fixed order), which sum.wgsl adds in group order. No atomics. One
+// thread per pixel.
 
 @group(0) @binding(0) var<uniform> E: ExposureParams;
 @group(0) @binding(1) var<storage, read> params: array<f32>;
@@ -23,23 +24,31 @@ fn main(
     let i = gid.x + gid.y * nwg.x * 256u;
     let group = wid.x + wid.y * nwg.x;
     var g = vec3<f32>(0.0);
-    var c = vec3<f32>(0.0);
+    var f = vec3<f32>(0.0);
+    var a = 0.0;
     if i < E.npx {
         g = vec3<f32>(vout[i * VPIX], vout[i * VPIX + 1u], vout[i * VPIX + 2u]);
-        c = vec3<f32>(raw[i * 3u], raw[i * 3u + 1u], raw[i * 3u + 2u]);
+        let c = vec3<f32>(raw[i * 3u], raw[i * 3u + 1u], raw[i * 3u + 2u]);
+        a = img[i * PIX + 3u];
+        let bg = E.bg.xyz;
+        f = c - bg * (1.0 - a);
         let r = E.row;
+        var da = 0.0;
         for (var k = 0u; k < 3u; k++) {
             vout[i * VPIX + k] = params[r + k] * g.x + params[r + 3u + k] * g.y + params[r + 6u + k] * g.z;
             img[i * PIX + k] = c[k];
+            let ab = params[r + 3u * k] * bg.x + params[r + 3u * k + 1u] * bg.y + params[r + 3u * k + 2u] * bg.z;
+            da += g[k] * (ab + params[r + 9u + k] - bg[k]);
         }
+        vout[i * VPIX + 3u] += da;
     }
     for (var q = 0u; q < PARAMS; q++) {
-        // q < 9: A[q / 3][q % 3], gradient v_{q/3} c_{q%3}; then b_{q-9}, gradient v_{q-9}.
+        // q < 9: A[q / 3][q % 3], gradient v_{q/3} f_{q%3}; then b_{q-9}, gradient v_{q-9} a.
         var x: f32;
         if q < 9u {
-            x = g[q / 3u] * c[q % 3u];
+            x = g[q / 3u] * f[q % 3u];
         } else {
-            x = g[q - 9u];
+            x = g[q - 9u] * a;
         }
         red[lid] = x;
         workgroupBarrier();
