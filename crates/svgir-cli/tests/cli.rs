@@ -160,7 +160,7 @@ fn masked_luminance_correlation(a: &svgir_core::Image, gt: &svgir_core::Image) -
 
 /// `--profile views` keeps the mask losses off on a masked dataset, `--resume` with
 /// `--iterations` extends the run and names the set-up flags it ignores, and stage 2 runs with
-/// periods of 0.
+/// periods of 0 and stage 1's colour corrections.
 #[test]
 fn views_profile_train_resume_and_inverse_periods_of_zero() {
     let out = std::env::temp_dir().join(format!("svgir_resume_test_{}", std::process::id()));
@@ -181,7 +181,7 @@ fn views_profile_train_resume_and_inverse_periods_of_zero() {
     let json = |name: &str| -> serde_json::Value {
         serde_json::from_str(&std::fs::read_to_string(out.join(name)).expect(name)).unwrap()
     };
-    train(&["--iterations", "20", "--profile", "views", "--init-points", "500"]);
+    train(&["--iterations", "20", "--profile", "views", "--init-points", "500", "--exposure"]);
     let cfg = json("config.json");
     assert_eq!(cfg["stage1"]["use_mask"], false, "the views profile has no mask losses");
     assert_eq!(json("timings.json")["iterations"], 20);
@@ -203,7 +203,10 @@ fn views_profile_train_resume_and_inverse_periods_of_zero() {
         .args(["--iterations", "3", "--log-every", "0", "--checkpoint-every", "0", "--turntable", "0"])
         .output()
         .expect("runs");
-    assert!(res.status.success(), "svgir inverse failed: {}", String::from_utf8_lossy(&res.stderr));
+    let log = String::from_utf8_lossy(&res.stderr);
+    assert!(res.status.success(), "svgir inverse failed: {log}");
+    // Stage 1's per-photo corrections (--exposure) carry into stage 2.
+    assert!(log.contains("applying stage 1's colour corrections of 4 photos"), "{log}");
     let rows = std::fs::read_to_string(out.join("stage2/metrics.jsonl")).expect("metrics.jsonl");
     // The measured profile gathers and searches the sun at iteration 1 of so short a run: that
     // search's row is the only one.
