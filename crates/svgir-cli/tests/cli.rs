@@ -185,6 +185,9 @@ fn views_profile_train_resume_and_inverse_periods_of_zero() {
     let cfg = json("config.json");
     assert_eq!(cfg["stage1"]["use_mask"], false, "the views profile has no mask losses");
     assert_eq!(json("timings.json")["iterations"], 20);
+    // With --exposure the held-out views are also scored through a correction of their own.
+    let matched = json("eval.json")["psnr_matched"].as_f64().expect("psnr_matched in eval.json");
+    assert!(matched.is_finite() && matched > 5.0, "{matched}");
 
     let log = train(&["--resume", "--iterations", "30", "--weight", "l1=0.5", "--seed", "3"]);
     assert!(log.contains("ignored: --seed, --weight"), "{log}");

@@ -358,8 +358,14 @@ fn write_capture_report(out: &Path, scene: &Path, object: &Path, own_masks: bool
         }
         html += "</table>";
     }
+    // With --exposure, also the score through each held-out photo's own correction.
     let psnr = |run: &Path| {
-        read_json(&run.join("eval.json")).and_then(|e| e["psnr"].as_f64()).map_or("-".into(), |p| format!("{p:.2} dB"))
+        let e = read_json(&run.join("eval.json"));
+        let p = e.as_ref().and_then(|e| e["psnr"].as_f64()).map_or("-".into(), |p| format!("{p:.2} dB"));
+        match e.and_then(|e| e["psnr_matched"].as_f64()) {
+            Some(m) => format!("{p} ({m:.2} dB colour-matched to each photo)"),
+            None => p,
+        }
     };
     html += "<h2>2. Reconstructions (held-out photos)</h2><table>";
     if !own_masks {

@@ -63,6 +63,7 @@ fn label(key: &str) -> String {
         match p {
             "nvs" => "novel views".into(),
             "psnr" => "PSNR (dB)".into(),
+            "psnr_matched" => "PSNR colour-matched to each photo (dB)".into(),
             "ssim" => "SSIM".into(),
             "lpips" => "LPIPS".into(),
             "albedo" => "albedo (median-scaled)".into(),

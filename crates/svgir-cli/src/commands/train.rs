@@ -410,6 +410,11 @@ fn evaluate(
         .map(|(t, d)| svgir_train::coverage::DepthView { camera: &t.camera, depth: d })
         .collect();
     let mut coverage = Vec::new();
+    // A run with per-photo corrections (--exposure) also scores each held-out photo through its
+    // own: fitted on the photo's left half, measured on its right (NeRF-W's protocol), since a
+    // held-out photo's exposure is as unknown as a training photo's.
+    let matched = trainer.host().exposure.is_some();
+    let mut psnr_matched = 0.0;
     // A view's images are encoded together, in parallel (PNG encoding is single-threaded; the
     // 200 lego_400 test views took 22 s instead of 26 written one by one).
     let mut pending: Vec<(PathBuf, Image, u8)> = Vec::new();
@@ -421,6 +426,20 @@ fn evaluate(
         psnr += svgir_metrics::psnr(&pred, &gt, 3, None)?;
         let shape = svgir_metrics::Shape::new(w as usize, h as usize, 3);
         ssim += svgir_metrics::ssim(&pred, &gt, shape, svgir_metrics::SsimVariant::GaussianSplatting)? as f64;
+        if matched {
+            let left = |i: usize| (i % w as usize) < w as usize / 2;
+            let p = svgir_train::exposure::fit(&out.color, &out.alpha, bg, &gt, left);
+            let fitted: Vec<f32> = svgir_train::exposure::apply(&p, &out.color, &out.alpha, bg)
+                .into_iter()
+                .map(|c| c.clamp(0.0, 1.0))
+                .collect();
+            let right: Vec<f32> = (0..(w * h) as usize).map(|i| (!left(i)) as u8 as f32).collect();
+            psnr_matched += svgir_metrics::psnr(&fitted, &gt, 3, Some(&right))?;
+            if let Some(dir) = out_dir {
+                std::fs::create_dir_all(dir)?;
+                pending.push((dir.join(format!("{}_rgb_matched.png", v.name)), Image::from_data(w, h, 3, fitted), 8));
+            }
+        }
         let normal = normal_image(&out.normal, &out.alpha, w, h);
         if let Some(gt_n) = &v.normal {
             let alpha: Vec<f32> = v.image.data.chunks(4).map(|p| p[3]).collect();
@@ -467,6 +486,9 @@ fn evaluate(
     }
     let n = views.len().max(1) as f64;
     let mut m = json!({"views": views.len(), "psnr": psnr / n, "ssim": ssim / n});
+    if matched {
+        m["psnr_matched"] = json!(psnr_matched / n);
+    }
     if !coverage.is_empty() {
         m["coverage"] = json!(coverage);
     }
