@@ -16,6 +16,7 @@ pub mod camera_model;
 pub mod colmap;
 pub mod envmap_io;
 pub mod error;
+pub mod exif;
 pub mod image_io;
 pub mod load;
 pub mod mask;

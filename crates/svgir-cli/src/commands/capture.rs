@@ -40,7 +40,8 @@ pub struct CaptureArgs {
     #[arg(long)]
     pub iterations: Option<u64>,
     /// Learn a per-photo colour correction in both stage-1 steps (photos of varying exposure or
-    /// white balance: a phone on auto, a photo collection).
+    /// white balance: a phone on auto, a photo collection); on by itself when the photos' EXIF
+    /// names several cameras or exposures.
     #[arg(long)]
     pub exposure: bool,
     /// Stage-2 iterations (step 4).
@@ -70,14 +71,18 @@ fn s(p: &Path) -> String {
     p.display().to_string()
 }
 
-/// The photo size and stage-1 length the run trains with: chosen once, by the device, and kept
-/// in `RUN/capture.json` so that a continued run (on any device) trains as it began.
+/// The photo size and stage-1 length the run trains with, and whether it learns per-photo
+/// colour corrections: chosen once (by the device, by the photos' EXIF) and kept in
+/// `RUN/capture.json` so that a continued run (on any device) trains as it began.
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
 struct Sizing {
     /// `--downscale`, or `--resolution` (a width), or neither (the photos' own size).
     downscale: Option<f32>,
     resolution: Option<u32>,
     iterations: u64,
+    /// `--exposure` in both stage-1 steps.
+    #[serde(default)]
+    exposure: bool,
 }
 
 /// Widest photos a GPU run trains on at their own size (3DGS's rule: wider ones are scaled to it).
@@ -89,12 +94,16 @@ impl Sizing {
     /// SPEC 2's 30000 iterations. Explicit options win.
     fn defaults(gpu: bool, photo_width: u32, downscale: Option<f32>, iterations: Option<u64>) -> Self {
         let iterations = iterations.unwrap_or(if gpu { 30_000 } else { 7000 });
+        let exposure = false;
         match downscale {
-            Some(d) => Self { downscale: Some(d), resolution: None, iterations },
-            None if !gpu => Self { downscale: Some(4.0), resolution: None, iterations },
-            None => {
-                Self { downscale: None, resolution: (photo_width > GPU_MAX_WIDTH).then_some(GPU_MAX_WIDTH), iterations }
-            }
+            Some(d) => Self { downscale: Some(d), resolution: None, iterations, exposure },
+            None if !gpu => Self { downscale: Some(4.0), resolution: None, iterations, exposure },
+            None => Self {
+                downscale: None,
+                resolution: (photo_width > GPU_MAX_WIDTH).then_some(GPU_MAX_WIDTH),
+                iterations,
+                exposure,
+            },
         }
     }
 
@@ -115,7 +124,8 @@ impl Sizing {
             (None, Some(r)) => format!("photos at {r} px wide"),
             (None, None) => "photos at their own size".into(),
         };
-        format!("{size}, {} stage-1 iterations", self.iterations)
+        let corrections = if self.exposure { ", a colour correction per photo" } else { "" };
+        format!("{size}, {} stage-1 iterations{corrections}", self.iterations)
     }
 
     /// The run's sizing: `RUN/capture.json` when the run was begun (options given now win and
@@ -133,6 +143,7 @@ impl Sizing {
                 downscale: args.downscale.or(k.downscale),
                 resolution: if args.downscale.is_some() { None } else { k.resolution },
                 iterations: args.iterations.unwrap_or(k.iterations),
+                exposure: args.exposure || k.exposure,
             },
             None => {
                 let gpu = match svgir_gpu::open(args.device)? {
@@ -141,7 +152,16 @@ impl Sizing {
                 };
                 let one = svgir_io::LoadOptions { load_test: false, max_views: Some(1), ..Default::default() };
                 let width = svgir_io::load_dataset(data, &one)?.train.first().map_or(0, |v| v.camera.width());
-                Self::defaults(gpu, width, args.downscale, args.iterations)
+                let mut sizing = Self::defaults(gpu, width, args.downscale, args.iterations);
+                sizing.exposure = args.exposure;
+                if !args.exposure {
+                    let settings = photo_settings(&args.photos, &args.out);
+                    if let Some(why) = varying_exposure(&settings) {
+                        eprintln!("svgir capture: {why}: learning a colour correction per photo (as --exposure)");
+                        sizing.exposure = true;
+                    }
+                }
+                sizing
             }
         };
         let text = serde_json::to_string_pretty(&sizing)?;
@@ -199,6 +219,51 @@ fn posed_dataset(args: &CaptureArgs) -> Result<PathBuf> {
     Ok(dense)
 }
 
+/// The EXIF exposure settings of the photos under `photos` (the folder and its subfolders, not
+/// `out`), in name order; photos without any are left out.
+fn photo_settings(photos: &Path, out: &Path) -> Vec<svgir_io::exif::ExposureSettings> {
+    const PHOTO: [&str; 5] = ["jpg", "jpeg", "png", "tif", "tiff"];
+    let mut files = Vec::new();
+    let mut dirs = vec![(photos.to_path_buf(), 0)];
+    while let Some((dir, depth)) = dirs.pop() {
+        let Ok(entries) = std::fs::read_dir(&dir) else { continue };
+        for p in entries.flatten().map(|e| e.path()) {
+            if p.is_dir() && depth < 2 && !p.starts_with(out) {
+                dirs.push((p, depth + 1));
+            } else if p.extension().is_some_and(|x| PHOTO.iter().any(|e| x.eq_ignore_ascii_case(e))) {
+                files.push(p);
+            }
+        }
+    }
+    files.sort();
+    files
+        .iter()
+        .filter_map(|p| svgir_io::exif::read_exposure_settings(p).ok().flatten())
+        .filter(|s| s.is_known())
+        .collect()
+}
+
+/// Why photos with these EXIF settings need a colour correction each: they come from several
+/// cameras or were exposed differently. `None` when fewer than two photos say, or all agree.
+fn varying_exposure(settings: &[svgir_io::exif::ExposureSettings]) -> Option<String> {
+    if settings.len() < 2 {
+        return None;
+    }
+    let distinct = |key: &dyn Fn(&svgir_io::exif::ExposureSettings) -> String| {
+        let mut k: Vec<String> = settings.iter().map(key).collect();
+        k.sort();
+        k.dedup();
+        k.len()
+    };
+    let cameras = distinct(&|s| s.camera.clone().unwrap_or_default());
+    let exposures = distinct(&|s| format!("{:?} {:?} {:?} {:?}", s.exposure_time, s.f_number, s.iso, s.bias));
+    match (cameras, exposures) {
+        (c, _) if c > 1 => Some(format!("the photos' EXIF names {c} cameras")),
+        (_, e) if e > 1 => Some(format!("the photos' EXIF gives {e} different exposures (time, aperture, ISO, bias)")),
+        _ => None,
+    }
+}
+
 /// A stage-1 run's flags, continuing it when it has a checkpoint.
 fn stage1(args: &CaptureArgs, sizing: &Sizing, data: &Path, out: &Path, extra: &[(&str, String)]) -> Result<()> {
     if out.join("point_cloud.ply").is_file() && out.join("eval.json").is_file() {
@@ -208,7 +273,7 @@ fn stage1(args: &CaptureArgs, sizing: &Sizing, data: &Path, out: &Path, extra: &
     let mut f = vec![s(data)];
     f.extend(flags(&[("--out", s(out)), ("--device", args.device.to_string()), ("--seed", args.seed.to_string())]));
     f.extend(flags(&sizing.flags()));
-    if args.exposure {
+    if sizing.exposure {
         f.push("--exposure".into());
     }
     f.extend(flags(extra));
@@ -394,21 +459,48 @@ fn write_capture_report(out: &Path, scene: &Path, object: &Path, own_masks: bool
 
 #[cfg(test)]
 mod tests {
-    use super::Sizing;
+    use super::*;
 
     /// The CPU trains a quarter of the photos' size for 7000 iterations; a GPU their own size up
     /// to 1600 px wide for SPEC's 30000; options given win on either.
     #[test]
     fn sizing_by_device() {
         let cpu = Sizing::defaults(false, 4032, None, None);
-        assert_eq!(cpu, Sizing { downscale: Some(4.0), resolution: None, iterations: 7000 });
+        assert_eq!(cpu, Sizing { downscale: Some(4.0), resolution: None, iterations: 7000, exposure: false });
         let phone = Sizing::defaults(true, 4032, None, None);
-        assert_eq!(phone, Sizing { downscale: None, resolution: Some(1600), iterations: 30_000 });
+        assert_eq!(phone, Sizing { downscale: None, resolution: Some(1600), iterations: 30_000, exposure: false });
         let small = Sizing::defaults(true, 1280, None, None);
-        assert_eq!(small, Sizing { downscale: None, resolution: None, iterations: 30_000 });
+        assert_eq!(small, Sizing { downscale: None, resolution: None, iterations: 30_000, exposure: false });
         assert_eq!(small.flags(), vec![("--iterations", "30000".to_string())]);
         let given = Sizing::defaults(true, 4032, Some(2.0), Some(500));
-        assert_eq!(given, Sizing { downscale: Some(2.0), resolution: None, iterations: 500 });
+        assert_eq!(given, Sizing { downscale: Some(2.0), resolution: None, iterations: 500, exposure: false });
         assert_eq!(phone.flags()[1], ("--resolution", "1600".to_string()));
+    }
+
+    /// Per-photo corrections are learned when the EXIF names several cameras or exposures, not
+    /// when it agrees or too few photos have any.
+    #[test]
+    fn colour_corrections_when_the_exif_says_the_exposure_varied() {
+        use svgir_io::exif::ExposureSettings;
+        let phone = |t: f64, iso: u32| ExposureSettings {
+            camera: Some("Phone X".into()),
+            exposure_time: Some(t),
+            f_number: Some(1.8),
+            iso: Some(iso),
+            bias: None,
+        };
+        assert_eq!(varying_exposure(&[]), None);
+        assert_eq!(varying_exposure(&[phone(0.01, 100)]), None);
+        assert_eq!(varying_exposure(&[phone(0.01, 100), phone(0.01, 100), phone(0.01, 100)]), None);
+        let auto = varying_exposure(&[phone(0.01, 100), phone(0.02, 100), phone(0.01, 400)]).unwrap();
+        assert!(auto.contains("3 different exposures"), "{auto}");
+        let other = ExposureSettings { camera: Some("Camera Y".into()), ..phone(0.01, 100) };
+        let many = varying_exposure(&[phone(0.01, 100), other]).unwrap();
+        assert!(many.contains("2 cameras"), "{many}");
+        // The statue's photos carry no EXIF: nothing is decided from them.
+        let statue = Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/data/colmap/statue"));
+        if statue.is_dir() {
+            assert!(photo_settings(statue, Path::new("/nonexistent")).is_empty());
+        }
     }
 }
