@@ -231,6 +231,10 @@ fn views_profile_train_resume_and_inverse_periods_of_zero() {
     assert!(res.status.success(), "svgir inverse --resume failed: {log}");
     assert!(log.contains("stage 2: resuming") && log.contains("iterations 3 -> 5"), "{log}");
     assert!(log.contains("device: GPU llvmpipe"), "{log}");
+    // What its buffers hold, per surfel (wgpu's allocator report).
+    let memory = log.lines().find(|l| l.starts_with("GPU memory: ")).unwrap_or_else(|| panic!("{log}"));
+    let per_surfel: f64 = memory.split(", ").nth(1).and_then(|p| p.split(' ').next()?.parse().ok()).expect(memory);
+    assert!(per_surfel > 16.0 * 16.0, "{memory}: less than the micro-buffers' 16 bytes x K = 16");
     let eval = std::fs::read_to_string(out.join("stage2/eval.json")).expect("eval.json");
     assert!(eval.contains("relight"), "{eval}");
     assert!(log.contains("diffuse lobe Layered -> Added"), "{log}");

@@ -146,6 +146,12 @@ pub struct Gpu {
 }
 
 impl Gpu {
+    /// Bytes of GPU memory the device's buffers hold now, from wgpu's allocator report (Vulkan,
+    /// DX12; `None` where the backend gives none).
+    pub fn allocated_bytes(&self) -> Option<u64> {
+        self.device.generate_allocator_report().map(|r| r.total_allocated_bytes)
+    }
+
     /// An error if wgpu has reported one since the device was opened (a kernel or buffer the
     /// driver refused, memory exhausted): the run stops with it instead of going on with
     /// results that were never computed.

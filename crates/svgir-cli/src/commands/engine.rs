@@ -30,16 +30,29 @@ pub fn open_device(choice: DeviceChoice) -> Result<Option<svgir_gpu::Gpu>> {
 }
 
 /// Stage 2's and relighting's tracer, vertex shader and feature raster on the device `choice`
-/// asks for.
-pub fn stage2_kernels(choice: DeviceChoice) -> Result<svgir_train::Kernels> {
-    Ok(match open_device(choice)? {
+/// asks for, and the GPU they run on (`None`: the CPU).
+pub fn stage2_kernels(choice: DeviceChoice) -> Result<(svgir_train::Kernels, Option<svgir_gpu::Gpu>)> {
+    let gpu = open_device(choice)?;
+    let kernels = match &gpu {
         Some(gpu) => svgir_train::Kernels {
             tracer: std::sync::Arc::new(svgir_gpu::GpuTracer::new(gpu.clone())),
             shader: std::sync::Arc::new(svgir_gpu::GpuShader::new(gpu.clone())),
-            raster: std::sync::Arc::new(svgir_gpu::GpuFeatureRaster::new(gpu)),
+            raster: std::sync::Arc::new(svgir_gpu::GpuFeatureRaster::new(gpu.clone())),
         },
         None => svgir_train::Kernels::cpu(),
-    })
+    };
+    Ok((kernels, gpu))
+}
+
+/// The GPU memory `gpu`'s buffers hold, in all and per surfel of the `surfels` a run keeps
+/// there, as a line for the run's summary (the paper's figure: 14 GB at K = 64).
+pub fn gpu_memory_line(gpu: &svgir_gpu::Gpu, surfels: usize) -> Option<String> {
+    let bytes = gpu.allocated_bytes()?;
+    Some(format!(
+        "GPU memory: {:.1} MiB in buffers, {:.0} bytes per surfel ({surfels} surfels)",
+        bytes as f64 / (1 << 20) as f64,
+        bytes as f64 / surfels.max(1) as f64
+    ))
 }
 
 impl Engine {

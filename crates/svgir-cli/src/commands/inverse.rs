@@ -520,7 +520,7 @@ pub fn run(args: InverseArgs) -> Result<()> {
         let meta = json!({"stage2": config, "profile": args.profile, "data": data, "stage1_run": args.run, "command": std::env::args().collect::<Vec<_>>()});
         Stage2Start::New { config: Box::new(config), surfels: &stage1.surfels, meta }
     };
-    let kernels = super::engine::stage2_kernels(args.device)?;
+    let (kernels, gpu) = super::engine::stage2_kernels(args.device)?;
     let mut s2 = driver::open_stage2(&out, start, &dataset, kernels, &mut |line| eprintln!("{line}"))?;
     if args.train_gt_light && !args.resume {
         set_true_light(&mut s2, &dataset, "--train-gt-light")?;
@@ -572,6 +572,9 @@ pub fn run(args: InverseArgs) -> Result<()> {
                 "stage 2 / stage 1 per iteration: {:.1}x (stage 1: {ms1:.1} ms averaged over its run on {threads1} threads, RUN/timings.json)",
                 ms2 / ms1
             );
+        }
+        if let Some(line) = gpu.as_ref().and_then(|g| super::engine::gpu_memory_line(g, s2.surfels.len())) {
+            eprintln!("{line} after training");
         }
         if let Some(f) = stage1_final_ms(&args.run) {
             eprintln!(

@@ -51,7 +51,8 @@ pub fn run(args: RelightArgs) -> Result<()> {
     let cfg = svgir_eval::read_json(&cfg_path, "run `svgir inverse` first")?;
     let data = PathBuf::from(cfg["data"].as_str().with_context(|| format!("{}: no data path", cfg_path.display()))?);
     let mut s2 = checkpoint::load_stage2(&stage2_dir.join("checkpoint.bin"))?;
-    s2.kernels = super::engine::stage2_kernels(args.device)?;
+    let gpu;
+    (s2.kernels, gpu) = super::engine::stage2_kernels(args.device)?;
     let env = svgir_io::read_envmap(&args.envmap, args.strength, s2.config.env_height)?;
     let relighter = Relighter::new(
         &s2,
@@ -75,5 +76,9 @@ pub fn run(args: RelightArgs) -> Result<()> {
         svgir_io::write_png(out.join(format!("{name}.png")), &img, 8)?;
     }
     println!("relit {} views under {} (x{}): {}", cams.len(), args.envmap.display(), args.strength, out.display());
+    // The K-direction relighting buffers are resident: what they cost per surfel.
+    if let Some(line) = gpu.as_ref().and_then(|g| super::engine::gpu_memory_line(g, s2.surfels.len())) {
+        eprintln!("{line} with the relighting's K = {} micro-buffers", args.directions);
+    }
     Ok(())
 }
