@@ -72,6 +72,15 @@ impl Surfels {
         self.sh.push(sh);
     }
 
+    /// Append `other`'s Gaussians after these (this set's SH degree stays).
+    pub fn extend_from(&mut self, other: &Surfels) {
+        self.positions.extend_from_slice(&other.positions);
+        self.rotations.extend_from_slice(&other.rotations);
+        self.log_scales.extend_from_slice(&other.log_scales);
+        self.opacity_logits.extend_from_slice(&other.opacity_logits);
+        self.sh.extend_from_slice(&other.sh);
+    }
+
     /// Keep only Gaussians where `keep[i]` (pruning).
     pub fn retain(&mut self, keep: &[bool]) {
         assert_eq!(keep.len(), self.len());

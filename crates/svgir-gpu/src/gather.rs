@@ -95,10 +95,8 @@ impl Gather {
         let mut key = vec![u32::MAX; n * k];
         for j in 0..n {
             for kk in 0..k {
-                let h = rays.first_hit[j * k + kk];
-                if h == NO_HIT {
-                    continue;
-                }
+                // No bounce off an escape or the surroundings (no materials of their own).
+                let Some(h) = rays.hit(j, kk) else { continue };
                 let h = h as usize;
                 let s = if sides.len() > 1 {
                     svgir_trace::gather::side_met(rays, &sides[0].mb.normals, j, kk, h)

@@ -25,7 +25,7 @@ use glam::Vec3;
 use svgir_core::Surfels;
 use svgir_shading::gaussian_xi;
 use svgir_shading::hemisphere::{FibTable, HemiFrame};
-use svgir_trace::{Bvh, Interleave, MicroBuffer, MicroTracer, TraceError, TraceParams, TraceRequest};
+use svgir_trace::{own_hit, Bvh, Interleave, MicroBuffer, MicroTracer, TraceError, TraceParams, TraceRequest, NO_HIT};
 
 /// Rays per dispatch.
 pub const CHUNK: u32 = 1 << 20;
@@ -149,6 +149,11 @@ impl GpuTracer {
             interleave: Interleave::default(),
         };
         crate::samples::unpack_into(&words, &mut mb);
+        // Hits past the ray sources are the surroundings' (MicroBuffer::traced's rule).
+        let sources = mb.len();
+        for h in mb.first_hit.iter_mut().filter(|h| **h != NO_HIT) {
+            *h = own_hit(*h, sources);
+        }
         Ok(mb)
     }
 
@@ -218,7 +223,9 @@ impl GpuTracer {
                 surfels.len()
             )));
         }
-        let rays = surfels.len() as u64 * k as u64;
+        // Rays leave the first `normals.len()` Gaussians; the rest are surroundings.
+        let sources = normals.len();
+        let rays = sources as u64 * k as u64;
         if rays > u32::MAX as u64 {
             return Err(GpuError::Runtime(format!("{rays} rays: over the kernel's u32 ray index")));
         }
@@ -229,9 +236,9 @@ impl GpuTracer {
             }
         }
         let d = &self.gpu.device;
-        let xi: Vec<f32> = (0..surfels.len()).map(|j| gaussian_xi(seed, j)).collect();
-        // Ray::from_gaussian's start and HemiFrame's parts, per Gaussian.
-        let sources: Vec<[f32; 4]> = (0..surfels.len())
+        let xi: Vec<f32> = (0..sources).map(|j| gaussian_xi(seed, j)).collect();
+        // Ray::from_gaussian's start and HemiFrame's parts, per ray source.
+        let sources: Vec<[f32; 4]> = (0..sources)
             .flat_map(|j| {
                 let sc = surfels.scale(j);
                 let t_start = p.t_min + p.t_min_scale * sc.x.max(sc.y);

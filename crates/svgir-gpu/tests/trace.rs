@@ -146,8 +146,14 @@ fn gpu_micro_buffers_match_the_cpu_trace() {
     let bvh = Bvh::build(&s);
     let p = TraceParams { linear_radiance: true, ..TraceParams::default() };
     let front: Vec<Vec3> = (0..s.len()).map(|j| s.normal(j)).collect();
-    for axes in [front.clone(), front.iter().map(|n| -*n).collect()] {
+    // Front, back, and rays from the first 60% alone, the rest being surroundings.
+    let sources = s.len() * 3 / 5;
+    for axes in [front.clone(), front.iter().map(|n| -*n).collect(), front[..sources].to_vec()] {
         let cpu = MicroBuffer::trace_about(&bvh, &s, axes.clone(), k, seed, &p).unwrap();
+        if axes.len() < s.len() {
+            let on = cpu.surroundings_hits();
+            assert!(on > cpu.first_hit.len() / 20, "weak test: {on} rays on the surroundings");
+        }
         let req = TraceRequest { axes: axes.clone(), k, seed, params: &p, radiance: true };
         let g = tracer.micro_buffer(&bvh, &s, req.clone()).expect("GPU trace");
         assert_eq!((g.k, &g.normals, &g.xi, g.interleave), (cpu.k, &cpu.normals, &cpu.xi, cpu.interleave));
@@ -180,7 +186,7 @@ fn gpu_trace_refuses_what_the_cpu_refuses() {
     let p = TraceParams::default();
     let req = |n: usize, k: usize| TraceRequest { axes: vec![Vec3::Z; n], k, seed: 1, params: &p, radiance: true };
     assert!(tracer.micro_buffer(&bvh, &s, req(50, 0)).is_err(), "K = 0");
-    assert!(tracer.micro_buffer(&bvh, &s, req(3, 8)).is_err(), "axes for 3 of 50");
+    assert!(tracer.micro_buffer(&bvh, &s, req(51, 8)).is_err(), "axes for 51 of 50");
     let other = Bvh::build(&random_scene(40, 2));
     assert!(tracer.micro_buffer(&other, &s, req(50, 8)).is_err(), "BVH of other surfels");
     let e = Surfels::default();
@@ -201,8 +207,13 @@ fn gpu_light_columns_match_the_cpu_ones() {
     let p = TraceParams::default();
     for (name, s) in [("random", random_scene(1500, 21)), ("object", object_scene(2500, 22))] {
         let bvh = Bvh::build(&s);
-        let axes: Vec<Vec3> = (0..s.len()).map(|j| s.normal(j)).collect();
+        let mut axes: Vec<Vec3> = (0..s.len()).map(|j| s.normal(j)).collect();
+        if name == "object" {
+            // Columns from the first 60% alone, the rest being surroundings.
+            axes.truncate(s.len() * 3 / 5);
+        }
         let cpu = svgir_trace::ColumnTracer::columns(&bvh, &s, &axes, &dirs, &p).unwrap();
+        assert!(cpu.iter().all(|c| c.len() == axes.len()));
         let gpu = tracer.columns(&bvh, &s, &axes, &dirs, &p).unwrap();
         assert_eq!(gpu.len(), dirs.len());
         let (mut n, mut far, mut shadowed) = (0, 0, 0);

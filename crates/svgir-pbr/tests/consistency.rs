@@ -109,7 +109,7 @@ fn l1b_naive(
     let w = vertex_weights(m, uv[0] as f64, uv[1] as f64);
     let v = (-mb.direction(j, k)).to_array().map(|x| x as f64);
     let mut acc = [0.0; 3];
-    for s in (0..mb.k).filter(|&s| mb.hit(h, s).is_none()) {
+    for s in (0..mb.k).filter(|&s| mb.escaped(h, s)) {
         let d = mb.direction(h, s);
         let l = d.to_array().map(|x| x as f64);
         let taps = geom.taps(d);

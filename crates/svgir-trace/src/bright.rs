@@ -134,7 +134,17 @@ pub fn concentrate_lobe(env: &EnvMap, radius: f32) -> (EnvMap, u32) {
     (out, peak)
 }
 
-/// Visibility of direction `dir` from every Gaussian (0 below its hemisphere), u16 unorm.
+/// The ray sources of a column trace: the first `normals.len()` of `surfels` (the rest are
+/// surroundings, occluders only).
+fn sources(surfels: &Surfels, normals: &[Vec3]) -> Result<usize, TraceError> {
+    if normals.len() > surfels.len() {
+        return Err(TraceError::SizeMismatch { what: "normals", got: normals.len(), want: surfels.len() });
+    }
+    Ok(normals.len())
+}
+
+/// Visibility of direction `dir` from each of the first `normals.len()` Gaussians (0 below its
+/// hemisphere; the Gaussians past them are surroundings, occluders only), u16 unorm.
 fn trace_column<S: HitSource + Sync>(
     src: &S,
     surfels: &Surfels,
@@ -142,7 +152,7 @@ fn trace_column<S: HitSource + Sync>(
     dir: Vec3,
     p: &TraceParams,
 ) -> Vec<u16> {
-    (0..surfels.len())
+    (0..normals.len().min(surfels.len()))
         .into_par_iter()
         .with_min_len(256)
         .map(|j| {
@@ -222,10 +232,7 @@ impl BrightLights {
         p: &TraceParams,
         reuse: Option<&BrightLights>,
     ) -> Result<Self, TraceError> {
-        let n = surfels.len();
-        if normals.len() != n {
-            return Err(TraceError::SizeMismatch { what: "normals", got: normals.len(), want: n });
-        }
+        let n = sources(surfels, normals)?;
         // Each texel's reused column, or its direction to trace (all traced in one call).
         let mut columns: Vec<(Vec3, Option<Vec<u16>>)> = texels
             .iter()
@@ -264,7 +271,8 @@ impl BrightLights {
         if b >= self.len() {
             return Err(TraceError::InvalidParameter(format!("light {b} of {}", self.len())));
         }
-        if normals.len() != surfels.len() || !dir.is_finite() || dir.length_squared() == 0.0 {
+        sources(surfels, normals)?;
+        if !dir.is_finite() || dir.length_squared() == 0.0 {
             return Err(TraceError::InvalidParameter(format!("light direction {dir} or normals")));
         }
         let mut out = self.clone();
@@ -285,10 +293,7 @@ impl BrightLights {
         p: &TraceParams,
         reuse: Option<&BrightLights>,
     ) -> Result<Self, TraceError> {
-        let n = surfels.len();
-        if normals.len() != n {
-            return Err(TraceError::SizeMismatch { what: "normals", got: normals.len(), want: n });
-        }
+        let n = sources(surfels, normals)?;
         let mut out = self.clone();
         let mut columns: Vec<Option<Vec<u16>>> = self
             .texels

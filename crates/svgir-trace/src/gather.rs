@@ -20,7 +20,7 @@
 use crate::bright::BrightLights;
 use crate::direction_cache::DirectionCache;
 use crate::gather_lanes::{lane_kernels, EscapeRows};
-use crate::microbuffer::{Interleave, MicroBuffer, NO_HIT};
+use crate::microbuffer::{Interleave, MicroBuffer, NO_HIT, SURROUNDINGS_HIT};
 use crate::TraceError;
 use rayon::prelude::*;
 use svgir_core::envmap::Taps;
@@ -522,7 +522,7 @@ impl PairsByHit {
                 "{n} Gaussians x {k} samples x {side_count} sides: more than a u32 can index"
             )));
         }
-        if let Some(&h) = rays.first_hit.iter().find(|&&h| h != NO_HIT && h as usize >= n) {
+        if let Some(&h) = rays.first_hit.iter().find(|&&h| h < SURROUNDINGS_HIT && h as usize >= n) {
             return Err(TraceError::InvalidParameter(format!("first hit {h} of {n} Gaussians")));
         }
         let mut group = vec![NO_HIT; n * k];

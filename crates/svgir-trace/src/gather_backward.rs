@@ -24,7 +24,7 @@ use crate::gather::{
     VertexMaterials,
 };
 use crate::gather_lanes::lane_kernels;
-use crate::microbuffer::{MicroBuffer, NO_HIT};
+use crate::microbuffer::{MicroBuffer, SURROUNDINGS_HIT};
 use crate::TraceError;
 use rayon::prelude::*;
 use svgir_core::par::add_parts_in_order;
@@ -168,7 +168,7 @@ fn backward_with<F: Float, R: Send>(
     }
     // Counting sort of the entries by hit Gaussian.
     let mut start = vec![0usize; n + 1];
-    let mut list: Vec<(usize, usize)> = entries.filter(|&(jk, _)| mb.first_hit[jk] != NO_HIT).collect();
+    let mut list: Vec<(usize, usize)> = entries.filter(|&(jk, _)| mb.first_hit[jk] < SURROUNDINGS_HIT).collect();
     for &(jk, _) in &list {
         start[mb.first_hit[jk] as usize + 1] += 1;
     }
@@ -636,7 +636,7 @@ mod tests {
                     let frame = svgir_shading::hemisphere::HemiFrame::new(c.mb.normals[h], c.mb.xi[h]);
                     let table = svgir_shading::hemisphere::FibTable::new(kk);
                     let mut incoming: Vec<(Vec3, [f32; 3], f32)> = (0..kk)
-                        .filter(|&s| c.mb.hit(h, s).is_none())
+                        .filter(|&s| c.mb.escaped(h, s))
                         .map(|s| {
                             let l = frame.dir(&table, s);
                             (l, sampled.lookup(l).map(|x| x.clamp(0.0, 64.0)), std::f32::consts::TAU / kk as f32)

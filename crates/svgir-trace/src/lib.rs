@@ -47,7 +47,7 @@ pub use gather_backward::{
     gather_all_backward, gather_one_backward, gather_pairs_backward, gather_pairs_with_backward, GatherGrads,
 };
 pub use hit::{disks_of, Disk, Hit};
-pub use microbuffer::{Interleave, MicroBuffer, NO_HIT};
+pub use microbuffer::{own_hit, Interleave, MicroBuffer, NO_HIT, SURROUNDINGS_HIT};
 pub use reference::BruteForce;
 pub use tracer::{CpuTracer, MicroTracer, TraceRequest};
 pub use traverse::{march, march_visibility, HitSource, MarchResult, Occlusion, Ray, TraceParams, NO_ID};

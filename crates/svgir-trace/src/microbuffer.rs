@@ -34,6 +34,12 @@ use svgir_shading::{gaussian_xi, hemisphere_dir};
 /// First-hit index meaning "the ray escaped".
 pub const NO_HIT: u32 = u32::MAX;
 
+/// First-hit index meaning "the ray hit the surroundings": a Gaussian traced as an occluder
+/// (and a source of traced radiance) that has no micro-buffer or material of its own, such as
+/// the rest of a captured scene around the object (issue 75, SPEC 5: the micro-buffers see
+/// every Gaussian). V and L are as traced; no bounce is gathered off it, and it is no escape.
+pub const SURROUNDINGS_HIT: u32 = u32::MAX - 1;
+
 /// Micro-buffers of all Gaussians (SPEC 5): K traced directions each, samples indexed `j * K + k`.
 #[derive(Clone, Debug, PartialEq)]
 pub struct MicroBuffer {
@@ -85,6 +91,16 @@ impl Interleave {
     }
 }
 
+/// A traced hit's id as a micro-buffer of the first `sources` Gaussians records it: its own
+/// index, or [`SURROUNDINGS_HIT`] for a Gaussian past them. Every tracer maps its hits so.
+pub fn own_hit(id: u32, sources: usize) -> u32 {
+    if (id as usize) < sources {
+        id
+    } else {
+        SURROUNDINGS_HIT
+    }
+}
+
 impl MicroBuffer {
     /// Bytes per (Gaussian, direction) sample.
     pub const BYTES_PER_SAMPLE: usize = 2 + 6 + 4 + 4;
@@ -132,11 +148,13 @@ impl MicroBuffer {
         Self::traced(src, surfels, TraceRequest { axes: normals, k, seed, params: p, radiance: false })
     }
 
-    /// The micro-buffers `req` asks for, traced through `src` on the CPU (rayon over Gaussians).
+    /// The micro-buffers `req` asks for, traced through `src` on the CPU (rayon over Gaussians):
+    /// rays from the first `req.axes.len()` Gaussians of `surfels`; hits on the others (the
+    /// surroundings) are recorded as [`SURROUNDINGS_HIT`].
     pub fn traced<S: HitSource>(src: &S, surfels: &Surfels, req: TraceRequest) -> Result<Self, TraceError> {
         let TraceRequest { axes: normals, k, seed, params: p, radiance: with_radiance } = req;
         Self::check_inputs(surfels, &normals, k)?;
-        let n = surfels.len();
+        let n = normals.len();
         let xi: Vec<f32> = (0..n).map(|j| gaussian_xi(seed, j)).collect();
         let mut vis = vec![0u16; n * k];
         let mut radiance = vec![[0u16; 3]; n * k];
@@ -161,7 +179,7 @@ impl MicroBuffer {
                     };
                     v[kk] = unorm16(visibility);
                     if let Some(h) = first {
-                        i[kk] = h.id;
+                        i[kk] = own_hit(h.id, n);
                         u[kk] = h.uv_normalised().map(unorm16);
                     }
                 }
@@ -170,10 +188,11 @@ impl MicroBuffer {
     }
 
     /// What every tracer of micro-buffers (this crate's, a device's) requires of its inputs:
-    /// valid surfels, one finite hemisphere axis per Gaussian, K > 0 and indices that fit u32.
+    /// valid surfels, one finite hemisphere axis per ray source (the first `normals.len()`
+    /// Gaussians; the rest are surroundings), K > 0 and indices that fit u32.
     pub fn check_inputs(surfels: &Surfels, normals: &[Vec3], k: usize) -> Result<(), TraceError> {
         surfels.check().map_err(TraceError::InvalidSurfels)?;
-        if normals.len() != surfels.len() || normals.iter().any(|n| !n.is_finite()) {
+        if normals.len() > surfels.len() || normals.iter().any(|n| !n.is_finite()) {
             return Err(TraceError::InvalidParameter(format!(
                 "{} hemisphere axes for {} Gaussians, or not finite",
                 normals.len(),
@@ -183,7 +202,7 @@ impl MicroBuffer {
         if k == 0 {
             return Err(TraceError::InvalidParameter("K must be positive".into()));
         }
-        if surfels.len() >= NO_HIT as usize {
+        if surfels.len() >= SURROUNDINGS_HIT as usize {
             return Err(TraceError::InvalidParameter("too many Gaussians for u32 indices".into()));
         }
         Ok(())
@@ -248,10 +267,20 @@ impl MicroBuffer {
         self.radiance[j * self.k + k].map(f16_to_f32)
     }
 
-    /// First-hit Gaussian, `None` if the ray escaped.
+    /// First-hit Gaussian of this buffer, `None` if the ray escaped or hit the surroundings.
     pub fn hit(&self, j: usize, k: usize) -> Option<u32> {
         let h = self.first_hit[j * self.k + k];
-        (h != NO_HIT).then_some(h)
+        (h < SURROUNDINGS_HIT).then_some(h)
+    }
+
+    /// True when sample (j, k)'s ray hit nothing: the environment lights it (Eqn 13's escapes).
+    pub fn escaped(&self, j: usize, k: usize) -> bool {
+        self.first_hit[j * self.k + k] == NO_HIT
+    }
+
+    /// Samples whose ray hit the surroundings ([`SURROUNDINGS_HIT`]).
+    pub fn surroundings_hits(&self) -> usize {
+        self.first_hit.iter().filter(|&&h| h == SURROUNDINGS_HIT).count()
     }
 
     /// First-hit (u~, v~); meaningless when there is no hit.

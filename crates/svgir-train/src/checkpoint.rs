@@ -141,22 +141,31 @@ fn read_container<H: DeserializeOwned>(path: &Path) -> Result<(H, Arrays), Check
 }
 
 fn surfel_arrays(s: &Surfels) -> Vec<(String, &[u8])> {
+    surfel_arrays_named(s, "")
+}
+
+/// The surfels' arrays, each name after `prefix`.
+fn surfel_arrays_named<'a>(s: &'a Surfels, prefix: &str) -> Vec<(String, &'a [u8])> {
     vec![
-        ("positions".into(), bytes(&s.positions)),
-        ("rotations".into(), bytes(&s.rotations)),
-        ("log_scales".into(), bytes(&s.log_scales)),
-        ("opacity_logits".into(), bytes(&s.opacity_logits)),
-        ("sh".into(), bytes(&s.sh)),
+        (format!("{prefix}positions"), bytes(&s.positions)),
+        (format!("{prefix}rotations"), bytes(&s.rotations)),
+        (format!("{prefix}log_scales"), bytes(&s.log_scales)),
+        (format!("{prefix}opacity_logits"), bytes(&s.opacity_logits)),
+        (format!("{prefix}sh"), bytes(&s.sh)),
     ]
 }
 
 fn read_surfels(a: &mut Arrays, sh_degree: u32) -> Result<Surfels, CheckpointError> {
+    read_surfels_named(a, sh_degree, "")
+}
+
+fn read_surfels_named(a: &mut Arrays, sh_degree: u32, prefix: &str) -> Result<Surfels, CheckpointError> {
     let s = Surfels {
-        positions: a.next_as("positions")?,
-        rotations: a.next_as("rotations")?,
-        log_scales: a.next_as("log_scales")?,
-        opacity_logits: a.next("opacity_logits")?,
-        sh: a.next_as::<ShCoeffs>("sh")?,
+        positions: a.next_as(&format!("{prefix}positions"))?,
+        rotations: a.next_as(&format!("{prefix}rotations"))?,
+        log_scales: a.next_as(&format!("{prefix}log_scales"))?,
+        opacity_logits: a.next(&format!("{prefix}opacity_logits"))?,
+        sh: a.next_as::<ShCoeffs>(&format!("{prefix}sh"))?,
         sh_degree,
     };
     s.check().map_err(|e| corrupt(&a.path, &e))?;
@@ -346,6 +355,9 @@ struct Header2 {
     /// Stage 1's per-photo colour corrections, applied unchanged (empty for none).
     #[serde(default)]
     photo_corrections: Vec<[f32; exposure::PARAMS]>,
+    /// Surroundings' Gaussians stored after every other array (`Stage2::surroundings`).
+    #[serde(default)]
+    surroundings: usize,
 }
 
 fn push_microbuffer<'a>(arrays: &mut Vec<(String, &'a [u8])>, prefix: &str, mb: &'a MicroBuffer) {
@@ -402,6 +414,9 @@ pub fn save_stage2(t: &Stage2, path: &Path) -> Result<(), CheckpointError> {
     }
     let (shade_set_views, shade_set_words) = t.view_sets.parts();
     arrays.push(("shade_sets".into(), bytes(&shade_set_words)));
+    if !t.surroundings.is_empty() {
+        arrays.extend(surfel_arrays_named(&t.surroundings, "surroundings."));
+    }
     let header = Header2 {
         config: t.config.clone(),
         iteration: t.iteration,
@@ -422,6 +437,7 @@ pub fn save_stage2(t: &Stage2, path: &Path) -> Result<(), CheckpointError> {
         shade_set_views,
         has_shade_sets: true,
         photo_corrections: t.photo_corrections.clone(),
+        surroundings: t.surroundings.len(),
     };
     write_container(path, &header, &arrays)
 }
@@ -452,8 +468,18 @@ pub fn load_stage2(path: &Path) -> Result<Stage2, CheckpointError> {
     } else {
         ViewSets::default()
     };
+    let surroundings = if h.surroundings > 0 {
+        let s = read_surfels_named(&mut a, h.sh_degree, "surroundings.")?;
+        if s.len() != h.surroundings {
+            return Err(corrupt(path, "surroundings have the wrong size"));
+        }
+        s
+    } else {
+        Surfels::default()
+    };
     let rebuild = |e: svgir_pbr::PbrError| CheckpointError::Rebuild { path: path.to_path_buf(), what: e.to_string() };
     let mut t = Stage2::from_parts(h.config, surfels, mb, h.trace_seconds).map_err(rebuild)?;
+    t.surroundings = surroundings;
     t.materials.albedo_raw = albedo;
     t.materials.roughness_raw = rough;
     t.materials.normal_offset = offset;

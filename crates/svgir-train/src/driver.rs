@@ -278,6 +278,9 @@ pub enum Stage2Start<'a> {
         config: Box<Stage2Config>,
         /// The stage-1 model's Gaussians.
         surfels: &'a Surfels,
+        /// The object's surroundings, kept as occluders and traced radiance
+        /// (`Stage2::surroundings`; empty for none).
+        surroundings: Surfels,
         /// What `config.json` records (the configuration and the run's provenance).
         meta: serde_json::Value,
     },
@@ -297,15 +300,28 @@ pub fn open_stage2(
 ) -> Result<Stage2, DriverError> {
     let ckpt = out.join("checkpoint.bin");
     match start {
-        Stage2Start::New { config, surfels, meta } => {
+        Stage2Start::New { config, surfels, surroundings, meta } => {
             start_run_folder(out, &meta)?;
+            let around = if surroundings.is_empty() {
+                String::new()
+            } else {
+                format!(" among {} Gaussians of surroundings", surroundings.len())
+            };
             note(format!(
-                "stage 2: tracing {} Gaussians x {} directions on {}...",
+                "stage 2: tracing {} Gaussians x {} directions{around} on {}...",
                 surfels.len(),
                 config.directions,
                 kernels.name()
             ));
-            let s2 = Stage2::new_on(*config, surfels.clone(), dataset, kernels).map_err(DriverError::step)?;
+            let s2 = Stage2::new_around(*config, surfels.clone(), surroundings, dataset, kernels)
+                .map_err(DriverError::step)?;
+            if !s2.surroundings.is_empty() {
+                let hits = s2.mb.surroundings_hits();
+                note(format!(
+                    "stage 2: {:.1}% of the micro-buffers' rays end on the surroundings",
+                    100.0 * hits as f64 / s2.mb.first_hit.len().max(1) as f64
+                ));
+            }
             note(format!("micro-buffers traced in {:.1} s", s2.trace_seconds));
             Ok(s2)
         }

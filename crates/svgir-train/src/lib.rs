@@ -23,6 +23,7 @@ pub mod orient;
 pub mod relight;
 pub mod stage1;
 pub mod stage2;
+pub mod surroundings;
 
 pub use config::{BackgroundMode, NamedWeights, Profile, Stage1Config, ViewOrder};
 pub use stage1::{Stage1, StepStats};

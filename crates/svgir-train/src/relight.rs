@@ -89,13 +89,15 @@ impl Relighter {
     pub fn new(s2: &Stage2, sampling: RelightSampling) -> Result<Self, PbrError> {
         let t0 = std::time::Instant::now();
         let RelightSampling { directions, lights, bounces } = sampling;
-        let bvh = (directions != s2.mb.k || lights > 0).then(|| Bvh::build(&s2.surfels));
+        // The object, then its surroundings (occluders only: no bounce is gathered off them).
+        let occluders = s2.relight_occluders();
+        let bvh = (directions != s2.mb.k || lights > 0).then(|| Bvh::build(&occluders));
         let p = s2.config.trace_params();
         let mb = match &bvh {
             Some(bvh) if directions != s2.mb.k => {
                 let axes = (0..s2.surfels.len()).map(|j| s2.surfels.normal(j)).collect();
                 let req = TraceRequest { axes, k: directions, seed: s2.config.seed, params: &p, radiance: false };
-                s2.kernels.tracer.trace(bvh, &s2.surfels, req)?
+                s2.kernels.tracer.trace(bvh, &occluders, req)?
             }
             _ => s2.mb.clone(),
         };
@@ -105,7 +107,7 @@ impl Relighter {
             (Some(b), Some(bvh)) if directions != b.mb.k => {
                 let axes = mb.normals.iter().map(|n| -*n).collect();
                 let req = TraceRequest { axes, k: directions, seed: s2.config.seed, params: &p, radiance: false };
-                let back = s2.kernels.tracer.trace(bvh, &s2.surfels, req)?;
+                let back = s2.kernels.tracer.trace(bvh, &occluders, req)?;
                 let cache = DirectionCache::new(&back, &s2.env.radiance())?;
                 Some((back, cache))
             }
@@ -117,19 +119,20 @@ impl Relighter {
     /// Eqn 13 under `env` (unclamped) with the model's current materials; nothing for a model
     /// trained without indirect light (the ablation relights as it was trained).
     pub fn prepare(&self, s2: &Stage2, env: EnvMap) -> Result<PreparedLight, PbrError> {
+        let occluders = s2.relight_occluders();
         let lights = match (&self.bvh, self.lights) {
             (Some(bvh), count) if count > 0 => {
                 let texels = brightest_texels(&env, count);
                 let p = s2.config.trace_params();
                 let via = Via(s2.kernels.tracer.as_ref(), bvh);
-                Some(BrightLights::trace(&via, &s2.surfels, &self.mb.normals, &env, &texels, &p, None)?)
+                Some(BrightLights::trace(&via, &occluders, &self.mb.normals, &env, &texels, &p, None)?)
             }
             _ => None,
         };
         let back_lights = match (&self.back, &self.bvh, &lights) {
             (Some((back, _)), Some(bvh), Some(l)) => {
                 let via = Via(s2.kernels.tracer.as_ref(), bvh);
-                Some(l.for_normals(&via, &s2.surfels, &back.normals, &s2.config.trace_params(), None)?)
+                Some(l.for_normals(&via, &occluders, &back.normals, &s2.config.trace_params(), None)?)
             }
             _ => None,
         };

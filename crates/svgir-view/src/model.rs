@@ -240,7 +240,7 @@ pub fn direct_transfer(mb: &MicroBuffer, mats: &VertexData, m: usize, degree: u3
         let mut acc = vec![0.0f64; m * c];
         let mut b = [0.0f32; 16];
         for k in 0..mb.k {
-            let v = if escape_only { f32::from(mb.hit(i, k).is_none()) } else { mb.visibility(i, k) };
+            let v = if escape_only { f32::from(mb.escaped(i, k)) } else { mb.visibility(i, k) };
             if v <= 0.0 {
                 continue;
             }

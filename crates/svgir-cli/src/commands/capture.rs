@@ -9,7 +9,8 @@
 //! 2. masks from that reconstruction (`RUN/masks`), or the user's `--masks DIR`;
 //! 3. stage 1 on the object (`RUN/object`, the object profile);
 //! 4. stage 2 and relighting under the maps shipped with the demo scene and any `--relight-with`
-//!    (`RUN/object/stage2`);
+//!    (`RUN/object/stage2`), with step 1's model of the rest of the scene kept as occluder and
+//!    indirect light (`svgir inverse --surroundings`; `--object-alone` leaves it out);
 //! 5. exports: textured mesh and splats (`RUN/export/object.glb`, `RUN/export/splats.glb`);
 //! 6. the viewer (`RUN/object/viewer.html`), the object's report, and `RUN/report.html`: the
 //!    masks first, then each step's figures, with links to the rest.
@@ -44,6 +45,10 @@ pub struct CaptureArgs {
     /// names several cameras or exposures.
     #[arg(long)]
     pub exposure: bool,
+    /// Stage 2 on the object alone: without the rest of the capture (step 1's model near the
+    /// object, outside its masks) as occluder and source of indirect light.
+    #[arg(long)]
+    pub object_alone: bool,
     /// Stage-2 iterations (step 4).
     #[arg(long, default_value_t = 1500)]
     pub stage2_iterations: u64,
@@ -344,6 +349,12 @@ pub fn run(args: CaptureArgs) -> Result<()> {
         ]);
         for map in relight_maps(&args) {
             f.extend(["--relight-with".to_string(), s(&map)]);
+        }
+        // The rest of the scene shadows and lights the object (issue 75 item 3), where step 1
+        // made a model of it.
+        let scene_model = scene.join("point_cloud.ply");
+        if !args.object_alone && scene_model.is_file() {
+            f.extend(["--surroundings".to_string(), s(&scene_model)]);
         }
         if stage2.join("checkpoint.bin").is_file() {
             f.push("--resume".into());

@@ -24,6 +24,12 @@ pub struct InverseArgs {
     /// Dataset (default: the one recorded in RUN/config.json).
     #[arg(long)]
     pub data: Option<PathBuf>,
+    /// A model of the whole capture around the object (a stage-1 run's `point_cloud.ply`, as
+    /// `svgir capture` makes in RUN/scene): the part of it near the object and outside its masks
+    /// is kept as occluder and source of indirect light in every trace (the object's support
+    /// shadows and lights it), while material and light are learned on the masked object.
+    #[arg(long, value_name = "PLY")]
+    pub surroundings: Option<PathBuf>,
     /// Stage-2 iterations (SPEC 6: 20000).
     #[arg(long, default_value_t = 20_000)]
     pub iterations: u64,
@@ -450,6 +456,43 @@ pub fn config_of(args: &InverseArgs) -> Result<Stage2Config> {
     Ok(c)
 }
 
+/// The part of the whole-capture model `ply` that surrounds the object (`svgir_train::surroundings`),
+/// its selection written to OUT/surroundings.json.
+fn surroundings_of(
+    ply: &Path,
+    object: &svgir_core::Surfels,
+    dataset: &svgir_core::Dataset,
+    out: &Path,
+) -> Result<svgir_core::Surfels> {
+    use svgir_train::surroundings::{select, SurroundingsRule};
+    let (scene, _) =
+        svgir_io::ply::read_gaussians_ply(ply).with_context(|| format!("--surroundings {}", ply.display()))?;
+    let rule = SurroundingsRule::default();
+    let (kept, report) = select(&scene, object, &dataset.train, &rule)
+        .map_err(|e| anyhow::anyhow!("--surroundings {}: {e}", ply.display()))?;
+    eprintln!(
+        "stage 2: surroundings from {}: {} of its {} Gaussians lie within {} object radii ({:.3}); {} inside the \
+         object's masks and {} touching it are the object's; {} kept",
+        ply.display(),
+        report.near,
+        report.scene,
+        rule.radius,
+        report.radius,
+        report.in_hull,
+        report.touching,
+        report.kept
+    );
+    if report.in_hull == 0 {
+        eprintln!(
+            "warning: no Gaussian of {} lies inside the object's masks: is it a model of the same capture?",
+            ply.display()
+        );
+    }
+    let json = serde_json::json!({"ply": ply, "rule": {"radius": rule.radius, "hull_share": rule.hull_share, "margin": rule.margin}, "report": report});
+    svgir_io::error::write_atomic(&out.join("surroundings.json"), serde_json::to_string_pretty(&json)?.as_bytes())?;
+    Ok(kept)
+}
+
 pub fn run(args: InverseArgs) -> Result<()> {
     anyhow::ensure!(
         (0.0..=1.0).contains(&args.visibility_cut),
@@ -518,7 +561,11 @@ pub fn run(args: InverseArgs) -> Result<()> {
         })
     } else {
         let meta = json!({"stage2": config, "profile": args.profile, "data": data, "stage1_run": args.run, "command": std::env::args().collect::<Vec<_>>()});
-        Stage2Start::New { config: Box::new(config), surfels: &stage1.surfels, meta }
+        let surroundings = match &args.surroundings {
+            Some(ply) => surroundings_of(ply, &stage1.surfels, &dataset, &out)?,
+            None => svgir_core::Surfels::default(),
+        };
+        Stage2Start::New { config: Box::new(config), surfels: &stage1.surfels, surroundings, meta }
     };
     let (kernels, gpu) = super::engine::stage2_kernels(args.device)?;
     let mut s2 = driver::open_stage2(&out, start, &dataset, kernels, &mut |line| eprintln!("{line}"))?;

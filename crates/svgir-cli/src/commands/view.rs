@@ -157,13 +157,14 @@ pub fn run(args: ViewArgs) -> Result<()> {
     let back = match &s2.back {
         Some(b) if b.mb.k == args.directions => Some(b.mb.clone()),
         Some(_) => {
-            let bvh = svgir_trace::Bvh::build(&s2.surfels);
+            let occluders = s2.relight_occluders();
+            let bvh = svgir_trace::Bvh::build(&occluders);
             let axes = relighter.mb.normals.iter().map(|n| -*n).collect();
             let p = s2.config.trace_params();
             // The viewer's indirect light is the one-bounce gather: no traced radiance needed.
             Some(svgir_trace::MicroBuffer::trace_occlusion_about(
                 &bvh,
-                &s2.surfels,
+                &occluders,
                 axes,
                 args.directions,
                 s2.config.seed,

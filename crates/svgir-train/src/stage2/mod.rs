@@ -136,6 +136,10 @@ pub struct Stage2 {
     /// Per training photo, stage 1's colour correction (`exposure`, a 3x3 matrix then the
     /// offset), applied unchanged to both images before the loss; empty for none.
     pub photo_corrections: Vec<[f32; crate::exposure::PARAMS]>,
+    /// The rest of a captured scene around the object (`crate::surroundings`): frozen
+    /// Gaussians traced after the object's as occluders and sources of traced radiance,
+    /// never rendered, shaded or trained; empty for the object alone.
+    pub surroundings: Surfels,
     /// Where micro-buffers are traced (the back sides, relighting's) and the renders' vertices
     /// shaded: the CPU unless the front end chose a device. Not saved: a run resumes on
     /// whichever device the front end opens.
@@ -287,6 +291,13 @@ fn interleaved_subsets(
 
 /// Stage 2's rasteriser settings: no distortion output (no loss uses it), and no gradients for
 /// the frozen positions, rotations and scales (SPEC 6).
+/// `own` with `surroundings` after it: the rays leave `own`'s Gaussians only, and hits past
+/// them are the surroundings' (`svgir_trace::SURROUNDINGS_HIT`).
+fn with_surroundings(mut own: Surfels, surroundings: &Surfels) -> Surfels {
+    own.extend_from(surroundings);
+    own
+}
+
 fn raster_config() -> RasterConfig {
     RasterConfig { distortion: false, geometry_grads: false, ..RasterConfig::default() }
 }
@@ -313,7 +324,19 @@ impl Stage2 {
     /// [`Stage2::new`] with the micro-buffers traced by `kernels` (kept as the run's kernels).
     pub fn new_on(
         config: Stage2Config,
+        surfels: Surfels,
+        dataset: &Dataset,
+        kernels: Kernels,
+    ) -> Result<Self, PbrError> {
+        Self::new_around(config, surfels, Surfels::default(), dataset, kernels)
+    }
+
+    /// [`Stage2::new_on`] with `surroundings` ([`Stage2::surroundings`]) kept as occluders and
+    /// sources of traced radiance in every trace.
+    pub fn new_around(
+        config: Stage2Config,
         mut surfels: Surfels,
+        surroundings: Surfels,
         dataset: &Dataset,
         kernels: Kernels,
     ) -> Result<Self, PbrError> {
@@ -323,13 +346,15 @@ impl Stage2 {
         let cams: Vec<Camera> = dataset.train.iter().map(|v| v.camera).collect();
         orient_normals(&mut surfels, &cams, &raster_config());
         let t0 = Instant::now();
-        let bvh = Bvh::build(&surfels);
+        let occluders = with_surroundings(surfels.clone(), &surroundings);
+        let bvh = Bvh::build(&occluders);
         let axes = (0..surfels.len()).map(|j| surfels.normal(j)).collect();
         let p = config.trace_params();
         let req = TraceRequest { axes, k: config.directions, seed: config.seed, params: &p, radiance: true };
-        let mb = kernels.tracer.trace(&bvh, &surfels, req)?;
+        let mb = kernels.tracer.trace(&bvh, &occluders, req)?;
         let trace_seconds = t0.elapsed().as_secs_f64();
         let mut s2 = Self::from_parts(config, surfels, mb, trace_seconds)?;
+        s2.surroundings = surroundings;
         s2.bvh = Some(bvh);
         s2.kernels = kernels;
         s2.trace_back_side()?;
@@ -476,6 +501,7 @@ impl Stage2 {
             sun_schedule: SunSchedule::default(),
             view_sets: ViewSets::default(),
             photo_corrections: Vec::new(),
+            surroundings: Surfels::default(),
             kernels: Kernels::cpu(),
         })
     }
@@ -500,9 +526,16 @@ impl Stage2 {
         Ok(())
     }
 
-    /// The surfels as the tracer sees them (opacity frozen at stage 2's start).
+    /// The surfels as the tracer sees them (opacity frozen at stage 2's start), then the
+    /// surroundings.
     fn occluders(&self) -> Surfels {
-        Surfels { opacity_logits: self.trace_opacity.clone(), ..self.surfels.clone() }
+        let own = Surfels { opacity_logits: self.trace_opacity.clone(), ..self.surfels.clone() };
+        with_surroundings(own, &self.surroundings)
+    }
+
+    /// The surfels as they are now, then the surroundings: what relighting traces through.
+    pub fn relight_occluders(&self) -> Surfels {
+        with_surroundings(self.surfels.clone(), &self.surroundings)
     }
 
     /// Gather the learned map's brightest lobe into its peak texel and make that texel a light
