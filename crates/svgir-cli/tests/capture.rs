@@ -128,6 +128,7 @@ fn capture_command_runs_every_step_and_resumes() {
         "masks/DSC_5283.png",
         "object/eval.json",
         "object/stage2/eval.json",
+        "object/stage2/surroundings.json",
         "object/stage2/turntable/sunset_001.png",
         "export/object.glb",
         "export/splats.glb",
@@ -140,6 +141,14 @@ fn capture_command_runs_every_step_and_resumes() {
     let at = |s: &str| page.find(s).unwrap_or_else(|| panic!("report lacks {s:?}"));
     assert!(at("1. Masks") < at("2. Reconstructions") && at("2. Reconstructions") < at("3. Materials"));
     assert!(page.contains("Confidence") && page.contains("data:image/png;base64,") && page.contains("DSC_"));
+    // Stage 2 traced through the rest of the statue's scene: the paper and table it stands on.
+    let sur = json(&out.join("object/stage2/surroundings.json"));
+    let r = &sur["report"];
+    let n = |k: &str| r[k].as_u64().unwrap();
+    assert!(n("kept") > 0 && n("in_hull") > 0, "{sur}");
+    assert_eq!(n("kept") + n("in_hull") + n("touching"), n("near"), "{sur}");
+    assert!(log.contains("of the micro-buffers' rays end on the surroundings"), "{log}");
+    assert!(page.contains("Stage 2 traced through"), "report lacks the surroundings");
     // Again: every step is found done.
     let log = run(&mut cmd());
     assert_eq!(log.matches("(done before)").count(), 5, "{log}");

@@ -281,7 +281,10 @@ fn everyday_help_fits_on_one_screen() {
         let short = svgir().args([cmd, "-h"]).output().unwrap();
         let long = svgir().args([cmd, "--help"]).output().unwrap();
         let (short, long) = (String::from_utf8_lossy(&short.stdout), String::from_utf8_lossy(&long.stdout));
-        assert!(short.lines().count() <= 50, "`svgir {cmd} -h` is {} lines", short.lines().count());
+        // As a 100-column terminal shows it: clap wraps there when a workspace build unifies its
+        // `wrap_help` feature (divan turns it on) and leaves long lines whole otherwise.
+        let rows: usize = short.lines().map(|l| 1 + l.chars().count().saturating_sub(1) / 100).sum();
+        assert!(rows <= 50, "`svgir {cmd} -h` is {rows} rows of a 100-column terminal");
         assert!(long.contains("Advanced") && !short.contains("Advanced"), "{cmd}: advanced options misplaced");
         assert!(short.contains(&format!("svgir {cmd} --help")), "{cmd} -h does not point to --help");
     }

@@ -454,6 +454,23 @@ fn write_capture_report(out: &Path, scene: &Path, object: &Path, own_masks: bool
         }
     }
     html += "</table>";
+    html += &match read_json(&object.join("stage2/surroundings.json")) {
+        Some(j) => {
+            let r = &j["report"];
+            let n = |k: &str| r[k].as_u64().unwrap_or(0);
+            format!(
+                "<p>Stage 2 traced through {} Gaussians of the whole capture around the object, as occluders and \
+                 indirect light ({} lie within {} object radii; {} inside the masks and {} touching the object were \
+                 left to it).</p>",
+                n("kept"),
+                n("near"),
+                j["rule"]["radius"].as_f64().unwrap_or(f64::NAN),
+                n("in_hull"),
+                n("touching")
+            )
+        }
+        None => "<p>Stage 2 ran on the object alone, without the rest of the capture.</p>".into(),
+    };
     let rel = |p: &Path| p.strip_prefix(out).unwrap_or(p).display().to_string();
     html += &format!(
         "<h2>3. Materials, light, relighting</h2><p><a href=\"{}\">The object's report</a> (relit views, \

@@ -24,8 +24,10 @@ pub struct InverseArgs {
     /// Dataset (default: the one recorded in RUN/config.json).
     #[arg(long)]
     pub data: Option<PathBuf>,
-    /// A model of the whole capture around the object (a stage-1 run's `point_cloud.ply`, as
-    /// `svgir capture` makes in RUN/scene): the part of it near the object and outside its masks
+    /// The whole capture around the object (a stage-1 `point_cloud.ply`), kept as occluder.
+    ///
+    /// A stage-1 run's `point_cloud.ply`, as `svgir capture` makes in RUN/scene: the part of it
+    /// near the object and outside its masks
     /// is kept as occluder and source of indirect light in every trace (the object's support
     /// shadows and lights it), while material and light are learned on the masked object.
     #[arg(long, value_name = "PLY")]
@@ -33,8 +35,9 @@ pub struct InverseArgs {
     /// Stage-2 iterations (SPEC 6: 20000).
     #[arg(long, default_value_t = 20_000)]
     pub iterations: u64,
-    /// Where to trace the micro-buffers and lights and shade the vertices (training's and
-    /// relighting's): auto (a hardware GPU if any), cpu or gpu.
+    /// Where to trace and shade: auto (a hardware GPU if any), cpu or gpu.
+    ///
+    /// The micro-buffers' and lights' traces and the vertex shading, training's and relighting's.
     #[arg(long, default_value_t = svgir_gpu::DeviceChoice::Auto)]
     pub device: svgir_gpu::DeviceChoice,
     /// Diagnostic: before the evaluation, replace the learned albedo and roughness by the
@@ -104,12 +107,14 @@ pub struct InverseArgs {
     /// sun searches' rows).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = 25)]
     pub log_every: u64,
-    /// Continue the stage-2 run in the output folder from its checkpoint (up to --iterations,
-    /// which may extend a finished run).
+    /// Continue the stage-2 run in the output folder from its checkpoint.
+    ///
+    /// Up to --iterations, which may extend a finished run.
     #[arg(long)]
     pub resume: bool,
-    /// Write OUT/checkpoint.bin every this many iterations (atomically; Ctrl-C and the end of
-    /// the run also save; 0: only those).
+    /// Write OUT/checkpoint.bin every this many iterations (0: at Ctrl-C and the end only).
+    ///
+    /// Atomically; Ctrl-C and the end of the run always save.
     #[arg(long, default_value_t = 500)]
     pub checkpoint_every: u64,
     /// Relit turntable frames per relighting light (0: none).
@@ -123,8 +128,9 @@ pub struct InverseArgs {
     /// Initial learned light: SPEC 4's per-texel random init, or a uniform grey at its mean.
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, value_enum, default_value_t = EnvInitArg::Random)]
     pub env_init: EnvInitArg,
-    /// Defaults of the advanced settings marked (profile) in `--help`: `measured`, the settings behind the
-    /// README's table (4 lights, exp light, sun at 400, sun search on 4 views, searches spaced
+    /// Defaults of the advanced settings marked (profile) in `--help`.
+    ///
+    /// `measured`, the settings behind the README's table (4 lights, exp light, sun at 400, sun search on 4 views, searches spaced
     /// out once the sun settles, rho fixed, materials from 500, layered diffuse, two-sided,
     /// Gaussians blended under 0.01 pixels not shaded in training, L_rc on 2048 Gaussians, a
     /// quarter of the directions shaded per iteration for two thirds of the run); `spec`, SPEC

@@ -20,12 +20,15 @@ pub struct EvalRelightArgs {
     /// the evaluation (0: Eqn 13 alone).
     #[arg(hide_short_help = true, help_heading = super::ADVANCED, long, default_value_t = svgir_train::relight::RELIGHT_BOUNCES)]
     pub relight_bounces: usize,
-    /// Also relight under these HDR maps (strength 1): test views and a turntable, without
-    /// metrics (a capture has no relit ground truth). Repeatable.
+    /// Also relight under these HDR maps: test views and a turntable. Repeatable.
+    ///
+    /// Without metrics (a capture has no relit ground truth).
     #[arg(long = "relight-with", value_name = "MAP.hdr")]
     pub relight_with: Vec<PathBuf>,
-    /// Strength of the --relight-with maps (default: each map scaled to the mean radiance of
-    /// the learned light, so relit pictures are exposed like the photos).
+    /// Strength of the --relight-with maps (default: exposed like the photos).
+    ///
+    /// By default each map is scaled to the mean radiance of the learned light, so relit
+    /// pictures are exposed like the photos.
     #[arg(long)]
     pub relight_strength: Option<f32>,
 }
