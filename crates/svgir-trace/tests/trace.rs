@@ -184,7 +184,9 @@ fn back_micro_buffers_trace_the_other_hemisphere() {
     // One side of the object's shell looks out, the other in.
     let (vb, vf) = (mean_vis(&back), mean_vis(&front));
     assert!((vb - vf).abs() > 0.2, "{vb} vs {vf}");
-    assert!(MicroBuffer::trace_about(&bvh, &s, vec![Vec3::Z; 3], 16, 9, &p).is_err());
+    // Axes for the first Gaussians only are rays from those (the rest are surroundings); more
+    // axes than Gaussians are refused.
+    assert!(MicroBuffer::trace_about(&bvh, &s, vec![Vec3::Z; s.len() + 1], 16, 9, &p).is_err());
     let mut nan = front.normals.clone();
     nan[0] = Vec3::NAN;
     assert!(MicroBuffer::trace_about(&bvh, &s, nan, 16, 9, &p).is_err());
