@@ -25,7 +25,9 @@ use glam::Vec3;
 use svgir_core::Surfels;
 use svgir_shading::gaussian_xi;
 use svgir_shading::hemisphere::{FibTable, HemiFrame};
-use svgir_trace::{own_hit, Bvh, Interleave, MicroBuffer, MicroTracer, TraceError, TraceParams, TraceRequest, NO_HIT};
+use svgir_trace::{
+    recorded_hit, Bvh, Interleave, MicroBuffer, MicroTracer, TraceError, TraceParams, TraceRequest, NO_HIT,
+};
 
 /// Rays per dispatch.
 pub const CHUNK: u32 = 1 << 20;
@@ -151,8 +153,8 @@ impl GpuTracer {
         crate::samples::unpack_into(&words, &mut mb);
         // Hits past the ray sources are the surroundings' (MicroBuffer::traced's rule).
         let sources = mb.len();
-        for h in mb.first_hit.iter_mut().filter(|h| **h != NO_HIT) {
-            *h = own_hit(*h, sources);
+        for (h, uv) in mb.first_hit.iter_mut().zip(mb.uv.iter_mut()).filter(|(h, _)| **h != NO_HIT) {
+            (*h, *uv) = recorded_hit(*h, *uv, sources);
         }
         Ok(mb)
     }

@@ -33,6 +33,7 @@ pub mod microbuffer;
 pub mod pack;
 pub mod reference;
 pub mod scenes;
+pub mod surroundings_light;
 pub mod tracer;
 pub mod traverse;
 
@@ -47,10 +48,11 @@ pub use gather_backward::{
     gather_all_backward, gather_one_backward, gather_pairs_backward, gather_pairs_with_backward, GatherGrads,
 };
 pub use hit::{disks_of, Disk, Hit};
-pub use microbuffer::{own_hit, Interleave, MicroBuffer, NO_HIT, SURROUNDINGS_HIT};
+pub use microbuffer::{recorded_hit, Interleave, MicroBuffer, NO_HIT, SURROUNDINGS_HIT};
 pub use reference::BruteForce;
+pub use surroundings_light::{add_surroundings_light, LearnedIrradiance, SurroundingsGain};
 pub use tracer::{CpuTracer, MicroTracer, TraceRequest};
-pub use traverse::{march, march_visibility, HitSource, MarchResult, Occlusion, Ray, TraceParams, NO_ID};
+pub use traverse::{hit_colour, march, march_visibility, HitSource, MarchResult, Occlusion, Ray, TraceParams, NO_ID};
 
 /// Everything the tracer can reject: invalid surfels, bad parameters, mismatched array sizes.
 #[derive(Debug, thiserror::Error, PartialEq)]

@@ -11,7 +11,9 @@
 //! - V: u16 unorm (2 B; step 1.5e-5, far below the Monte-Carlo noise of K = 64).
 //! - L: 3 x IEEE f16 (6 B; relative error <= 2^-11 over [6e-5, 10]).
 //! - I: u32, [`NO_HIT`] = none (4 B).
-//! - U: 2 x u16 unorm (4 B; step 1.5e-5 on [0.001, 0.999]).
+//! - U: 2 x u16 unorm (4 B; step 1.5e-5 on [0.001, 0.999]). When I is [`SURROUNDINGS_HIT`], U
+//!   holds instead which of the surroundings the ray ended on (its index's low and high 16 bits):
+//!   no gather reads that hit's coordinates, and relighting needs its colour and normal.
 //!
 //! So 300k Gaussians x K = 64 take 307 MB (x K = 384: 1.8 GB; relighting may fill per chunk).
 //! Separate arrays let each consumer stream only what it reads (shading: V, L; gather: I, U).
@@ -91,13 +93,13 @@ impl Interleave {
     }
 }
 
-/// A traced hit's id as a micro-buffer of the first `sources` Gaussians records it: its own
-/// index, or [`SURROUNDINGS_HIT`] for a Gaussian past them. Every tracer maps its hits so.
-pub fn own_hit(id: u32, sources: usize) -> u32 {
-    if (id as usize) < sources {
-        id
-    } else {
-        SURROUNDINGS_HIT
+/// A traced hit on Gaussian `id` at packed (u~, v~) as a micro-buffer of the first `sources`
+/// Gaussians records it (I, U): its own index and coordinates, or [`SURROUNDINGS_HIT`] and the
+/// surroundings' index `id - sources` split into 16-bit halves. Every tracer maps its hits so.
+pub fn recorded_hit(id: u32, uv: [u16; 2], sources: usize) -> (u32, [u16; 2]) {
+    match id.checked_sub(sources as u32) {
+        Some(s) if id != NO_HIT => (SURROUNDINGS_HIT, [(s & 0xffff) as u16, (s >> 16) as u16]),
+        _ => (id, uv),
     }
 }
 
@@ -150,7 +152,7 @@ impl MicroBuffer {
 
     /// The micro-buffers `req` asks for, traced through `src` on the CPU (rayon over Gaussians):
     /// rays from the first `req.axes.len()` Gaussians of `surfels`; hits on the others (the
-    /// surroundings) are recorded as [`SURROUNDINGS_HIT`].
+    /// surroundings) are recorded as [`SURROUNDINGS_HIT`] with their index ([`recorded_hit`]).
     pub fn traced<S: HitSource>(src: &S, surfels: &Surfels, req: TraceRequest) -> Result<Self, TraceError> {
         let TraceRequest { axes: normals, k, seed, params: p, radiance: with_radiance } = req;
         Self::check_inputs(surfels, &normals, k)?;
@@ -179,8 +181,7 @@ impl MicroBuffer {
                     };
                     v[kk] = unorm16(visibility);
                     if let Some(h) = first {
-                        i[kk] = own_hit(h.id, n);
-                        u[kk] = h.uv_normalised().map(unorm16);
+                        (i[kk], u[kk]) = recorded_hit(h.id, h.uv_normalised().map(unorm16), n);
                     }
                 }
             });
@@ -278,12 +279,19 @@ impl MicroBuffer {
         self.first_hit[j * self.k + k] == NO_HIT
     }
 
+    /// Which of the surroundings sample (j, k)'s ray ended on (its index among them), if any.
+    pub fn surroundings_hit(&self, j: usize, k: usize) -> Option<u32> {
+        let i = j * self.k + k;
+        let [lo, hi] = self.uv[i];
+        (self.first_hit[i] == SURROUNDINGS_HIT).then_some(u32::from(lo) | u32::from(hi) << 16)
+    }
+
     /// Samples whose ray hit the surroundings ([`SURROUNDINGS_HIT`]).
     pub fn surroundings_hits(&self) -> usize {
         self.first_hit.iter().filter(|&&h| h == SURROUNDINGS_HIT).count()
     }
 
-    /// First-hit (u~, v~); meaningless when there is no hit.
+    /// First-hit (u~, v~); meaningless when there is no hit or it is on the surroundings.
     pub fn uv(&self, j: usize, k: usize) -> [f32; 2] {
         self.uv[j * self.k + k].map(from_unorm16)
     }

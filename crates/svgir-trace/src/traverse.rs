@@ -356,14 +356,12 @@ pub fn march<S: HitSource>(src: &S, sh: &[ShCoeffs], degree: u32, ray: &Ray, p: 
     let mut tv = 1.0f32;
     let mut first = None;
     let mut hits = 0;
-    let degree = degree.min(p.radiance_sh_degree);
     src.for_each_hit(ray, p, |h| {
         if first.is_none() {
             first = Some(*h);
         }
         hits += 1;
-        let c = sh[h.id as usize].eval(degree, ray.dir).map(|x| x.max(0.0));
-        let c = if p.linear_radiance { c.map(srgb_to_linear) } else { c };
+        let c = hit_colour(&sh[h.id as usize], degree, ray.dir, p);
         let w = h.alpha * t;
         for ch in 0..3 {
             l[ch] += c[ch] * w;
@@ -378,6 +376,18 @@ pub fn march<S: HitSource>(src: &S, sh: &[ShCoeffs], degree: u32, ray: &Ray, p: 
         visibility: if tv < p.v_cut { 0.0 } else { tv },
         first,
         hits,
+    }
+}
+
+/// The colour `c_h(dir)` a hit on a Gaussian with SH coefficients `sh` adds to a march along
+/// `dir` ([`march`]): `max(0, 0.5 + SH(dir))` to `min(degree, p.radiance_sh_degree)`, decoded
+/// from sRGB when `p.linear_radiance`.
+pub fn hit_colour(sh: &ShCoeffs, degree: u32, dir: Vec3, p: &TraceParams) -> [f32; 3] {
+    let c = sh.eval(degree.min(p.radiance_sh_degree), dir).map(|x| x.max(0.0));
+    if p.linear_radiance {
+        c.map(srgb_to_linear)
+    } else {
+        c
     }
 }
 

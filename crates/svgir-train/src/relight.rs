@@ -18,12 +18,18 @@
 //! with three soft boxes holds 90% of its power in 16 of its 2048 texels, which K = 384 samples
 //! hit only a few times each; [`RELIGHT_LIGHTS`] of them are traced exactly. (Measured on
 //! cup_and_ball the gain is small: 4 -> 64 lights, relighting +0.07 dB; README.)
+//!
+//! A model trained with surroundings (`Stage2::surroundings`, the rest of a capture) is traced
+//! through them: they shadow the object, and the rays that end on them bring their captured
+//! colour scaled by the new map's irradiance over the learned light's
+//! (`svgir_trace::surroundings_light`), the light a table or wall throws back onto the object.
 
 use crate::stage2::{BackShading, PbrRender, Shading, Stage2};
 use svgir_core::{Camera, EnvMap};
 use svgir_pbr::{DirectionCache, Indirect, PbrError, ShadeParams};
 use svgir_trace::{
-    brightest_texels, BrightLights, Bvh, GatherParams, HitSide, MicroBuffer, TraceRequest, VertexMaterials, Via,
+    add_surroundings_light, brightest_texels, BrightLights, Bvh, GatherParams, HitSide, LearnedIrradiance, MicroBuffer,
+    SurroundingsGain, TraceRequest, VertexMaterials, Via,
 };
 
 /// SPEC 7: directions per Gaussian at relighting evaluation.
@@ -63,6 +69,9 @@ pub struct Relighter {
     lights: usize,
     /// Extra diffuse bounces of indirect light.
     bounces: usize,
+    /// The learned light's irradiance of the surroundings (`Stage2::surroundings`), whose
+    /// captured colour the rays ending on them bring, relit (`svgir_trace::surroundings_light`).
+    surroundings: Option<LearnedIrradiance>,
     /// Seconds spent building the BVH and tracing.
     pub trace_seconds: f64,
 }
@@ -113,7 +122,9 @@ impl Relighter {
             }
             (Some(b), _) => Some((b.mb.clone(), b.dir_cache.clone())),
         };
-        Ok(Self { mb, cache, back, bvh, lights, bounces, trace_seconds: t0.elapsed().as_secs_f64() })
+        let surroundings = (s2.config.indirect && !s2.surroundings.is_empty())
+            .then(|| LearnedIrradiance::new(&s2.surroundings, &s2.env.radiance()));
+        Ok(Self { mb, cache, back, bvh, lights, bounces, surroundings, trace_seconds: t0.elapsed().as_secs_f64() })
     }
 
     /// Eqn 13 under `env` (unclamped) with the model's current materials; nothing for a model
@@ -147,8 +158,16 @@ impl Relighter {
             cache: None,
             ..Default::default()
         };
+        // Rays ending on the surroundings bring their captured colour, relit.
+        let gain = self.surroundings.as_ref().map(|l| SurroundingsGain::new(l, &env));
+        let tp = s2.config.trace_params();
+        let from_surroundings = |mb: &MicroBuffer, light: &mut [[f32; 3]]| match &gain {
+            Some(g) => add_surroundings_light(mb, &s2.surroundings, g, &tp, light).map(|_| ()),
+            None => Ok(()),
+        };
         let Some((back, _)) = &self.back else {
             let mut one_bounce = s2.kernels.tracer.gather_all(&self.mb, &act.view(), &env, &p)?;
+            from_surroundings(&self.mb, &mut one_bounce)?;
             svgir_trace::add_bounces(&self.mb, &act.view(), &mut one_bounce, self.bounces)?;
             return Ok(PreparedLight { env, one_bounce: Some(one_bounce), lights, back_one_bounce: None, back_lights });
         };
@@ -161,9 +180,12 @@ impl Relighter {
             lights: back_lights.as_ref(),
         };
         let mut one_bounce = s2.kernels.tracer.gather_two_sided(&self.mb, front_side, back_side, &env, &p)?;
+        from_surroundings(&self.mb, &mut one_bounce)?;
         // `add_bounces` follows the front sides' paths only.
         svgir_trace::add_bounces(&self.mb, &act.view(), &mut one_bounce, self.bounces)?;
-        let back_one_bounce = Some(s2.kernels.tracer.gather_two_sided(back, front_side, back_side, &env, &p)?);
+        let mut back_one_bounce = s2.kernels.tracer.gather_two_sided(back, front_side, back_side, &env, &p)?;
+        from_surroundings(back, &mut back_one_bounce)?;
+        let back_one_bounce = Some(back_one_bounce);
         Ok(PreparedLight { env, one_bounce: Some(one_bounce), lights, back_one_bounce, back_lights })
     }
 

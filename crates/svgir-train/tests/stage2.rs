@@ -534,6 +534,34 @@ fn surroundings_occlude_every_trace_and_resume() {
     let (r_alone, r_around) = (down_v(&Relighter::new(&alone, sampling).unwrap().mb), down_v(&rl.mb));
     eprintln!("relighting's downward visibility {r_alone:.3} alone, {r_around:.3} on the floor");
     assert!(r_alone > 0.8 && r_around < 0.15, "relighting: {r_alone:.3} -> {r_around:.3}");
+    // Relit under a sky (light from above only), the floor's top throws light up onto the ball;
+    // under a map lit from below only that side is dark: the bounce is the side the rays meet.
+    let half_lit = |above: bool| {
+        let mut m = svgir_core::EnvMap::constant(64, 32, [0.0; 3]);
+        for (t, texel) in m.data.iter_mut().enumerate() {
+            if (t / 64 < 16) == above {
+                *texel = [2.0; 3];
+            }
+        }
+        m
+    };
+    let from_floor = |above: bool| {
+        let light = rl.prepare(&around, half_lit(above)).unwrap();
+        let one_bounce = light.one_bounce.unwrap();
+        let (mut sum, mut n) = (0.0f64, 0usize);
+        for j in 0..rl.mb.len() {
+            for k in (0..rl.mb.k).filter(|&k| rl.mb.surroundings_hit(j, k).is_some()) {
+                sum += one_bounce[j * rl.mb.k + k][0] as f64;
+                n += 1;
+            }
+        }
+        assert!(n > 1000, "weak test: {n} rays on the floor");
+        sum / n as f64
+    };
+    let (sky, ground) = (from_floor(true), from_floor(false));
+    eprintln!("light off the floor: {sky:.4} under a sky, {ground:.5} lit from below");
+    // Measured: 0.1267 under the sky, 0.00022 lit from below.
+    assert!(sky > 0.1 && ground < 0.005 * sky, "light off the floor: {sky} under a sky, {ground} lit from below");
     // The trained model on its floor: the checkpoint keeps the floor and resumes bit for bit.
     let floor = floor_at(c, c.z - 0.6, 1.5, 0.04);
     run_and_resume(&ds, Stage2::new_around(cfg, surfels, floor, &ds, kernels()).unwrap());
