@@ -23,14 +23,21 @@ fn ball_then_box(n: usize) -> (Surfels, usize) {
     (s, n_ball)
 }
 
+/// The ball-then-box scene of `n` Gaussians, its BVH, every Gaussian's normal and the trace of
+/// all of them at K = `k`: what the object's own trace is compared with.
+fn traced_whole(n: usize, k: usize, seed: u64) -> (Surfels, usize, Bvh, Vec<Vec3>, MicroBuffer) {
+    let (s, n0) = ball_then_box(n);
+    let bvh = Bvh::build(&s);
+    let all: Vec<Vec3> = (0..s.len()).map(|j| s.normal(j)).collect();
+    let full = MicroBuffer::trace_about(&bvh, &s, all.clone(), k, seed, &TraceParams::default()).unwrap();
+    (s, n0, bvh, all, full)
+}
+
 #[test]
 fn object_rows_equal_the_full_trace_with_surroundings_hits_marked() {
-    let (s, n0) = ball_then_box(2500);
-    let bvh = Bvh::build(&s);
-    let p = TraceParams::default();
     let k = 32;
-    let all: Vec<Vec3> = (0..s.len()).map(|j| s.normal(j)).collect();
-    let full = MicroBuffer::trace_about(&bvh, &s, all.clone(), k, 3, &p).unwrap();
+    let (s, n0, bvh, all, full) = traced_whole(2500, k, 3);
+    let p = TraceParams::default();
     let part = MicroBuffer::trace_about(&bvh, &s, all[..n0].to_vec(), k, 3, &p).unwrap();
     assert_eq!(part.len(), n0);
     let rows = n0 * k;
@@ -70,12 +77,9 @@ fn object_rows_equal_the_full_trace_with_surroundings_hits_marked() {
 
 #[test]
 fn the_gather_takes_no_bounce_off_the_surroundings_and_sees_no_escape_through_them() {
-    let (s, n0) = ball_then_box(2000);
-    let bvh = Bvh::build(&s);
-    let p = TraceParams::default();
     let k = 24;
-    let all: Vec<Vec3> = (0..s.len()).map(|j| s.normal(j)).collect();
-    let full = MicroBuffer::trace_about(&bvh, &s, all.clone(), k, 5, &p).unwrap();
+    let (s, n0, bvh, all, full) = traced_whole(2000, k, 5);
+    let p = TraceParams::default();
     let part = MicroBuffer::trace_about(&bvh, &s, all[..n0].to_vec(), k, 5, &p).unwrap();
     let n = s.len();
     let albedo: Vec<f32> = (0..n * 3).map(|i| 0.2 + 0.6 * ((i * 37 % 101) as f32 / 101.0)).collect();
@@ -120,12 +124,9 @@ fn the_gather_takes_no_bounce_off_the_surroundings_and_sees_no_escape_through_th
 #[test]
 fn rays_ending_on_the_surroundings_bring_their_colour_relit() {
     use svgir_trace::{add_surroundings_light, hit_colour, LearnedIrradiance, SurroundingsGain};
-    let (s, n0) = ball_then_box(2000);
-    let bvh = Bvh::build(&s);
-    let p = TraceParams::default();
     let k = 24;
-    let all: Vec<Vec3> = (0..s.len()).map(|j| s.normal(j)).collect();
-    let full = MicroBuffer::trace_about(&bvh, &s, all.clone(), k, 5, &p).unwrap();
+    let (s, n0, bvh, all, full) = traced_whole(2000, k, 5);
+    let p = TraceParams::default();
     let part = MicroBuffer::trace_occlusion_about(&bvh, &s, all[..n0].to_vec(), k, 5, &p).unwrap();
     let mut around = s.clone();
     around.retain(&(0..s.len()).map(|i| i >= n0).collect::<Vec<_>>());
