@@ -19,6 +19,7 @@
 #[cfg(feature = "bench")]
 pub mod bench;
 pub mod buffers;
+pub mod consistency;
 pub mod device;
 mod exposure;
 pub mod features;

@@ -2,7 +2,7 @@
 //! bit, which [`Gpu::check`](crate::Gpu::check) reports when a driver has cut their loops short.
 
 /// The kernels `guard_loops` names by bit, in bit order.
-pub(crate) const GUARDED: [&str; 8] = [
+pub(crate) const GUARDED: [&str; 9] = [
     "the rasterizer's forward",
     "the rasterizer's backward",
     "the feature raster's forward",
@@ -11,6 +11,7 @@ pub(crate) const GUARDED: [&str; 8] = [
     "the radiance gather",
     "the vertex shading",
     "the vertex shading's backward",
+    "the radiance-consistency gather",
 ];
 
 #[cfg(test)]

@@ -21,11 +21,15 @@
 //! they are by every iteration's forward and backward and every render that shades it.
 
 use crate::buffers::{grid, kernel_of, read_back, storage, upload};
+use crate::consistency::ConsistencyKernel;
 use crate::device::{Gpu, GpuError};
 use crate::resident::{SampleCache, RESIDENT_BYTES};
 use crate::samples::{pack, SAMPLE_BYTES};
 use bytemuck::{Pod, Zeroable};
-use svgir_pbr::{check_sides, Indirect, PbrError, PbrGrads, ShadeInputs, ShadeOutput, Side, VertexShader};
+use svgir_pbr::{
+    check_sides, Consistency, ConsistencyInputs, Indirect, PbrError, PbrGrads, ShadeInputs, ShadeOutput, Side,
+    VertexShader,
+};
 use svgir_shading::hemisphere::HemiFrame;
 
 /// Most bytes of samples (and given indirect light) bound per dispatch.
@@ -71,6 +75,8 @@ pub struct GpuShader {
     pub batch_bytes: u64,
     /// The micro-buffers' packed samples kept on the GPU across calls (`crate::resident`).
     samples: SampleCache,
+    /// Stage 2's radiance-consistency term (`crate::consistency`).
+    consistency: ConsistencyKernel,
 }
 
 impl GpuShader {
@@ -87,7 +93,15 @@ impl GpuShader {
             "shade backward",
             &[pbr, common, crate::buffers::LOOP_GUARD, include_str!("shaders/shade_bwd.wgsl")],
         );
-        Self { gpu, kernel, backward_kernel, batch_bytes: BATCH_BYTES, samples: SampleCache::new(RESIDENT_BYTES) }
+        let consistency = ConsistencyKernel::new(&gpu);
+        Self {
+            gpu,
+            kernel,
+            backward_kernel,
+            batch_bytes: BATCH_BYTES,
+            samples: SampleCache::new(RESIDENT_BYTES),
+            consistency,
+        }
     }
 
     /// Keeps at most `bytes` of micro-buffer samples on the GPU across calls (0: none, each
@@ -105,6 +119,12 @@ impl GpuShader {
     /// Micro-buffers whose samples are kept on the GPU, and their bytes.
     pub fn kept_samples(&self) -> (usize, u64) {
         self.samples.kept()
+    }
+
+    /// Test hook: the radiance-consistency kernel's most pairs per group (at most
+    /// `consistency::GROUP_PAIRS`) and groups per dispatch, lowered to exercise the splits.
+    pub fn set_consistency_sizes(&mut self, group_pairs: usize, groups: usize) {
+        self.consistency.sizes = (group_pairs, groups);
     }
 
     /// The device it runs on.
@@ -549,5 +569,15 @@ impl VertexShader for GpuShader {
         grads: &mut PbrGrads,
     ) -> Result<(), PbrError> {
         self.backward(front, back, v_color, grads)
+    }
+
+    /// On the GPU where the kernel holds a Gaussian's escapes (`ConsistencyKernel::takes`),
+    /// else the CPU's.
+    fn consistency_with_grad(&self, inp: &ConsistencyInputs, v_loss: f32) -> Result<(Consistency, PbrGrads), PbrError> {
+        if ConsistencyKernel::takes(inp) {
+            self.consistency.run(&self.gpu, inp, v_loss)
+        } else {
+            svgir_pbr::radiance_consistency_with_grad(inp, v_loss)
+        }
     }
 }

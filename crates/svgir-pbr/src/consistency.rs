@@ -133,13 +133,13 @@ fn inv_channels<F: Float>(count: usize) -> F {
 }
 
 /// The traced radiance L of each pair.
-fn traced_of(mb: &MicroBuffer, pairs: &[(u32, u32)]) -> Vec<[f32; 3]> {
+pub fn traced_of(mb: &MicroBuffer, pairs: &[(u32, u32)]) -> Vec<[f32; 3]> {
     pairs.iter().map(|&(j, k)| mb.radiance(j as usize, k as usize)).collect()
 }
 
 /// The gather's gradients with rho's beside them, each times `v_loss` but the gather's (whose
 /// upstream already carries it).
-fn pbr_grads(g: GatherGrads, v_rho: f32, v_loss: f32) -> PbrGrads {
+pub fn pbr_grads(g: GatherGrads, v_rho: f32, v_loss: f32) -> PbrGrads {
     PbrGrads {
         v_albedo: g.v_albedo,
         v_roughness: g.v_roughness,
@@ -160,7 +160,9 @@ fn sign<F: Float>(d: F) -> F {
     }
 }
 
-fn validate(inp: &ConsistencyInputs) -> Result<(), PbrError> {
+/// The input checks of every consistency call (the CPU's and a backend's): the materials and
+/// the per-Gaussian arrays sized for the micro-buffer's N.
+pub fn check_inputs(inp: &ConsistencyInputs) -> Result<(), PbrError> {
     let n = inp.mb.len();
     inp.mats.validate(n)?;
     expect_len("positions", inp.positions.len(), n)?;
@@ -169,7 +171,7 @@ fn validate(inp: &ConsistencyInputs) -> Result<(), PbrError> {
 
 /// Select the pairs, gather L1b and evaluate `L_rc`.
 pub fn radiance_consistency(inp: &ConsistencyInputs) -> Result<Consistency, PbrError> {
-    validate(inp)?;
+    check_inputs(inp)?;
     let pairs = select_pairs(inp.mb, inp.positions, inp.camera_center, inp.visible);
     let l1b = gather_pairs(inp.mb, &inp.mats, inp.env, &inp.params, &pairs)?;
     let traced = traced_of(inp.mb, &pairs);
@@ -185,7 +187,7 @@ pub fn radiance_consistency_with_grad(
     inp: &ConsistencyInputs,
     v_loss: f32,
 ) -> Result<(Consistency, PbrGrads), PbrError> {
-    validate(inp)?;
+    check_inputs(inp)?;
     let pairs = select_pairs(inp.mb, inp.positions, inp.camera_center, inp.visible);
     let traced = traced_of(inp.mb, &pairs);
     // `l1_loss`'s gradient per pair, times `v_loss`, in its operations.
@@ -206,7 +208,7 @@ pub fn radiance_consistency_backward(
     fwd: &Consistency,
     v_loss: f32,
 ) -> Result<PbrGrads, PbrError> {
-    validate(inp)?;
+    check_inputs(inp)?;
     expect_len("saved L1b", fwd.l1b.len(), fwd.pairs.len())?;
     expect_len("saved traced radiance", fwd.traced.len(), fwd.pairs.len())?;
     let (_, mut v_l1b, v_rho) = l1_loss(&fwd.l1b, &fwd.traced, inp.rho);

@@ -53,8 +53,8 @@ pub mod shader;
 pub mod two_sided;
 
 pub use consistency::{
-    l1_loss, mirror_pick, radiance_consistency, radiance_consistency_backward, radiance_consistency_with_grad,
-    select_pairs, Consistency, ConsistencyInputs,
+    check_inputs, l1_loss, mirror_pick, pbr_grads, radiance_consistency, radiance_consistency_backward,
+    radiance_consistency_with_grad, select_pairs, traced_of, Consistency, ConsistencyInputs,
 };
 pub use env::{env_radiance, env_radiance_backward, EnvActivation, EnvLight, ENV_HEIGHT};
 pub use env_colour::ColourProjector;

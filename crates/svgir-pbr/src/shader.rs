@@ -6,7 +6,7 @@
 
 use crate::shade::{ShadeOutput, SideRef};
 use crate::two_sided::Side;
-use crate::{PbrError, PbrGrads};
+use crate::{Consistency, ConsistencyInputs, PbrError, PbrGrads};
 
 /// A backend that shades every visible Gaussian's vertices (SPEC 4, with SPEC 5's visibility
 /// and indirect light), one side or two.
@@ -28,6 +28,12 @@ pub trait VertexShader: Send + Sync {
         v_color: &[f32],
         grads: &mut PbrGrads,
     ) -> Result<(), PbrError>;
+
+    /// [`crate::radiance_consistency_with_grad`]: L_rc (SPEC 6, Eqn 14/16) and the gradients of
+    /// `v_loss * L_rc` (the CPU's unless a backend has its own).
+    fn consistency_with_grad(&self, inp: &ConsistencyInputs, v_loss: f32) -> Result<(Consistency, PbrGrads), PbrError> {
+        crate::radiance_consistency_with_grad(inp, v_loss)
+    }
 }
 
 /// The CPU kernels.

@@ -322,7 +322,7 @@ pub(crate) fn check(mb: &MicroBuffer, mats: &VertexMaterials<impl Sized>, env: &
 
 /// The checks of a call on the (j, k) pairs `pairs`: the buffers, every pair in range, the
 /// lights.
-pub(crate) fn check_pair_call(
+pub fn check_pair_call(
     mb: &MicroBuffer,
     mats: &VertexMaterials<impl Sized>,
     env: &EnvMap,

@@ -147,7 +147,8 @@ impl SurroundingsGain {
 /// Adds to `light[j * K + k]` (a gather's one-bounce light of the micro-buffer `mb`) the relit
 /// captured colour of the surroundings Gaussian each sample's ray ended on, `c_s(w) gain_s(w)`
 /// (module note), with `surroundings` the Gaussians traced past the object and `p` the trace's
-/// parameters (how colours are read). Returns how many samples took light.
+/// parameters (how colours are read). Returns how many samples took light; on an error (a ray
+/// ending on a Gaussian that `gain` does not cover) `light` is left partly added.
 pub fn add_surroundings_light(
     mb: &MicroBuffer,
     surroundings: &Surfels,
@@ -162,36 +163,36 @@ pub fn add_surroundings_light(
     if gain.len() != surroundings.len() {
         return Err(TraceError::SizeMismatch { what: "surroundings gains", got: gain.len(), want: surroundings.len() });
     }
-    if let Some(s) =
-        (0..mb.len() * k).filter_map(|i| mb.surroundings_hit(i / k, i % k)).find(|&s| s as usize >= gain.len())
-    {
-        return Err(TraceError::InvalidParameter(format!(
-            "a micro-buffer ray ends on surroundings Gaussian {s} of {}",
-            gain.len()
-        )));
-    }
     if k == 0 {
         return Ok(0);
     }
-    let count = light
+    // One pass: each row checks its own indices as it adds (a caller that gets the error drops
+    // the light, so rows added before it do not matter).
+    light
         .par_chunks_mut(k)
         .enumerate()
         .map(|(j, row)| {
             let mut count = 0;
             for (kk, out) in row.iter_mut().enumerate() {
                 let Some(s) = mb.surroundings_hit(j, kk) else { continue };
+                let s = s as usize;
+                if s >= gain.len() {
+                    return Err(TraceError::InvalidParameter(format!(
+                        "a micro-buffer ray ends on surroundings Gaussian {s} of {}",
+                        gain.len()
+                    )));
+                }
                 let w = mb.direction(j, kk);
-                let c = hit_colour(&surroundings.sh[s as usize], surroundings.sh_degree, w, p);
-                let g = gain.gain(s as usize, w);
+                let c = hit_colour(&surroundings.sh[s], surroundings.sh_degree, w, p);
+                let g = gain.gain(s, w);
                 for ch in 0..3 {
                     out[ch] += c[ch] * g[ch];
                 }
                 count += 1;
             }
-            count
+            Ok(count)
         })
-        .sum();
-    Ok(count)
+        .try_reduce(|| 0, |a, b| Ok(a + b))
 }
 
 #[cfg(test)]

@@ -36,54 +36,6 @@
 
 const F_BACK: u32 = 16u;   // the back side: its shading normals are negated
 
-// svgir_shading::split::spec_grad: S and its derivatives in r and n for one vertex, (S, dS/dr)
-// and dS/dn.
-struct SpecGrad {
-    value: f32,
-    v_r: f32,
-    v_n: vec3<f32>,
-}
-
-fn live(x: f32) -> bool {
-    return x > DOT_EPS && x < 1.0;
-}
-
-fn spec_grad(n: vec3<f32>, r: f32, nv_raw: f32, h: vec3<f32>, fr: f32, wo: vec3<f32>, l: vec3<f32>, nl_raw: f32) -> SpecGrad {
-    // The lobe (svgir_shading::split::lobe).
-    let nv = cdot(nv_raw);
-    let a = r * r;
-    let a2 = a * a;
-    let k = (r + 1.0) * (r + 1.0) / 8.0;
-    let omk = 1.0 - k;
-    let gv = 1.0 / (nv * omk + k);
-    let d0 = a2 / PI;
-    let cr = 4.0 * r * r * r / PI;
-    let cn = -4.0 * a2 * (a2 - 1.0) / PI;
-    let nl = cdot(nl_raw);
-    let nh_raw = dot(n, h);
-    let nh = cdot(nh_raw);
-    let q = nh * nh * (a2 - 1.0) + 1.0;
-    let den = nl * omk + k;
-    let t = 1.0 / (q * den);
-    let inv_q = den * t;
-    let gl = q * t;
-    let d = d0 * inv_q * inv_q;
-    let fq = fr * 0.25;
-    var g: SpecGrad;
-    g.value = fq * d * gv * gl;
-    let inv_q3 = inv_q * inv_q * inv_q;
-    let dd_dr = (q - 2.0 * a2 * nh * nh) * inv_q3 * cr;
-    let dk_dr = (r + 1.0) * 0.25;
-    let dgv_dk = -(1.0 - nv) * gv * gv;
-    let dgl_dk = -(1.0 - nl) * gl * gl;
-    g.v_r = fq * (dd_dr * gv * gl + d * (dgv_dk * gl + gv * dgl_dk) * dk_dr);
-    let ds_dnh = select(0.0, fq * gv * gl * (cn * nh * inv_q3), live(nh_raw));
-    let ds_dnv = select(0.0, -fq * d * gl * omk * gv * gv, live(nv_raw));
-    let ds_dnl = select(0.0, -fq * d * gv * omk * gl * gl, live(nl_raw));
-    g.v_n = ds_dnh * h + ds_dnv * wo + ds_dnl * l;
-    return g;
-}
-
 @compute @workgroup_size(64)
 fn main(@builtin(global_invocation_id) gid: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>) {
     let t = gid.x + gid.y * nwg.x * 64u;

@@ -50,9 +50,8 @@ use std::sync::Arc;
 use std::time::Instant;
 use svgir_core::{Camera, Dataset, Image, Rng, Surfels};
 use svgir_pbr::{
-    negated, radiance_consistency_with_grad, split_by_side, ColourProjector, ConsistencyInputs, CpuShader,
-    DirectionCache, EnvLight, Indirect, PbrError, PbrGrads, ShadeInputs, ShadeOutput, ShadeParams, Side, SvgMaterials,
-    VertexShader,
+    negated, split_by_side, ColourProjector, ConsistencyInputs, CpuShader, DirectionCache, EnvLight, Indirect,
+    PbrError, PbrGrads, ShadeInputs, ShadeOutput, ShadeParams, Side, SvgMaterials, VertexShader,
 };
 use svgir_raster::{
     render, Background, ColorSource, CpuFeatureRaster, FeatureRaster, Features, OutputGrads, RasterConfig, RenderInput,

@@ -207,7 +207,7 @@ impl Stage2 {
             if !(cfg.consistency && cfg.indirect) {
                 return Ok(None);
             }
-            let (c, g) = radiance_consistency_with_grad(&cons_in, wts.consistency)?;
+            let (c, g) = self.kernels.shader.consistency_with_grad(&cons_in, wts.consistency)?;
             Ok(Some((c.loss, g)))
         };
         let penalties = || (self.materials.offset_penalty(), self.env.tv_l2(self.active_lights().map(|l| l.mask())));
