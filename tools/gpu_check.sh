@@ -27,7 +27,7 @@ if [ "${1:-}" = prepare ]; then
   grep -qx '/.gpudata/' .git/info/exclude 2>/dev/null || echo '/.gpudata/' >>.git/info/exclude
   cargo build --release -p svgir-cli
   strip -o "$BIN/svgir" target/release/svgir
-  for t in raster features stage1 trace shade gather stage2; do
+  for t in raster features stage1 trace shade gather consistency stage2; do
     exe=$(cargo test --release -p svgir-gpu --test "$t" --no-run --message-format=json 2>/dev/null |
       python3 -c 'import json,sys
 for l in sys.stdin:
@@ -84,7 +84,7 @@ step() { # name, seconds, command...
   return $rc
 }
 "$BIN/svgir" --version >/dev/null 2>&1 || { echo "no $BIN/svgir: run 'bash tools/gpu_check.sh prepare' first" >&2; exit 2; }
-step tests 180 sh -c "$BIN/test-raster && $BIN/test-features && $BIN/test-stage1 && $BIN/test-trace && $BIN/test-shade && $BIN/test-gather && $BIN/test-stage2"
+step tests 180 sh -c "$BIN/test-raster && $BIN/test-features && $BIN/test-stage1 && $BIN/test-trace && $BIN/test-shade && $BIN/test-gather && $BIN/test-consistency && $BIN/test-stage2"
 step raster 60 "$BIN/svgir" bench raster --device gpu --size "$size" --gaussians "$n" --reps "$reps"
 step trace 60 "$BIN/svgir" bench trace --device gpu --gaussians "$n" --reps 3
 step shade 60 "$BIN/svgir" bench pbr --device gpu --gaussians "$n" --reps 3
