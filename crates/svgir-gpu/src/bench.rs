@@ -109,7 +109,8 @@ pub fn trace_table(gpu: Gpu, gaussians: &[usize], reps: usize) -> Result<String,
 /// every Gaussian visible) at stage 2's K = 64 with traced indirect light and at relighting's
 /// K = 384 with given indirect light, forward and backward, on the GPU (wall clock from host
 /// inputs to host outputs: upload, shade, read-back, and the backward's env scatter on the
-/// host) beside the CPU kernels on `threads` threads, in the same run.
+/// host) beside the CPU kernels on `threads` threads, in the same run; then the
+/// radiance-consistency term the same way (`consistency_rows`).
 pub fn shade_table(gpu: Gpu, gaussians: &[usize], reps: usize, threads: usize) -> Result<String, GpuError> {
     use svgir_pbr::fixtures::Problem;
     use svgir_pbr::{CpuShader, Indirect, ShadeOutput, Side, VertexShader};
@@ -151,6 +152,50 @@ pub fn shade_table(gpu: Gpu, gaussians: &[usize], reps: usize, threads: usize) -
             let ind = if given { "given" } else { "traced" };
             s += &format!("| {n} | {k} | {ind} | {gf:.1} | {cf:.1} | {gb:.1} | {cb:.1} |\n");
         }
+    }
+    s += &consistency_rows(&shader, gaussians, reps, threads)?;
+    Ok(s)
+}
+
+/// The radiance-consistency term (L1b, the loss and its gradients, SPEC 6 Eqn 14/16) on the same
+/// synthetic problem at K = 64, every Gaussian visible (a pair each where a direction is
+/// occluded: an upper bound on training's, which samples 2048-8192), GPU beside CPU.
+fn consistency_rows(
+    shader: &crate::shade::GpuShader,
+    gaussians: &[usize],
+    reps: usize,
+    threads: usize,
+) -> Result<String, GpuError> {
+    use svgir_pbr::fixtures::Problem;
+    use svgir_pbr::{ConsistencyInputs, CpuShader, VertexShader};
+    use svgir_trace::GatherParams;
+    let err = |e: svgir_pbr::PbrError| GpuError::Runtime(e.to_string());
+    let mut s = format!(
+        "\nradiance consistency (K = 64, CPU: {threads} threads)\n| Gaussians | pairs | GPU ms | CPU ms |\n|---|---|---|---|\n"
+    );
+    for &n in gaussians {
+        let problem = Problem::new(n, 4, 64).map_err(err)?;
+        let inp = ConsistencyInputs {
+            mb: &problem.mb,
+            positions: &problem.positions,
+            camera_center: glam::Vec3::ZERO,
+            visible: &problem.visible,
+            mats: problem.mats.view(),
+            env: &problem.env,
+            rho: 0.8,
+            params: GatherParams::default(),
+        };
+        let mut pairs = 0;
+        let mut time = |backend: &dyn VertexShader| -> Result<f64, GpuError> {
+            pairs = backend.consistency_with_grad(&inp, 1.0).map_err(err)?.0.pairs.len();
+            let t0 = Instant::now();
+            for _ in 0..reps.max(1) {
+                std::hint::black_box(backend.consistency_with_grad(&inp, 1.0).map_err(err)?);
+            }
+            Ok(t0.elapsed().as_secs_f64() * 1e3 / reps.max(1) as f64)
+        };
+        let (g, c) = (time(shader)?, time(&CpuShader)?);
+        s += &format!("| {n} | {pairs} | {g:.1} | {c:.1} |\n");
     }
     Ok(s)
 }

@@ -5,9 +5,10 @@
 //! The host checks the inputs as the CPU does, selects the pairs (j, k_j) with the CPU's
 //! `select_pairs` (one pass over the visible Gaussians' K directions, frozen geometry), groups
 //! them by hit Gaussian h in increasing pair order, at most [`GROUP_PAIRS`] a group, and uploads
-//! the micro-buffer's frames and Fibonacci rows, its escape masks, the vertex materials, the env
-//! texels with the lights' mask and the lights, and per pair its flat index, (u~, v~) and traced
-//! L. One dispatch per batch of groups, read back once: L1b per pair, and per group h's material
+//! what the pairs touch, renumbered (training samples a few thousand pairs of a large model):
+//! the frames of their Gaussians, the hits' escape masks, vertex materials and light visibility,
+//! the Fibonacci rows, the env texels with the lights' mask and the lights, and per pair its
+//! flat index, (u~, v~) and traced L. One dispatch per batch of groups, read back once: L1b per pair, and per group h's material
 //! gradients and each escape's dL/dL. The host adds the groups of one h in order and routes the
 //! light gradients through the env taps (the direction cache's, as the CPU's backward does;
 //! channels outside the clamp take none) in group order: no atomics, the same sums at every run.
@@ -128,13 +129,28 @@ impl ConsistencyKernel {
             order[fill[h]] = i;
             fill[h] += 1;
         }
-        // Groups (h, first, count) of at most `group_pairs` pairs, in order of h.
+        // Only the Gaussians the pairs touch go to the GPU, renumbered: the hits first (local
+        // index = rank among the hits, which the escapes, vertices and light visibility are
+        // sized for), then the rays' Gaussians that are no hit (their frames only).
+        let mut local = vec![u32::MAX; n];
+        let mut ids: Vec<usize> = (0..n).filter(|&h| count[h + 1] > count[h]).collect();
+        for (l, &h) in ids.iter().enumerate() {
+            local[h] = l as u32;
+        }
+        let hits = ids.len();
+        for &(j, _) in &pairs {
+            if local[j as usize] == u32::MAX {
+                local[j as usize] = ids.len() as u32;
+                ids.push(j as usize);
+            }
+        }
+        // Groups (local h, first, count) of at most `group_pairs` pairs, in order of h.
         let mut groups: Vec<[u32; 4]> = Vec::new();
-        for h in 0..n {
+        for (hl, &h) in ids[..hits].iter().enumerate() {
             let mut at = count[h];
             while at < count[h + 1] {
                 let c = (count[h + 1] - at).min(group_pairs);
-                groups.push([h as u32, at as u32, c as u32, 0]);
+                groups.push([hl as u32, at as u32, c as u32, 0]);
                 at += c;
             }
         }
@@ -144,7 +160,7 @@ impl ConsistencyKernel {
             let uv = mb.uv[j * k + kk];
             let t = traced[i];
             pair_words.extend([
-                (j * k + kk) as u32,
+                local[j] * k as u32 + kk as u32,
                 u32::from(uv[0]) | (u32::from(uv[1]) << 16),
                 t[0].to_bits(),
                 t[1].to_bits(),
@@ -172,29 +188,30 @@ impl ConsistencyKernel {
                 let d = l.dirs[b];
                 tables.push([d.x, d.y, d.z, l.sample_scale(b, k)]);
                 tables.push([l.texels[b] as f32, 0.0, 0.0, 0.0]);
-                light_vis.extend((0..n).map(|h| l.visibility(h, b)));
+                light_vis.extend(ids[..hits].iter().map(|&h| l.visibility(h, b)));
             }
         }
         if light_vis.is_empty() {
             light_vis.push(0.0); // a binding is never empty
         }
         let words = k.div_ceil(32);
-        let mut escaped = vec![0u32; n * words];
-        for h in 0..n {
+        let mut escaped = vec![0u32; hits * words];
+        let mut verts = Vec::with_capacity(hits * m * 2);
+        for (hl, &h) in ids[..hits].iter().enumerate() {
             for kk in 0..k {
                 if mb.first_hit[h * k + kk] == NO_HIT {
-                    escaped[h * words + kk / 32] |= 1 << (kk % 32);
+                    escaped[hl * words + kk / 32] |= 1 << (kk % 32);
                 }
             }
+            for i in h * m..(h + 1) * m {
+                let b = i * 3;
+                verts.push([mats.normals[b], mats.normals[b + 1], mats.normals[b + 2], mats.roughness[i]]);
+                verts.push([mats.albedo[b], mats.albedo[b + 1], mats.albedo[b + 2], 0.0]);
+            }
         }
-        let mut verts = Vec::with_capacity(n * m * 2);
-        for i in 0..n * m {
-            let b = i * 3;
-            verts.push([mats.normals[b], mats.normals[b + 1], mats.normals[b + 2], mats.roughness[i]]);
-            verts.push([mats.albedo[b], mats.albedo[b + 1], mats.albedo[b + 2], 0.0]);
-        }
-        let frames: Vec<[f32; 4]> = (0..n)
-            .flat_map(|j| {
+        let frames: Vec<[f32; 4]> = ids
+            .iter()
+            .flat_map(|&j| {
                 let (b1, b2, nf, cx, sx) = HemiFrame::new(mb.normals[j], mb.xi[j]).parts();
                 [[b1.x, b1.y, b1.z, cx], [b2.x, b2.y, b2.z, sx], [nf.x, nf.y, nf.z, 0.0], [0.0; 4]]
             })
@@ -216,7 +233,7 @@ impl ConsistencyKernel {
         let base = Uniform {
             k: k as u32,
             m: m as u32,
-            n: n as u32,
+            n: hits as u32,
             layered: u32::from(p.diffuse == Diffuse::Layered),
             env_w: env.width,
             env_h: env.height,
@@ -288,7 +305,7 @@ impl ConsistencyKernel {
                 l1b[i] = [values[slot * 3], values[slot * 3 + 1], values[slot * 3 + 2]];
             }
             for (b, gr) in batch.iter().zip(grads.chunks(stride)) {
-                let h = b[0] as usize;
+                let h = ids[b[0] as usize];
                 for i in 0..m * 3 {
                     g.v_albedo[h * m * 3 + i] += gr[i];
                     g.v_normals[h * m * 3 + i] += gr[4 * m + i];

@@ -28,7 +28,7 @@
 struct ConsParams {
     k: u32,        // directions per Gaussian
     m: u32,        // vertices per Gaussian
-    n: u32,        // Gaussians
+    n: u32,        // hit Gaussians uploaded (the host renumbers the Gaussians the pairs touch)
     layered: u32,  // Diffuse::Layered (else added)
     env_w: u32,
     env_h: u32,
@@ -54,21 +54,21 @@ const MU_NODES: u32 = 65u;  // svgir_shading::layering
 const R_NODES: u32 = 33u;
 
 @group(0) @binding(0) var<uniform> P: ConsParams;
-// Per Gaussian: (b1, cos xi), (b2, sin xi), (n, 0), unused.
+// Per Gaussian the pairs touch, hits first: (b1, cos xi), (b2, sin xi), (n, 0), unused.
 @group(0) @binding(1) var<storage, read> frames: array<vec4<f32>>;
 // K Fibonacci rows; at e_at the layered table E(mu, r) (x of each row); at env_at the texels
 // (rgb, 1 where a light's texel); at lights_at two rows per light: (dir, Omega K / 2pi),
 // (texel index as a float, 0, 0, 0).
 @group(0) @binding(2) var<storage, read> tables: array<vec4<f32>>;
-// Per Gaussian, `words` u32: bit s set where sample s escaped.
+// Per hit Gaussian, `words` u32: bit s set where sample s escaped.
 @group(0) @binding(3) var<storage, read> escaped: array<u32>;
-// Per vertex h M + m: (unit normal, roughness), (albedo, 0).
+// Per vertex h M + m of the hits: (unit normal, roughness), (albedo, 0).
 @group(0) @binding(4) var<storage, read> verts: array<vec4<f32>>;
 // Light visibility, vis_at + b N + h.
 @group(0) @binding(5) var<storage, read> light_vis: array<f32>;
 // Per group of this dispatch: (h, first pair, pairs, 0).
 @group(0) @binding(6) var<storage, read> groups: array<vec4<u32>>;
-// Per pair of this dispatch, 5 words: j K + k, u~ | v~ << 16 (unorm16), the traced L (3 f32 bits).
+// Per pair of this dispatch, 5 words: j K + k (j renumbered), u~ | v~ << 16 (unorm16), the traced L (3 f32 bits).
 @group(0) @binding(7) var<storage, read> pairs: array<u32>;
 // L1b per pair of this dispatch, 3 floats.
 @group(0) @binding(8) var<storage, read_write> l1b: array<f32>;
