@@ -209,13 +209,7 @@ impl ConsistencyKernel {
                 verts.push([mats.albedo[b], mats.albedo[b + 1], mats.albedo[b + 2], 0.0]);
             }
         }
-        let frames: Vec<[f32; 4]> = ids
-            .iter()
-            .flat_map(|&j| {
-                let (b1, b2, nf, cx, sx) = HemiFrame::new(mb.normals[j], mb.xi[j]).parts();
-                [[b1.x, b1.y, b1.z, cx], [b2.x, b2.y, b2.z, sx], [nf.x, nf.y, nf.z, 0.0], [0.0; 4]]
-            })
-            .collect();
+        let frames = crate::gather::frames_of(mb, ids.iter().copied());
         let limit = gpu.report.max_storage_binding;
         for (what, bytes) in [
             ("the consistency gather's frames", frames.len() as u64 * 16),

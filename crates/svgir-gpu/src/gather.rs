@@ -262,7 +262,12 @@ impl Gather {
 
 /// Each Gaussian's hemisphere frame of `mb`: (b1, cos xi), (b2, sin xi), (n, 0), (0).
 fn frames(mb: &MicroBuffer) -> Vec<[f32; 4]> {
-    (0..mb.len())
+    frames_of(mb, 0..mb.len())
+}
+
+/// The hemisphere frames of Gaussians `ids` of `mb`, in that order, as [`frames`] lays them out.
+pub(crate) fn frames_of(mb: &MicroBuffer, ids: impl IntoIterator<Item = usize>) -> Vec<[f32; 4]> {
+    ids.into_iter()
         .flat_map(|j| {
             let (b1, b2, nf, cx, sx) = HemiFrame::new(mb.normals[j], mb.xi[j]).parts();
             [[b1.x, b1.y, b1.z, cx], [b2.x, b2.y, b2.z, sx], [nf.x, nf.y, nf.z, 0.0], [0.0; 4]]

@@ -105,29 +105,6 @@ fn specular_albedo_d(nv: f32, r: f32) -> vec3<f32> {
         select(0.0, dy * f32(R_NODES - 1u), r_live));
 }
 
-// svgir_shading::vertex_weights at (u~, v~).
-fn weights_at(m: u32, u: f32, v: f32) -> array<f32, MAX_V> {
-    var w: array<f32, MAX_V>;
-    if m == 1u {
-        w[0] = 1.0;
-    } else if m == 2u {
-        w[0] = 1.0 - u;
-        w[1] = u;
-    } else if m == 4u {
-        w[0] = (1.0 - u) * (1.0 - v);
-        w[1] = u * (1.0 - v);
-        w[2] = (1.0 - u) * v;
-        w[3] = u * v;
-    } else {
-        let l = array<f32, 3>(2.0 * (u - 0.5) * (u - 1.0), -4.0 * u * (u - 1.0), 2.0 * u * (u - 0.5));
-        for (var i = 0u; i < 3u; i++) {
-            w[i] = l[i] * (1.0 - v);
-            w[3u + i] = l[i] * v;
-        }
-    }
-    return w;
-}
-
 @compute @workgroup_size(64)
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
         @builtin(local_invocation_index) t: u32) {
@@ -180,7 +157,7 @@ fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3
         let kr = flat % P.k;
         let v = -frame_dir(frames[j * 4u], frames[j * 4u + 1u], frames[j * 4u + 2u].xyz, tables[kr]);
         let uv = unpack2x16unorm(pairs[pb + 1u]);
-        let wts = weights_at(m, uv.x, uv.y);
+        let wts = vertex_weights(m, uv.x, uv.y);
         var vn: array<vec3<f32>, MAX_V>;
         var rough: array<f32, MAX_V>;
         var alb: array<vec3<f32>, MAX_V>;

@@ -84,29 +84,6 @@ fn specular_albedo(nv: f32, r: f32) -> f32 {
     return ex0 + (ex1 - ex0) * fy;
 }
 
-// svgir_shading::vertex_weights at (u~, v~).
-fn vertex_weights(m: u32, u: f32, v: f32) -> array<f32, MAX_V> {
-    var w: array<f32, MAX_V>;
-    if m == 1u {
-        w[0] = 1.0;
-    } else if m == 2u {
-        w[0] = 1.0 - u;
-        w[1] = u;
-    } else if m == 4u {
-        w[0] = (1.0 - u) * (1.0 - v);
-        w[1] = u * (1.0 - v);
-        w[2] = (1.0 - u) * v;
-        w[3] = u * v;
-    } else {
-        let l = array<f32, 3>(2.0 * (u - 0.5) * (u - 1.0), -4.0 * u * (u - 1.0), 2.0 * u * (u - 0.5));
-        for (var i = 0u; i < 3u; i++) {
-            w[i] = l[i] * (1.0 - v);
-            w[3u + i] = l[i] * v;
-        }
-    }
-    return w;
-}
-
 @compute @workgroup_size(64)
 fn main(@builtin(workgroup_id) wg: vec3<u32>, @builtin(num_workgroups) nwg: vec3<u32>,
         @builtin(local_invocation_index) t: u32) {

@@ -1,7 +1,7 @@
 // What the vertex shading (shade*.wgsl), the one-bounce gather (gather.wgsl) and the
 // radiance-consistency gather (consistency.wgsl) share: the constants of svgir_shading, the
 // clamped dot, the env lookup with its driver-independent atan2, the hemisphere frame's
-// directions, the half vector with Fresnel, and the specular lobe's derivatives. The lookup reads
+// directions, the half vector with Fresnel, the specular lobe's derivatives and the vertex weights. The lookup reads
 // the including kernel's `P.env_w`, `P.env_h` and `tables` (declared alike in each).
 
 const MAX_V: u32 = 6u;     // svgir_shading::MAX_VERTICES
@@ -151,4 +151,27 @@ fn spec_grad(n: vec3<f32>, r: f32, nv_raw: f32, h: vec3<f32>, fr: f32, wo: vec3<
     let ds_dnl = select(0.0, -fq * d * gv * omk * gl * gl, dot_live(nl_raw));
     g.v_n = ds_dnh * h + ds_dnv * wo + ds_dnl * l;
     return g;
+}
+
+// svgir_shading::vertex_weights at (u~, v~).
+fn vertex_weights(m: u32, u: f32, v: f32) -> array<f32, MAX_V> {
+    var w: array<f32, MAX_V>;
+    if m == 1u {
+        w[0] = 1.0;
+    } else if m == 2u {
+        w[0] = 1.0 - u;
+        w[1] = u;
+    } else if m == 4u {
+        w[0] = (1.0 - u) * (1.0 - v);
+        w[1] = u * (1.0 - v);
+        w[2] = (1.0 - u) * v;
+        w[3] = u * v;
+    } else {
+        let l = array<f32, 3>(2.0 * (u - 0.5) * (u - 1.0), -4.0 * u * (u - 1.0), 2.0 * u * (u - 0.5));
+        for (var i = 0u; i < 3u; i++) {
+            w[i] = l[i] * (1.0 - v);
+            w[3u + i] = l[i] * v;
+        }
+    }
+    return w;
 }
